@@ -1,0 +1,4 @@
+import sys
+from bench.cli import main
+
+sys.exit(main())

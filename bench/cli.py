@@ -1,0 +1,133 @@
+"""The `bench` command line: run, contacts, scenes, perf.
+
+Every bad input ends with one line `bench: error: ...` on stderr and exit status 2.
+"""
+import argparse
+import json
+import os
+import sys
+import time
+
+EXIT_USAGE = 2
+
+
+class UsageError(Exception):
+    """Bad input: printed as one line, exit 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, no usage dump
+        raise UsageError(f"{self.prog}: {message}")
+
+
+def _positive_int(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return v
+
+
+def _nonneg_int(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
+    return v
+
+
+def build_parser():
+    p = _Parser(prog="bench", description="DEM harness: MPI x threads mappings for particle simulation.")
+    sub = p.add_subparsers(dest="command", parser_class=_Parser)
+    sub.required = True
+
+    r = sub.add_parser("run", help="run one scene with one mapping")
+    r.add_argument("--scene", required=True, help="built-in scene name or a .toml file")
+    r.add_argument("--particles", type=_positive_int, help="override the generated particle count")
+    r.add_argument("--shape", choices=["sphere", "ellipsoid"], help="override the generated shape")
+    r.add_argument("--seed", type=_nonneg_int, help="override the generator seed")
+    r.add_argument("--steps", type=_nonneg_int, help="override the scene's step count")
+    r.add_argument("--dt", type=float, help="time step [s] (default: the scene's, usually auto)")
+    r.add_argument("--mapping", default="1-1-1-1-1", help="P-px-py-pz-T (default 1-1-1-1-1)")
+    r.add_argument("--scheme", default=None, help="thread scheme (threads modes)")
+    r.add_argument("--neighbor", choices=["allpairs", "linkcell"], default="linkcell")
+    r.add_argument("--snapshot-every", type=_nonneg_int, default=0, metavar="K",
+                   help="write VTK + npz snapshots every K steps")
+    r.add_argument("--plot", action="store_true", help="draw DIR/run.png (timings, contacts, energy)")
+    r.add_argument("--out", default=None, help="output folder (default results/run-<scene>)")
+    r.add_argument("--quiet", action="store_true")
+
+    c = sub.add_parser("contacts", help="print the contacts of a configuration as JSON")
+    c.add_argument("scene", help="scene .toml file (or built-in name)")
+
+    sub.add_parser("scenes", help="list built-in scenes")
+
+    pf = sub.add_parser("perf", help="serial speed figures (per pair, per particle-step)")
+    pf.add_argument("--particles", type=_positive_int, default=10000)
+    pf.add_argument("--steps", type=_positive_int, default=20)
+    pf.add_argument("--what", default="all", choices=["all", "pairs", "ellipsoids", "spheres"])
+    pf.add_argument("--out", default=None, help="write perf.json here")
+    return p
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else argv
+    try:
+        args = build_parser().parse_args(argv)
+        return COMMANDS[args.command](args)
+    except UsageError as e:
+        msg = str(e)
+        print(msg if msg.startswith("bench") else f"bench: error: {msg}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("bench: interrupted", file=sys.stderr)
+        return 130
+
+
+def _usage_errors():
+    from dem.scene import SceneError
+    from modes.base import ModeError
+    return (SceneError, ModeError)
+
+
+def cmd_scenes(args):
+    from dem.scene import builtin_scenes
+    for name, desc in builtin_scenes().items():
+        print(f"{name:12s} {desc}")
+    return 0
+
+
+def cmd_contacts(args):
+    from dem.scene import load_scene, SceneError
+    from bench.contacts import scene_contacts
+    try:
+        scene = load_scene(args.scene)
+    except SceneError as e:
+        raise UsageError(str(e)) from None
+    print(json.dumps(scene_contacts(scene), indent=1))
+    return 0
+
+
+def cmd_run(args):
+    from bench.run import run
+    errors = _usage_errors()
+    try:
+        return run(args)
+    except errors as e:
+        raise UsageError(str(e)) from None
+
+
+def cmd_perf(args):
+    from bench.perf import perf
+    return perf(args)
+
+
+COMMANDS = {"run": cmd_run, "contacts": cmd_contacts, "scenes": cmd_scenes, "perf": cmd_perf}
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,73 @@
+"""Run records: run.json (inputs, environment, stability), steps.csv (per step and rank),
+state.npz (final state sorted by global id). Schema: results/README.md."""
+import csv
+import json
+import os
+import platform
+import sys
+
+import numpy as np
+
+STEP_COLUMNS = ["step", "rank", "totalT", "commuT", "migraT", "compuT", "neighborT", "resolveT",
+                "n_owned", "n_ghost", "n_contacts", "n_wall_contacts", "n_candidates", "n_migrated", "bytes_sent",
+                "ellipsoid_calls", "max_overlap_ratio"]
+
+
+def environment():
+    """Versions and machine facts recorded with every run."""
+    import numba
+    info = {"python": sys.version.split()[0], "platform": platform.platform(),
+            "machine": platform.machine(), "cpu_count": os.cpu_count(), "numpy": np.__version__,
+            "numba": numba.__version__, "numba_threads": numba.config.NUMBA_NUM_THREADS}
+    try:
+        info["cpu_affinity"] = len(os.sched_getaffinity(0))
+    except AttributeError:
+        pass
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    info["cpu_model"] = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return info
+
+
+def write_json(path, obj):
+    tmp = path + ".tmp"
+    with open(tmp, "w") as fh:
+        json.dump(obj, fh, indent=2, default=_jsonable)
+    os.replace(tmp, path)
+
+
+def _jsonable(o):
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+class StepWriter:
+    """Appends one steps.csv row per step and rank, flushed as it goes (a crash keeps its rows)."""
+
+    def __init__(self, path):
+        self.fh = open(path, "w", newline="")
+        self.w = csv.DictWriter(self.fh, fieldnames=STEP_COLUMNS, extrasaction="ignore")
+        self.w.writeheader()
+
+    def write(self, step, rank, row):
+        self.w.writerow({"step": step, "rank": rank, **row})
+
+    def close(self):
+        self.fh.close()
+
+
+def write_state(path, snap):
+    """state.npz: id [n], pos [n,3], quat [n,4], vel [n,3], omega [n,3] (+ axes, shape)."""
+    tmp = path + ".tmp.npz"
+    np.savez(tmp, **snap)
+    os.replace(tmp, path)

@@ -1,0 +1,180 @@
+"""Neighbour estimate: candidate pairs whose bounding spheres overlap.
+
+Both methods return the same set, each pair once, as local indices (i, j) ordered so that
+gid[i] < gid[j] (the canonical order of DESIGN.md, Determinism). Pairs whose two ends are
+both ghosts (index >= n_owned) are skipped: no rank needs them.
+
+- all-pairs, O(n^2): i against j > i (Yan & Regueiro's n-by-n search);
+- link-cell, O(n): cubic cells no smaller than the largest bounding diameter over the
+  particles' bounding box; each cell against itself and its 13 forward neighbours (half-shell
+  stencil), so no pair is produced twice (Grest, Duenweg & Kremer 1989).
+Each outer loop is written once over a given range of rows (particles or cells), so a thread
+scheme only chooses which rows each thread takes.
+"""
+import numpy as np
+from numba import njit
+
+# 13 forward neighbour offsets of the half-shell stencil (lexicographically positive)
+HALF_SHELL = np.array([(dx, dy, dz) for dz in (-1, 0, 1) for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+                       if (dz, dy, dx) > (0, 0, 0)], dtype=np.int64)
+
+
+@njit(cache=True, inline="always")
+def _test_pair(a, b, pos, rbound, gid, n_owned, pi, pj, count):
+    """Append (a, b) in canonical order if their bounding spheres overlap; returns new count."""
+    if a >= n_owned and b >= n_owned:
+        return count
+    dx = pos[b, 0] - pos[a, 0]
+    dy = pos[b, 1] - pos[a, 1]
+    dz = pos[b, 2] - pos[a, 2]
+    r = rbound[a] + rbound[b]
+    if dx * dx + dy * dy + dz * dz < r * r:
+        if count < pi.shape[0]:
+            if gid[a] < gid[b]:
+                pi[count] = a
+                pj[count] = b
+            else:
+                pi[count] = b
+                pj[count] = a
+        count += 1
+    return count
+
+
+@njit(cache=True)
+def allpairs_rows(rows, pos, rbound, gid, n_owned, pi, pj):
+    """n-by-n search over outer rows i in `rows` against all j > i. Returns the pair count
+    (which may exceed len(pi): then the caller enlarges the buffers and calls again)."""
+    n = pos.shape[0]
+    count = 0
+    for r in range(rows.shape[0]):
+        i = rows[r]
+        for j in range(i + 1, n):
+            count = _test_pair(i, j, pos, rbound, gid, n_owned, pi, pj, count)
+    return count
+
+
+
+@njit(cache=True)
+def bin_particles(pos, cutoff):
+    """Counting sort of particles into cubic cells of edge >= cutoff over their bounding box.
+
+    Returns (dims [3], lo [3], size [3], cell_start [ncell+1], cell_items [n]); items within a
+    cell keep ascending local index.
+    """
+    n = pos.shape[0]
+    lo = np.empty(3)
+    hi = np.empty(3)
+    for k in range(3):
+        lo[k] = np.inf
+        hi[k] = -np.inf
+    for p in range(n):
+        for k in range(3):
+            lo[k] = min(lo[k], pos[p, k])
+            hi[k] = max(hi[k], pos[p, k])
+    dims = np.ones(3, dtype=np.int64)
+    size = np.empty(3)
+    for k in range(3):
+        ext = hi[k] - lo[k] if n > 0 else 0.0
+        m = int(ext / cutoff) if cutoff > 0 else 1
+        dims[k] = max(1, m)
+    # a particle far from the rest must not blow the grid up: keep <= 8 cells per particle
+    while dims[0] * dims[1] * dims[2] > 8 * n + 64:
+        k = np.argmax(dims)
+        dims[k] = max(1, dims[k] // 2)
+    for k in range(3):
+        ext = hi[k] - lo[k] if n > 0 else 0.0
+        size[k] = max(ext / dims[k], cutoff)
+    ncell = dims[0] * dims[1] * dims[2]
+    cell_of = np.empty(n, dtype=np.int64)
+    cell_start = np.zeros(ncell + 1, dtype=np.int64)
+    for p in range(n):
+        c = 0
+        for k in (2, 1, 0):
+            ck = int((pos[p, k] - lo[k]) / size[k])
+            if ck >= dims[k]:
+                ck = dims[k] - 1
+            c = c * dims[k] + ck
+        cell_of[p] = c
+        cell_start[c + 1] += 1
+    for c in range(ncell):
+        cell_start[c + 1] += cell_start[c]
+    fill = cell_start[:-1].copy()
+    cell_items = np.empty(n, dtype=np.int64)
+    for p in range(n):
+        c = cell_of[p]
+        cell_items[fill[c]] = p
+        fill[c] += 1
+    return dims, lo, size, cell_start, cell_items
+
+
+@njit(cache=True)
+def linkcell_rows(cells, dims, cell_start, cell_items, half_shell, pos, rbound, gid, n_owned, pi, pj):
+    """Half-shell link-cell search over the cells listed in `cells` (flat indices, x fastest).
+    Returns the pair count (see allpairs_rows for overflow)."""
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    count = 0
+    for r in range(cells.shape[0]):
+        c = cells[r]
+        cx = c % nx
+        cy = (c // nx) % ny
+        cz = c // (nx * ny)
+        s0, s1 = cell_start[c], cell_start[c + 1]
+        for u in range(s0, s1):
+            a = cell_items[u]
+            for v in range(u + 1, s1):
+                count = _test_pair(a, cell_items[v], pos, rbound, gid, n_owned, pi, pj, count)
+        for o in range(half_shell.shape[0]):
+            x = cx + half_shell[o, 0]
+            y = cy + half_shell[o, 1]
+            z = cz + half_shell[o, 2]
+            if x < 0 or y < 0 or z < 0 or x >= nx or y >= ny or z >= nz:
+                continue
+            d = x + nx * (y + ny * z)
+            t0, t1 = cell_start[d], cell_start[d + 1]
+            for u in range(s0, s1):
+                a = cell_items[u]
+                for v in range(t0, t1):
+                    count = _test_pair(a, cell_items[v], pos, rbound, gid, n_owned, pi, pj, count)
+    return count
+
+
+class PairBuffer:
+    """Growable candidate-pair buffers pi, pj [capacity] int64 reused across steps."""
+
+    def __init__(self, capacity=1024):
+        self.pi = np.empty(capacity, dtype=np.int64)
+        self.pj = np.empty(capacity, dtype=np.int64)
+
+    def ensure(self, count):
+        if count > self.pi.shape[0]:
+            cap = int(count * 1.25) + 64
+            self.pi = np.empty(cap, dtype=np.int64)
+            self.pj = np.empty(cap, dtype=np.int64)
+            return False
+        return True
+
+
+def candidate_pairs(method, pos, rbound, gid, n_owned, buf):
+    """Serial neighbour estimate: returns (pi, pj) views of the candidate pairs.
+
+    method: "allpairs" or "linkcell".
+    """
+    n = pos.shape[0]
+    if method == "allpairs":
+        rows = np.arange(n, dtype=np.int64)
+        while True:
+            count = allpairs_rows(rows, pos, rbound, gid, n_owned, buf.pi, buf.pj)
+            if buf.ensure(count):
+                break
+    elif method == "linkcell":
+        cutoff = 2.0 * rbound.max() if n else 1.0
+        dims, lo, size, cell_start, cell_items = bin_particles(pos, cutoff)
+        cells = np.arange(dims[0] * dims[1] * dims[2], dtype=np.int64)
+        while True:
+            count = linkcell_rows(cells, dims, cell_start, cell_items, HALF_SHELL, pos, rbound, gid,
+                                  n_owned, buf.pi, buf.pj)
+            if buf.ensure(count):
+                break
+    else:
+        raise ValueError(f"unknown neighbour method {method!r} (allpairs, linkcell)")
+    return buf.pi[:count], buf.pj[:count]

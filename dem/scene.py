@@ -1,0 +1,455 @@
+"""Scenes: TOML files of explicit and generated particles -> a State plus run settings.
+
+Format (DESIGN.md): [domain] box, walls, gravity; [materials.NAME]; [time] dt, steps;
+[[particles]] explicit particles; [[generate]] generated particles:
+
+    [[generate]]
+    count = 500                     # number of particles
+    shape = "ellipsoid"             # sphere | ellipsoid
+    gradation = [[1.0e-3, 0.0], [2.0e-3, 1.0]]  # [largest diameter 2a [m], fraction passing by number]
+    aspect_b = [0.6, 0.9]           # b/a drawn uniformly in this range (ellipsoids)
+    aspect_c = [0.4, 0.7]           # c/a drawn uniformly in this range (ellipsoids)
+    placement = "lattice"           # lattice | random
+    spacing = 1.2                   # lattice pitch over the largest bounding diameter
+    columns = [9, 9]                # lattice sites along x and y (default: square-ish)
+    region = [[x0,y0,z0],[x1,y1,z1]]  # placement region; default: the box. With box = "fit" the box
+                                    # is fitted around the lattice instead.
+    orientation = "random"          # random | aligned
+    speed = 0.0                     # random initial velocity magnitude [m/s]
+    material = "default"
+    seed = 1
+
+Errors in a scene raise SceneError with one line naming the problem.
+"""
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dem.materials import Material, MaterialTable
+from dem.quaternion import random_quaternions
+from dem.state import State, SHAPE_CODES, SPHERE, mass_properties
+
+WALL_FACES = {"x-": (0, +1), "x+": (0, -1), "y-": (1, +1), "y+": (1, -1), "z-": (2, +1), "z+": (2, -1)}
+BUILTIN_DIR = os.path.join(os.path.dirname(__file__), "scenes")
+
+
+class SceneError(ValueError):
+    """A scene that cannot be built; str() is one line naming the problem."""
+
+
+@dataclass
+class Scene:
+    name: str
+    box: np.ndarray                    # [2, 3] lower and upper corner [m]
+    walls: list                        # face names, in file order
+    wall_m: np.ndarray                 # [n_walls, 3] unit normals into the domain
+    wall_d: np.ndarray                 # [n_walls] plane offsets, m.x = d
+    gravity: np.ndarray                # [3] [m/s^2]
+    materials: MaterialTable
+    dt: object                         # "auto" or seconds
+    steps: int
+    state: State
+    source: str = ""
+    extras: dict = field(default_factory=dict)
+
+    @property
+    def n(self):
+        return self.state.n_owned
+
+
+def builtin_scenes():
+    """Names and one-line descriptions of the built-in scenes."""
+    out = {}
+    for f in sorted(os.listdir(BUILTIN_DIR)):
+        if f.endswith(".toml"):
+            with open(os.path.join(BUILTIN_DIR, f), "rb") as fh:
+                first = fh.readline().decode().lstrip("# ").strip()
+            out[f[:-5]] = first
+    return out
+
+
+def _num(v, what, positive=False):
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise SceneError(f"{what} must be a number, got {v!r}")
+    v = float(v)
+    if not math.isfinite(v):
+        raise SceneError(f"{what} must be finite, got {v!r}")
+    if positive and v <= 0:
+        raise SceneError(f"{what} must be positive, got {v!r}")
+    return v
+
+
+def _vec(v, n, what):
+    if not isinstance(v, list) or len(v) != n:
+        raise SceneError(f"{what} must be a list of {n} numbers, got {v!r}")
+    return np.array([_num(x, f"{what}[{k}]") for k, x in enumerate(v)])
+
+
+def _table(d, key, what):
+    v = d.get(key, {})
+    if not isinstance(v, dict):
+        raise SceneError(f"{what} must be a table")
+    return v
+
+
+def _check_keys(d, allowed, what):
+    for k in d:
+        if k not in allowed:
+            raise SceneError(f"unknown key {k!r} in {what} (allowed: {', '.join(sorted(allowed))})")
+
+
+def load_scene(spec, particles=None, shape=None, seed=None):
+    """Build a Scene from a built-in name or a TOML path.
+
+    particles: override the count of the (single) [[generate]] block; shape: override the shape
+    of generated particles ("sphere" or "ellipsoid"); seed: override the generator seed.
+    """
+    if os.path.isfile(spec):
+        path = spec
+    elif spec in builtin_scenes():
+        path = os.path.join(BUILTIN_DIR, spec + ".toml")
+    elif spec.endswith(".toml"):
+        raise SceneError(f"scene file {spec!r} not found")
+    else:
+        raise SceneError(f"unknown scene {spec!r} (built-ins: {', '.join(builtin_scenes())}; or a .toml file)")
+    try:
+        with open(path, "rb") as fh:
+            doc = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"malformed TOML in {path}: {e}") from None
+    except OSError as e:
+        raise SceneError(f"cannot read scene {path}: {e.strerror}") from None
+    name = os.path.splitext(os.path.basename(path))[0]
+    return build_scene(doc, name=name, source=path, particles=particles, shape=shape, seed=seed)
+
+
+def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=None):
+    _check_keys(doc, {"domain", "materials", "time", "particles", "generate", "build"}, "scene")
+    dom = _table(doc, "domain", "[domain]")
+    _check_keys(dom, {"box", "walls", "gravity"}, "[domain]")
+    # --- materials
+    mats_doc = _table(doc, "materials", "[materials]")
+    if not mats_doc:
+        raise SceneError("scene has no [materials.NAME] table")
+    materials = []
+    for mname, md in mats_doc.items():
+        if not isinstance(md, dict):
+            raise SceneError(f"[materials.{mname}] must be a table")
+        _check_keys(md, {"density", "young", "poisson", "friction", "restitution"}, f"[materials.{mname}]")
+        for key in ("density", "young", "poisson", "friction", "restitution"):
+            if key not in md:
+                raise SceneError(f"[materials.{mname}] is missing {key!r}")
+        nu = _num(md["poisson"], f"materials.{mname}.poisson")
+        if not (-1.0 < nu < 0.5):
+            raise SceneError(f"materials.{mname}.poisson must be in (-1, 0.5), got {nu}")
+        e = _num(md["restitution"], f"materials.{mname}.restitution")
+        if not (0.0 < e <= 1.0):
+            raise SceneError(f"materials.{mname}.restitution must be in (0, 1], got {e}")
+        mu = _num(md["friction"], f"materials.{mname}.friction")
+        if mu < 0:
+            raise SceneError(f"materials.{mname}.friction must be >= 0, got {mu}")
+        materials.append(Material(mname, _num(md["density"], f"materials.{mname}.density", True),
+                                  _num(md["young"], f"materials.{mname}.young", True), nu, mu, e))
+    table = MaterialTable(materials)
+    # --- time
+    tdoc = _table(doc, "time", "[time]")
+    _check_keys(tdoc, {"dt", "steps"}, "[time]")
+    dt = tdoc.get("dt", "auto")
+    if dt != "auto":
+        dt = _num(dt, "time.dt", positive=True)
+    steps = tdoc.get("steps", 100)
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+        raise SceneError(f"time.steps must be a non-negative integer, got {steps!r}")
+    # --- build stage (settling before step 0, done and cached by the harness)
+    build = _table(doc, "build", "[build]")
+    _check_keys(build, {"settle_steps", "settle_ke"}, "[build]")
+    if build:
+        ss = build.get("settle_steps", 0)
+        if isinstance(ss, bool) or not isinstance(ss, int) or ss < 0:
+            raise SceneError(f"build.settle_steps must be a non-negative integer, got {ss!r}")
+        _num(build.get("settle_ke", 1e-4), "build.settle_ke", positive=True)
+    # --- particles
+    rows = []
+    plist = doc.get("particles", [])
+    if not isinstance(plist, list):
+        raise SceneError("[[particles]] must be an array of tables")
+    for k, p in enumerate(plist):
+        rows.append(_explicit_particle(p, k, table))
+    gens = doc.get("generate", [])
+    if isinstance(gens, dict):
+        gens = [gens]
+    if (particles is not None or shape is not None) and len(gens) != 1:
+        raise SceneError("--particles/--shape need a scene with exactly one [[generate]] block")
+    box_doc = dom.get("box")
+    fit_box = box_doc == "fit"
+    box = None
+    if not fit_box:
+        if not isinstance(box_doc, list) or len(box_doc) != 2:
+            raise SceneError("domain.box must be [[x0, y0, z0], [x1, y1, z1]] or \"fit\"")
+        box = np.array([_vec(box_doc[0], 3, "domain.box[0]"), _vec(box_doc[1], 3, "domain.box[1]")])
+        if np.any(box[1] <= box[0]):
+            raise SceneError("domain.box upper corner must exceed the lower corner on every axis")
+    for g in gens:
+        new_rows, gbox = _generate(g, table, box, particles, shape, seed, len(rows))
+        rows.extend(new_rows)
+        if fit_box:
+            box = gbox if box is None else np.array([np.minimum(box[0], gbox[0]), np.maximum(box[1], gbox[1])])
+    if not rows:
+        raise SceneError("scene has no particles ([[particles]] or [[generate]])")
+    if box is None:
+        raise SceneError("domain.box = \"fit\" needs a lattice [[generate]] block")
+    # --- walls, gravity
+    walls = dom.get("walls", [])
+    if not isinstance(walls, list):
+        raise SceneError(f"domain.walls must be a list of faces, got {walls!r}")
+    for w in walls:
+        if w not in WALL_FACES:
+            raise SceneError(f"unknown wall {w!r} (faces: {', '.join(WALL_FACES)})")
+    if len(set(walls)) != len(walls):
+        raise SceneError("domain.walls lists a face twice")
+    wall_m = np.zeros((len(walls), 3))
+    wall_d = np.zeros(len(walls))
+    for k, w in enumerate(walls):
+        axis, sign = WALL_FACES[w]
+        wall_m[k, axis] = sign
+        wall_d[k] = sign * (box[0][axis] if sign > 0 else box[1][axis])
+    gravity = _vec(dom.get("gravity", [0.0, 0.0, 0.0]), 3, "domain.gravity")
+    # --- assemble the state
+    n = len(rows)
+    gid = np.arange(n, dtype=np.int64)
+    shape_arr = np.array([r["shape"] for r in rows], dtype=np.int8)
+    axes = np.array([r["axes"] for r in rows])
+    mat = np.array([r["material"] for r in rows], dtype=np.int32)
+    mass = np.empty(n)
+    inertia = np.empty((n, 3))
+    for k, r in enumerate(rows):
+        mass[k], inertia[k] = mass_properties(r["shape"], r["axes"], table.materials[r["material"]].density)
+    pos = np.array([r["pos"] for r in rows])
+    quat = np.array([r["quat"] for r in rows])
+    vel = np.array([r["vel"] for r in rows])
+    omega = np.array([r["omega"] for r in rows])
+    state = State(gid, shape_arr, axes, mass, inertia, mat, pos, vel, quat, np.zeros((n, 3)),
+                  n_walls=len(walls))
+    # L = R I R^T omega (world frame)
+    for k in range(n):
+        r = _quat_matrix(quat[k])
+        state.angmom[k] = r @ (inertia[k] * (r.T @ omega[k]))
+    _validate_positions(state, box, wall_m, wall_d)
+    import hashlib
+    import json
+    key = json.dumps({"doc": doc, "particles": particles, "shape": shape, "seed": seed}, sort_keys=True, default=str)
+    return Scene(name=name, box=box, walls=list(walls), wall_m=wall_m, wall_d=wall_d, gravity=gravity,
+                 materials=table, dt=dt, steps=steps, state=state, source=source,
+                 extras={"build": dict(build), "key": hashlib.sha256(key.encode()).hexdigest()[:16]})
+
+
+def _quat_matrix(q):
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def _explicit_particle(p, k, table):
+    what = f"particles[{k}]"
+    if not isinstance(p, dict):
+        raise SceneError(f"{what} must be a table")
+    _check_keys(p, {"shape", "axes", "pos", "quat", "vel", "omega", "material"}, what)
+    shape = p.get("shape", "sphere")
+    if shape not in SHAPE_CODES:
+        raise SceneError(f"{what}: unknown shape {shape!r} (sphere, ellipsoid)")
+    code = SHAPE_CODES[shape]
+    if "axes" not in p or "pos" not in p:
+        raise SceneError(f"{what} needs 'axes' and 'pos'")
+    ax = p["axes"]
+    if code == SPHERE:
+        if not isinstance(ax, list) or len(ax) != 1:
+            raise SceneError(f"{what}: a sphere's axes must be [r], got {ax!r}")
+        r = _num(ax[0], f"{what}.axes[0]")
+        if r <= 0:
+            raise SceneError(f"{what}: axes must be positive, got {ax!r}")
+        axes = np.array([r, r, r])
+    else:
+        axes = _vec(ax, 3, f"{what}.axes")
+        if np.any(axes <= 0):
+            raise SceneError(f"{what}: axes must be positive, got {ax!r}")
+    quat = _vec(p.get("quat", [1.0, 0.0, 0.0, 0.0]), 4, f"{what}.quat")
+    qn = np.linalg.norm(quat)
+    if qn == 0:
+        raise SceneError(f"{what}: quat must be non-zero")
+    mname = p.get("material", "default" if "default" in table.index else table.materials[0].name)
+    if mname not in table.index:
+        raise SceneError(f"{what}: unknown material {mname!r} (defined: {', '.join(table.index)})")
+    return {"shape": code, "axes": axes, "pos": _vec(p["pos"], 3, f"{what}.pos"), "quat": quat / qn,
+            "vel": _vec(p.get("vel", [0.0, 0.0, 0.0]), 3, f"{what}.vel"),
+            "omega": _vec(p.get("omega", [0.0, 0.0, 0.0]), 3, f"{what}.omega"), "material": table.index[mname]}
+
+
+def _sample_gradation(grad, n, rng, what):
+    """Largest diameters [n] by inverse-CDF sampling of a piecewise-linear gradation curve."""
+    if not isinstance(grad, list) or len(grad) < 1:
+        raise SceneError(f"{what}.gradation must be a list of [diameter, fraction passing]")
+    pts = np.array([_vec(g, 2, f"{what}.gradation point") for g in grad])
+    if np.any(pts[:, 0] <= 0):
+        raise SceneError(f"{what}.gradation diameters must be positive")
+    if len(pts) == 1:
+        return np.full(n, pts[0, 0])
+    if np.any(np.diff(pts[:, 0]) <= 0) or np.any(np.diff(pts[:, 1]) < 0):
+        raise SceneError(f"{what}.gradation must have increasing diameters and non-decreasing fractions")
+    if pts[0, 1] != 0.0 or pts[-1, 1] != 1.0:
+        raise SceneError(f"{what}.gradation fractions must run from 0 to 1")
+    u = rng.random(n)
+    return np.interp(u, pts[:, 1], pts[:, 0])
+
+
+def _generate(g, table, box, particles, shape_override, seed_override, first_index):
+    what = "[[generate]]"
+    if not isinstance(g, dict):
+        raise SceneError(f"{what} must be a table")
+    _check_keys(g, {"count", "shape", "gradation", "aspect_b", "aspect_c", "placement", "spacing",
+                    "columns", "region", "orientation", "speed", "material", "seed"}, what)
+    count = particles if particles is not None else g.get("count")
+    if isinstance(count, bool) or not isinstance(count, int) or count <= 0:
+        raise SceneError(f"particle count must be a positive integer, got {count!r}")
+    shape = shape_override or g.get("shape", "sphere")
+    if shape not in SHAPE_CODES:
+        raise SceneError(f"unknown shape {shape!r} (sphere, ellipsoid)")
+    code = SHAPE_CODES[shape]
+    seed = seed_override if seed_override is not None else g.get("seed", 1)
+    rng = np.random.default_rng(seed)
+    diam = _sample_gradation(g.get("gradation"), count, rng, what)
+    a = diam / 2.0
+    if code == SPHERE:
+        axes = np.repeat(a[:, None], 3, axis=1)
+    else:
+        def rng_range(key):
+            lo, hi = _vec(g.get(key, [1.0, 1.0]), 2, f"{what}.{key}")
+            if not (0 < lo <= hi <= 1):
+                raise SceneError(f"{what}.{key} must satisfy 0 < lo <= hi <= 1, got {[lo, hi]}")
+            return rng.uniform(lo, hi, count)
+        axes = np.stack([a, a * rng_range("aspect_b"), a * rng_range("aspect_c")], axis=1)
+    orient = g.get("orientation", "random")
+    if orient == "random":
+        quat = random_quaternions(count, rng) if code != SPHERE else np.tile([1.0, 0, 0, 0], (count, 1))
+    elif orient == "aligned":
+        quat = np.tile([1.0, 0, 0, 0], (count, 1))
+    else:
+        raise SceneError(f"{what}.orientation must be 'random' or 'aligned', got {orient!r}")
+    mname = g.get("material", "default" if "default" in table.index else table.materials[0].name)
+    if mname not in table.index:
+        raise SceneError(f"{what}: unknown material {mname!r} (defined: {', '.join(table.index)})")
+    placement = g.get("placement", "lattice")
+    dmax = 2.0 * float(axes.max())
+    region = None
+    if "region" in g:
+        rg = g["region"]
+        if not isinstance(rg, list) or len(rg) != 2:
+            raise SceneError(f"{what}.region must be [[x0,y0,z0],[x1,y1,z1]]")
+        region = np.array([_vec(rg[0], 3, f"{what}.region[0]"), _vec(rg[1], 3, f"{what}.region[1]")])
+    elif box is not None:
+        region = box.copy()
+    if placement == "lattice":
+        pitch = dmax * _num(g.get("spacing", 1.2), f"{what}.spacing")
+        if pitch < dmax:
+            raise SceneError(f"{what}.spacing must be >= 1 (pitch below the largest diameter)")
+        if "columns" in g:
+            cols = g["columns"]
+            if (not isinstance(cols, list) or len(cols) != 2 or
+                    any(isinstance(c, bool) or not isinstance(c, int) or c <= 0 for c in cols)):
+                raise SceneError(f"{what}.columns must be two positive integers")
+            nx, ny = cols
+        elif region is not None:
+            nx = max(1, int((region[1, 0] - region[0, 0]) // pitch))
+            ny = max(1, int((region[1, 1] - region[0, 1]) // pitch))
+        else:
+            nx = ny = max(1, int(round(count ** (1 / 3))))
+        nz = -(-count // (nx * ny))
+        if region is None:
+            region = np.array([[0.0, 0.0, 0.0], [nx * pitch, ny * pitch, nz * pitch]])
+            gbox = region.copy()
+        else:
+            gbox = None
+            if region[0, 0] + nx * pitch > region[1, 0] + 1e-12 * pitch or \
+                    region[0, 1] + ny * pitch > region[1, 1] + 1e-12 * pitch or \
+                    region[0, 2] + nz * pitch > region[1, 2] + 1e-12 * pitch:
+                raise SceneError(f"{count} particles at pitch {pitch:.3g} m do not fit the region "
+                                 f"({nx}x{ny}x{nz} lattice sites needed)")
+        k = np.arange(count)
+        ix, iy, iz = k % nx, (k // nx) % ny, k // (nx * ny)
+        pos = region[0] + (np.stack([ix, iy, iz], axis=1) + 0.5) * pitch
+    elif placement == "random":
+        if region is None:
+            raise SceneError(f"{what}: random placement needs a box or region")
+        gbox = None
+        pos = _random_placement(region, axes.max(axis=1), rng, what)
+    else:
+        raise SceneError(f"{what}.placement must be 'lattice' or 'random', got {placement!r}")
+    speed = _num(g.get("speed", 0.0), f"{what}.speed")
+    vel = np.zeros((count, 3))
+    if speed > 0:
+        d = rng.standard_normal((count, 3))
+        vel = speed * d / np.linalg.norm(d, axis=1)[:, None]
+    rows = [{"shape": code, "axes": axes[k], "pos": pos[k], "quat": quat[k], "vel": vel[k],
+             "omega": np.zeros(3), "material": table.index[mname]} for k in range(count)]
+    return rows, gbox
+
+
+def _random_placement(region, rb, rng, what, attempts=200):
+    """Random sequential addition of non-overlapping bounding spheres inside region [2, 3]."""
+    order = np.argsort(-rb, kind="stable")
+    pos = np.zeros((len(rb), 3))
+    placed = []
+    cell = 2.0 * rb.max()
+    grid = {}
+    for k in order:
+        lo = region[0] + rb[k]
+        hi = region[1] - rb[k]
+        if np.any(hi < lo):
+            raise SceneError(f"{what}: region smaller than a particle")
+        for _ in range(attempts):
+            p = rng.uniform(lo, hi)
+            key = tuple((p // cell).astype(int))
+            ok = True
+            for dx in (-1, 0, 1):
+                for dy in (-1, 0, 1):
+                    for dz in (-1, 0, 1):
+                        for q in grid.get((key[0] + dx, key[1] + dy, key[2] + dz), ()):
+                            if np.sum((pos[q] - p) ** 2) < (rb[q] + rb[k]) ** 2:
+                                ok = False
+                                break
+                        if not ok:
+                            break
+                    if not ok:
+                        break
+                if not ok:
+                    break
+            if ok:
+                pos[k] = p
+                grid.setdefault(key, []).append(k)
+                placed.append(k)
+                break
+        else:
+            raise SceneError(f"{what}: could not place {len(rb)} particles at random in the region "
+                             f"(placed {len(placed)}); enlarge the region or use lattice placement")
+    return pos
+
+
+def _validate_positions(state, box, wall_m, wall_d):
+    """Refuse particles whose centre is outside the box or whose body crosses a wall."""
+    n = state.n
+    for k in range(n):
+        c = state.pos[k]
+        if np.any(c < box[0]) or np.any(c > box[1]):
+            raise SceneError(f"particle {k} centre {c.tolist()} is outside the box")
+        if len(wall_m):
+            r = _quat_matrix(state.quat[k])
+            q = r @ np.diag(state.axes[k] ** 2) @ r.T
+            for w in range(len(wall_m)):
+                m = wall_m[w]
+                h = math.sqrt(m @ q @ m)
+                if m @ c - wall_d[w] < h:
+                    raise SceneError(f"particle {k} overlaps a wall (centre {c.tolist()}, "
+                                     f"reach {h:.3g} m, distance {m @ c - wall_d[w]:.3g} m)")

@@ -1,0 +1,108 @@
+"""Particle state as a structure of arrays, keyed by global id.
+
+Local order: owned particles occupy rows [0, n_owned); ghosts (MPI copies of a neighbour
+block's particles) follow. Serial runs have no ghosts. Orientation is a unit quaternion
+(w, x, y, z) body -> world; angular momentum L is kept in the world frame (the rotation
+integrator is a splitting on L, contact-mechanics.md §4.2); omega is derived from it.
+
+Contact history lives with the particles, keyed by partner global id: every particle holds a
+row for each of its current contacts, so that both ends of a pair (possibly on two ranks)
+carry identical history and migration moves it with the particle.
+"""
+import math
+import numpy as np
+
+SPHERE = 0
+ELLIPSOID = 1
+SHAPE_CODES = {"sphere": SPHERE, "ellipsoid": ELLIPSOID}
+SHAPE_NAMES = {v: k for k, v in SHAPE_CODES.items()}
+
+# contact-history record (per pair, per particle): stored tangential spring [3], contact radius,
+# PW lambda and normal [3] (warm start of the ellipsoid solver)
+H_FT = 0
+H_A = 3
+H_LAM = 4
+H_N = 5
+HIST_LEN = 8
+
+
+def mass_properties(shape, axes, density):
+    """Mass [kg] and principal moments [kg m^2] [3] of a sphere (axes [r]) or ellipsoid (a, b, c).
+
+    Ellipsoid: m = (4/3) pi rho a b c, I = m/5 (b^2+c^2, a^2+c^2, a^2+b^2).
+    """
+    a, b, c = axes
+    m = 4.0 / 3.0 * math.pi * density * a * b * c
+    return m, np.array([m / 5 * (b * b + c * c), m / 5 * (a * a + c * c), m / 5 * (a * a + b * b)])
+
+
+class State:
+    """Arrays of n particles (owned first, then ghosts).
+
+    gid [n] int64; shape [n] int8; axes [n, 3] semi-axes [m] (a sphere repeats r); rbound [n]
+    bounding radius [m]; mass [n] [kg]; inertia [n, 3] principal moments [kg m^2];
+    material [n] int32; pos [n, 3] [m]; vel [n, 3] [m/s]; quat [n, 4]; angmom [n, 3] world
+    [kg m^2/s]; force, torque [n, 3] of the last step; hist_gid [n, K] (-1 = empty, ascending),
+    hist_val [n, K, HIST_LEN], hist_cnt [n]; wall_hist [n, n_walls, HIST_LEN].
+    """
+
+    FIELDS = ("gid", "shape", "axes", "rbound", "mass", "inertia", "material",
+              "pos", "vel", "quat", "angmom", "force", "torque")
+
+    def __init__(self, gid, shape, axes, mass, inertia, material, pos, vel, quat, angmom,
+                 n_walls=0, hist_slots=8):
+        n = len(gid)
+        self.gid = np.ascontiguousarray(gid, dtype=np.int64)
+        self.shape = np.ascontiguousarray(shape, dtype=np.int8)
+        self.axes = np.ascontiguousarray(axes, dtype=np.float64).reshape(n, 3)
+        self.rbound = self.axes.max(axis=1).copy()
+        self.mass = np.ascontiguousarray(mass, dtype=np.float64)
+        self.inertia = np.ascontiguousarray(inertia, dtype=np.float64).reshape(n, 3)
+        self.material = np.ascontiguousarray(material, dtype=np.int32)
+        self.pos = np.ascontiguousarray(pos, dtype=np.float64).reshape(n, 3).copy()
+        self.vel = np.ascontiguousarray(vel, dtype=np.float64).reshape(n, 3).copy()
+        self.quat = np.ascontiguousarray(quat, dtype=np.float64).reshape(n, 4).copy()
+        self.angmom = np.ascontiguousarray(angmom, dtype=np.float64).reshape(n, 3).copy()
+        self.force = np.zeros((n, 3))
+        self.torque = np.zeros((n, 3))
+        self.n_owned = n
+        self.hist_gid = np.full((n, hist_slots), -1, dtype=np.int64)
+        self.hist_val = np.zeros((n, hist_slots, HIST_LEN))
+        self.hist_cnt = np.zeros(n, dtype=np.int32)
+        self.wall_hist = np.zeros((n, n_walls, HIST_LEN))
+
+    @property
+    def n(self):
+        return len(self.gid)
+
+    @property
+    def all_spheres(self):
+        return bool(np.all(self.shape == SPHERE))
+
+    def grow_history(self, slots):
+        """Widen the per-particle contact tables to `slots` columns, keeping their content."""
+        n, k = self.hist_gid.shape
+        if slots <= k:
+            return
+        g = np.full((n, slots), -1, dtype=np.int64)
+        v = np.zeros((n, slots, HIST_LEN))
+        g[:, :k] = self.hist_gid
+        v[:, :k] = self.hist_val
+        self.hist_gid, self.hist_val = g, v
+
+    def omega(self):
+        """Angular velocity in the world frame [n, 3]: omega = R diag(1/I) R^T L."""
+        from dem.integrate import angular_velocity
+        out = np.empty((self.n, 3))
+        angular_velocity(self.quat, self.angmom, self.inertia, self.shape, out)
+        return out
+
+    def snapshot(self):
+        """Owned particles sorted by global id: dict of id [n], pos [n,3], quat [n,4], vel, omega [n,3]."""
+        k = self.n_owned
+        order = np.argsort(self.gid[:k], kind="stable")
+        om = self.omega()[:k]
+        return {"id": self.gid[:k][order].copy(), "pos": self.pos[:k][order].copy(),
+                "quat": self.quat[:k][order].copy(), "vel": self.vel[:k][order].copy(),
+                "omega": om[order].copy(), "axes": self.axes[:k][order].copy(),
+                "shape": self.shape[:k][order].copy()}

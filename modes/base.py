@@ -1,0 +1,65 @@
+"""Execution modes: a registry of step drivers behind one small interface.
+
+A mode owns how a step is executed (loops, threads, ranks) and its per-step timers; the
+physics it runs is dem/'s. Interface: ``setup(scene, options)``, ``step() -> dict`` of phase
+times and counters, ``snapshot() -> dict`` of the final state sorted by global id, and
+``warmup()`` which compiles every kernel on a throw-away copy so no JIT time is ever timed.
+"""
+import re
+from dataclasses import dataclass
+
+REGISTRY = {}
+
+
+class ModeError(ValueError):
+    """Bad mode request (mapping, scheme, unavailable mode); str() is one line."""
+
+
+def register(name):
+    def deco(cls):
+        REGISTRY[name] = cls
+        cls.name = name
+        return cls
+    return deco
+
+
+@dataclass(frozen=True)
+class Mapping:
+    """Process/thread mapping P-px-py-pz-T: P processes on a px*py*pz block grid, T threads each."""
+    procs: int
+    px: int
+    py: int
+    pz: int
+    threads: int
+
+    def __str__(self):
+        return f"{self.procs}-{self.px}-{self.py}-{self.pz}-{self.threads}"
+
+    @property
+    def kind(self):
+        """serial, threads, mpi or hybrid (DESIGN.md, MPI)."""
+        if self.procs == 1:
+            return "serial" if self.threads == 1 else "threads"
+        return "mpi" if self.threads == 1 else "hybrid"
+
+
+def parse_mapping(text):
+    """Parse 'P-px-py-pz-T'; raise ModeError with one line naming the problem."""
+    if not isinstance(text, str) or not re.fullmatch(r"\s*\d+(-\d+){4}\s*", text):
+        raise ModeError(f"malformed mapping {text!r}: expected P-px-py-pz-T, e.g. 9-3-3-1-4")
+    p, px, py, pz, t = (int(x) for x in text.strip().split("-"))
+    for name, v in (("P", p), ("px", px), ("py", py), ("pz", pz), ("T", t)):
+        if v < 1:
+            raise ModeError(f"malformed mapping {text!r}: {name} must be >= 1")
+    if p != px * py * pz:
+        raise ModeError(f"malformed mapping {text!r}: P = {p} but px*py*pz = {px}*{py}*{pz} = {px * py * pz}")
+    return Mapping(p, px, py, pz, t)
+
+
+def mode_for(mapping):
+    """The registered mode class that runs `mapping`, or ModeError if none does yet."""
+    kind = mapping.kind
+    if kind not in REGISTRY:
+        raise ModeError(f"mapping {mapping} needs the {kind} mode, which is not available yet "
+                        f"(available: {', '.join(sorted(REGISTRY))})")
+    return REGISTRY[kind]

@@ -1,0 +1,124 @@
+"""Serial mode: one process, one thread; the reference trajectory every mode reproduces.
+
+The step follows DESIGN.md: (migrate, exchange: no-ops here) -> neighbour estimate (neighborT)
+-> contact resolution + pair forces (resolveT) -> gather, walls, gravity, integration.
+Timers wrap these phases here, never inside kernels.
+"""
+import copy
+import time
+
+import numpy as np
+
+from dem.forces import PR_LEN, build_adjacency, gather_range, resolve_pairs_range, wall_range
+from dem.integrate import derive_range, integrate_range
+from dem.neighbor import PairBuffer, candidate_pairs
+from modes.base import register
+
+
+class PairArrays:
+    """Per-pair work arrays reused across steps, grown on demand."""
+
+    def __init__(self):
+        self.active = np.zeros(0, dtype=np.int8)
+        self.res = np.zeros((0, PR_LEN))
+        self.ratio = np.zeros(0)
+
+    def ensure(self, m):
+        if m > self.active.shape[0]:
+            cap = int(m * 1.25) + 64
+            self.active = np.zeros(cap, dtype=np.int8)
+            self.res = np.zeros((cap, PR_LEN))
+            self.ratio = np.zeros(cap)
+
+
+@register("serial")
+class SerialMode:
+    """Reference step driver. options: neighbor ('allpairs' | 'linkcell')."""
+
+    def setup(self, scene, dt, neighbor="linkcell", **_):
+        self.scene = scene
+        self.state = scene.state
+        self.dt = float(dt)
+        self.neighbor = neighbor
+        self.g = np.asarray(scene.gravity, dtype=np.float64)
+        self.has_gravity = bool(np.any(self.g != 0.0))
+        self.has_walls = len(scene.walls) > 0
+        self.pairs = PairBuffer(max(1024, 8 * self.state.n))
+        self.work = PairArrays()
+        n = self.state.n
+        self.rot = np.zeros((n, 3, 3))
+        self.omega = np.zeros((n, 3))
+        self.max_overlap_ratio = 0.0
+        return self
+
+    def warmup(self):
+        """Compile every kernel by stepping a deep copy once (nothing of it is kept)."""
+        twin = copy.copy(self)
+        twin.state = copy.deepcopy(self.state)
+        twin.pairs = PairBuffer(self.pairs.pi.shape[0])
+        twin.work = PairArrays()
+        twin.rot = self.rot.copy()
+        twin.omega = self.omega.copy()
+        twin.step()
+
+    # --- phases -------------------------------------------------------------------------------
+    def neighbour_phase(self):
+        s = self.state
+        return candidate_pairs(self.neighbor, s.pos, s.rbound, s.gid, s.n_owned, self.pairs)
+
+    def resolve_phase(self, pi, pj):
+        s, m = self.state, self.scene.materials
+        derive_range(0, s.n, s.quat, s.angmom, s.inertia, s.shape, self.rot, self.omega)
+        self.work.ensure(len(pi))
+        w = self.work
+        ecalls = resolve_pairs_range(0, len(pi), pi, pj, s.pos, s.vel, self.omega, self.rot, s.axes,
+                                     s.shape, s.mass, s.material, s.gid, s.n_owned, s.hist_gid,
+                                     s.hist_cnt, s.hist_val, m.estar, m.gstar, m.mu, m.zeta, self.dt,
+                                     w.active, w.res, w.ratio)
+        return ecalls
+
+    def gather_phase(self, pi, pj):
+        s, m = self.state, self.scene.materials
+        w = self.work
+        active = w.active[:len(pi)]
+        start, items = build_adjacency(pi, pj, active, s.gid, s.n_owned)
+        longest = gather_range(0, s.n_owned, start, items, pi, pj, s.gid, w.res, s.force, s.torque,
+                               s.hist_gid, s.hist_val, s.hist_cnt)
+        if longest > s.hist_gid.shape[1]:
+            s.grow_history(2 * longest)
+            gather_range(0, s.n_owned, start, items, pi, pj, s.gid, w.res, s.force, s.torque,
+                         s.hist_gid, s.hist_val, s.hist_cnt)
+        wall_worst = 0.0
+        n_wall = 0
+        if self.has_walls:
+            sc = self.scene
+            n_wall, wall_worst = wall_range(0, s.n_owned, sc.wall_m, sc.wall_d, s.pos, s.vel, self.omega, self.rot,
+                                    s.axes, s.shape, s.mass, s.material, m.estar_w, m.gstar_w, m.zeta_w,
+                                    m.mu_w, s.wall_hist, self.dt, s.force, s.torque)
+        g = self.g
+        integrate_range(0, s.n_owned, s.pos, s.vel, s.quat, s.angmom, s.mass, s.inertia, s.shape,
+                        s.force, s.torque, g[0], g[1], g[2], self.has_gravity, self.dt)
+        n_contacts = int(active.sum())
+        pair_worst = float(w.ratio[:len(pi)][active == 1].max()) if n_contacts else 0.0
+        return n_contacts, n_wall, max(pair_worst, wall_worst)
+
+    def step(self):
+        """One time step; returns the phase times [s] and counters of DESIGN.md's steps.csv."""
+        t0 = time.perf_counter()
+        pi, pj = self.neighbour_phase()
+        t1 = time.perf_counter()
+        ecalls = self.resolve_phase(pi, pj)
+        t2 = time.perf_counter()
+        n_contacts, n_wall, worst = self.gather_phase(pi, pj)
+        t3 = time.perf_counter()
+        self.max_overlap_ratio = max(self.max_overlap_ratio, worst)
+        total = t3 - t0
+        return {"totalT": total, "commuT": 0.0, "migraT": 0.0, "compuT": total,
+                "neighborT": t1 - t0, "resolveT": t2 - t1, "n_owned": self.state.n_owned,
+                "n_ghost": self.state.n - self.state.n_owned, "n_contacts": n_contacts,
+                "n_wall_contacts": n_wall,
+                "n_candidates": len(pi), "n_migrated": 0, "bytes_sent": 0,
+                "ellipsoid_calls": ecalls, "max_overlap_ratio": worst}
+
+    def snapshot(self):
+        return self.state.snapshot()
