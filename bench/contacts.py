@@ -18,7 +18,7 @@ def scene_contacts(scene):
     rows = []
     for i, j in sorted(zip(s.gid[pi].tolist(), s.gid[pj].tolist())):
         if s.shape[i] == SPHERE and s.shape[j] == SPHERE:
-            hit, depth, nx, ny, nz, x, y, z, _ = sphere_contact(s.pos[i], s.axes[i, 0], s.pos[j], s.axes[j, 0])
+            hit, depth, nx, ny, nz, x, y, z, _ = sphere_contact(*s.pos[i], s.axes[i, 0], *s.pos[j], s.axes[j, 0])
             if not hit:
                 continue
             normal, point = [nx, ny, nz], [x, y, z]

@@ -71,7 +71,7 @@ def run(args):
             "neighbor": args.neighbor, "dt": dt, "dt_auto": dt_auto, "dt_critical": dt_crit,
             "dt_details": dt_info, "walls": scene.walls, "gravity": scene.gravity.tolist(),
             "materials": [m.__dict__ for m in scene.materials.materials],
-            "environment": environment(), "warmup_s": t_compile, "build": scene.extras.get("settled"), "stable": None,
+            "environment": environment(), "warmup_s": t_compile, "build": scene.extras.get("built"), "stable": None,
             "max_overlap_ratio": 0.0, "status": "running"}
     write_json(os.path.join(out, "run.json"), info)
     writer = StepWriter(os.path.join(out, "steps.csv"))

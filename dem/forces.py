@@ -27,35 +27,35 @@ PR_LEN = 9 + HIST_LEN
 
 
 @njit(cache=True, inline="always")
-def find_history(hist_gid, hist_cnt, p, partner):
-    """Slot of partner gid in particle p's contact table, or -1."""
-    for s in range(hist_cnt[p]):
-        if hist_gid[p, s] == partner:
-            return s
+def find_history(hist_start, hist_partner, p, partner):
+    """Row of partner gid in owned particle p's contact history (CSR, ascending), or -1."""
+    for r in range(hist_start[p], hist_start[p + 1]):
+        g = hist_partner[r]
+        if g == partner:
+            return r
+        if g > partner:
+            break
     return -1
 
 
 @njit(cache=True, inline="always")
-def apply_law(depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio,
-              c1, v1, w1, c2, v2, w2, mstar, estar, gstar, zeta, mu,
-              hist, has_hist, dt, res, lam):
-    """Hertz-Mindlin on one resolved contact; writes force/torques/history into res [PR_LEN].
+def contact_force(depth, nx, ny, nz, r_e, kratio, r1x, r1y, r1z, r2x, r2y, r2z, vrx, vry, vrz,
+                  mstar, estar, gstar, zeta, mu, ox, oy, oz, a_old, has_hist, dt):
+    """Hertz-Mindlin on one resolved contact (all scalars: numba row views cost atomic refcounts).
 
-    Body 2 may be a wall (v2 = w2 = 0, c2 unused). The stored tangential spring is rotated into
-    the new tangent plane by projection and rescaled to its old magnitude (§3.2 step 1).
+    n = (nx, ny, nz) unit normal from body 1 to body 2; r1, r2 lever arms from the mass centres
+    to the contact point [m]; vr = relative velocity of body 2 w.r.t. body 1 at the contact point
+    [m/s]; (ox, oy, oz, a_old) the stored spring [N] and contact radius [m] when has_hist.
+    The stored spring is rotated into the new tangent plane by projection and rescaled to its old
+    magnitude (contact-mechanics.md §3.2 step 1).
+    Returns (F [3] on body 2 (body 1 gets -F), torque on 1 [3], torque on 2 [3], spring [3], a).
     """
-    r1x, r1y, r1z = xcx - c1[0], xcy - c1[1], xcz - c1[2]
-    r2x, r2y, r2z = xcx - c2[0], xcy - c2[1], xcz - c2[2]
-    vrx = v2[0] + (w2[1] * r2z - w2[2] * r2y) - v1[0] - (w1[1] * r1z - w1[2] * r1y)
-    vry = v2[1] + (w2[2] * r2x - w2[0] * r2z) - v1[1] - (w1[2] * r1x - w1[0] * r1z)
-    vrz = v2[2] + (w2[0] * r2y - w2[1] * r2x) - v1[2] - (w1[0] * r1y - w1[1] * r1x)
     vn = vrx * nx + vry * ny + vrz * nz
     vtx, vty, vtz = vrx - vn * nx, vry - vn * ny, vrz - vn * nz
     ftx = fty = ftz = 0.0
-    a_old = 0.0
-    if has_hist:
-        ox, oy, oz = hist[H_FT], hist[H_FT + 1], hist[H_FT + 2]
-        a_old = hist[H_A]
+    if not has_hist:
+        a_old = 0.0
+    else:
         old2 = ox * ox + oy * oy + oz * oz
         if old2 > 0.0:
             dn = ox * nx + oy * ny + oz * nz
@@ -72,30 +72,63 @@ def apply_law(depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio,
     fx = fn * nx + tx
     fy = fn * ny + ty
     fz = fn * nz + tz
-    res[PR_FX] = fx
-    res[PR_FX + 1] = fy
-    res[PR_FX + 2] = fz
     # torque on body 1 from -F at the contact point, on body 2 from +F
-    res[PR_TI] = -(r1y * fz - r1z * fy)
-    res[PR_TI + 1] = -(r1z * fx - r1x * fz)
-    res[PR_TI + 2] = -(r1x * fy - r1y * fx)
-    res[PR_TJ] = r2y * fz - r2z * fy
-    res[PR_TJ + 1] = r2z * fx - r2x * fz
-    res[PR_TJ + 2] = r2x * fy - r2y * fx
+    return (fx, fy, fz,
+            -(r1y * fz - r1z * fy), -(r1z * fx - r1x * fz), -(r1x * fy - r1y * fx),
+            r2y * fz - r2z * fy, r2z * fx - r2x * fz, r2x * fy - r2y * fx,
+            sx, sy, sz, a)
+
+
+@njit(cache=True, inline="always")
+def _store(res, k, f, nx, ny, nz, lam):
+    """Write contact_force's tuple f and the warm-start data into pair record res[k]."""
+    res[k, PR_FX] = f[0]
+    res[k, PR_FX + 1] = f[1]
+    res[k, PR_FX + 2] = f[2]
+    res[k, PR_TI] = f[3]
+    res[k, PR_TI + 1] = f[4]
+    res[k, PR_TI + 2] = f[5]
+    res[k, PR_TJ] = f[6]
+    res[k, PR_TJ + 1] = f[7]
+    res[k, PR_TJ + 2] = f[8]
     h = PR_HIST
-    res[h + H_FT] = sx
-    res[h + H_FT + 1] = sy
-    res[h + H_FT + 2] = sz
-    res[h + H_A] = a
-    res[h + H_LAM] = lam
-    res[h + H_N] = nx
-    res[h + H_N + 1] = ny
-    res[h + H_N + 2] = nz
+    res[k, h + H_FT] = f[9]
+    res[k, h + H_FT + 1] = f[10]
+    res[k, h + H_FT + 2] = f[11]
+    res[k, h + H_A] = f[12]
+    res[k, h + H_LAM] = lam
+    res[k, h + H_N] = nx
+    res[k, h + H_N + 1] = ny
+    res[k, h + H_N + 2] = nz
+
+
+@njit(cache=True, inline="always")
+def pair_law(i, j, depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio, pos, vel, omega, mass, material,
+             estar, gstar, zeta, mu, hist_val, slot, dt, lam, res, k):
+    """contact_force for particles i -> j, inputs read by index, result stored in res[k]."""
+    r1x, r1y, r1z = xcx - pos[i, 0], xcy - pos[i, 1], xcz - pos[i, 2]
+    r2x, r2y, r2z = xcx - pos[j, 0], xcy - pos[j, 1], xcz - pos[j, 2]
+    vrx = (vel[j, 0] + (omega[j, 1] * r2z - omega[j, 2] * r2y)
+           - vel[i, 0] - (omega[i, 1] * r1z - omega[i, 2] * r1y))
+    vry = (vel[j, 1] + (omega[j, 2] * r2x - omega[j, 0] * r2z)
+           - vel[i, 1] - (omega[i, 2] * r1x - omega[i, 0] * r1z))
+    vrz = (vel[j, 2] + (omega[j, 0] * r2y - omega[j, 1] * r2x)
+           - vel[i, 2] - (omega[i, 0] * r1y - omega[i, 1] * r1x))
+    mi = mass[i]
+    mj = mass[j]
+    a = material[i]
+    b = material[j]
+    s = max(slot, 0)
+    f = contact_force(depth, nx, ny, nz, r_e, kratio, r1x, r1y, r1z, r2x, r2y, r2z, vrx, vry, vrz,
+                      mi * mj / (mi + mj), estar[a, b], gstar[a, b], zeta[a, b], mu[a, b],
+                      hist_val[s, H_FT], hist_val[s, H_FT + 1], hist_val[s, H_FT + 2], hist_val[s, H_A],
+                      slot >= 0, dt)
+    _store(res, k, f, nx, ny, nz, lam)
 
 
 @njit(cache=True)
 def resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid,
-                        n_owned, hist_gid, hist_cnt, hist_val, estar, gstar, mu, zeta, dt,
+                        n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
                         active, pair_res, depth_ratio):
     """Resolve candidate pairs k0..k1-1: geometry (closed form for two spheres, PW + Newton
     otherwise), then the contact law. Writes active [m] (1 = touching), pair_res [m, PR_LEN],
@@ -108,30 +141,29 @@ def resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass,
     for k in range(k0, k1):
         i = pi[k]
         j = pj[k]
-        c1 = pos[i]
-        c2 = pos[j]
         lam = 0.0
         if shape[i] == SPHERE and shape[j] == SPHERE:
-            hit, depth, nx, ny, nz, xcx, xcy, xcz, r_e = sphere_contact(c1, axes[i, 0], c2, axes[j, 0])
+            hit, depth, nx, ny, nz, xcx, xcy, xcz, r_e = sphere_contact(
+                pos[i, 0], pos[i, 1], pos[i, 2], axes[i, 0], pos[j, 0], pos[j, 1], pos[j, 2], axes[j, 0])
             if not hit:
                 active[k] = 0
                 continue
             kratio = 1.0
             own = i if i < n_owned else j
-            slot = find_history(hist_gid, hist_cnt, own, gid[j] if own == i else gid[i])
+            slot = find_history(hist_start, hist_partner, own, gid[j] if own == i else gid[i])
         else:
             own = i if i < n_owned else j
-            slot = find_history(hist_gid, hist_cnt, own, gid[j] if own == i else gid[i])
+            slot = find_history(hist_start, hist_partner, own, gid[j] if own == i else gid[i])
             lam0 = -1.0
             n0[0] = n0[1] = n0[2] = 0.0
             if slot >= 0:
                 # history normal is stored in the canonical (i -> j) direction on both ends
-                lam0 = hist_val[own, slot, H_LAM]
-                n0[0] = hist_val[own, slot, H_N]
-                n0[1] = hist_val[own, slot, H_N + 1]
-                n0[2] = hist_val[own, slot, H_N + 2]
+                lam0 = hist_val[slot, H_LAM]
+                n0[0] = hist_val[slot, H_N]
+                n0[1] = hist_val[slot, H_N + 1]
+                n0[2] = hist_val[slot, H_N + 2]
             ecalls += 1
-            if ellipsoid_contact(c1, rot[i], axes[i], c2, rot[j], axes[j], lam0, n0, out) == 0:
+            if ellipsoid_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out) == 0:
                 active[k] = 0
                 continue
             depth = out[OUT_DEPTH]
@@ -141,14 +173,8 @@ def resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass,
             kratio = out[OUT_KRATIO]
             lam = out[OUT_LAM]
         active[k] = 1
-        mi = mass[i]
-        mj = mass[j]
-        a = material[i]
-        b = material[j]
-        apply_law(depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio,
-                  c1, vel[i], omega[i], c2, vel[j], omega[j], mi * mj / (mi + mj),
-                  estar[a, b], gstar[a, b], zeta[a, b], mu[a, b],
-                  hist_val[own, max(slot, 0)], slot >= 0, dt, pair_res[k], lam)
+        pair_law(i, j, depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio, pos, vel, omega, mass, material,
+                 estar, gstar, zeta, mu, hist_val, slot, dt, lam, pair_res, k)
         ai = min(axes[i, 0], min(axes[i, 1], axes[i, 2]))
         aj = min(axes[j, 0], min(axes[j, 1], axes[j, 2]))
         depth_ratio[k] = depth / min(ai, aj)
@@ -159,7 +185,8 @@ def resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass,
 def build_adjacency(pi, pj, active, gid, n_owned):
     """CSR of each owned particle's touching pairs, sorted by ascending partner gid.
 
-    Returns (start [n_owned+1], items [nnz] pair index). Rows are filled in pair order and then
+    Returns (start [n_owned+1], items [nnz] pair index, keys [nnz] partner gid). Rows are filled
+    in pair order and then
     insertion-sorted by partner gid (rows are short), so the order never depends on how the
     pair list was produced.
     """
@@ -199,105 +226,91 @@ def build_adjacency(pi, pj, active, gid, n_owned):
                 v -= 1
             keys[v + 1] = kk
             items[v + 1] = it
-    return start, items
+    return start, items, keys
 
 
 @njit(cache=True)
-def gather_range(p0, p1, adj_start, adj_items, pi, pj, gid, pair_res, force, torque,
-                 hist_gid, hist_val, hist_cnt):
-    """Sum pair forces/torques of particles p0..p1-1 in ascending partner gid and rewrite their
-    contact tables. Returns the largest row length (the caller widens the tables if it exceeds
-    their width and gathers again)."""
-    width = hist_gid.shape[1]
-    longest = 0
+def gather_range(p0, p1, adj_start, adj_items, pi, pj, pair_res, force, torque, new_hist_val):
+    """Sum the pair forces/torques of particles p0..p1-1 in ascending partner gid and write
+    their new contact history new_hist_val [nnz, HIST_LEN] (rows aligned with the adjacency)."""
     for p in range(p0, p1):
         fx = fy = fz = 0.0
         tx = ty = tz = 0.0
-        s0 = adj_start[p]
-        cnt = adj_start[p + 1] - s0
-        longest = max(longest, cnt)
-        for u in range(cnt):
-            k = adj_items[s0 + u]
-            r = pair_res[k]
+        for u in range(adj_start[p], adj_start[p + 1]):
+            k = adj_items[u]
             if pi[k] == p:
-                fx -= r[PR_FX]
-                fy -= r[PR_FX + 1]
-                fz -= r[PR_FX + 2]
-                tx += r[PR_TI]
-                ty += r[PR_TI + 1]
-                tz += r[PR_TI + 2]
-                partner = gid[pj[k]]
+                fx -= pair_res[k, PR_FX]
+                fy -= pair_res[k, PR_FX + 1]
+                fz -= pair_res[k, PR_FX + 2]
+                tx += pair_res[k, PR_TI]
+                ty += pair_res[k, PR_TI + 1]
+                tz += pair_res[k, PR_TI + 2]
             else:
-                fx += r[PR_FX]
-                fy += r[PR_FX + 1]
-                fz += r[PR_FX + 2]
-                tx += r[PR_TJ]
-                ty += r[PR_TJ + 1]
-                tz += r[PR_TJ + 2]
-                partner = gid[pi[k]]
-            if u < width:
-                hist_gid[p, u] = partner
-                for h in range(HIST_LEN):
-                    hist_val[p, u, h] = r[PR_HIST + h]
-        for u in range(min(cnt, width), min(hist_cnt[p], width)):
-            hist_gid[p, u] = -1
-        hist_cnt[p] = min(cnt, width)
+                fx += pair_res[k, PR_FX]
+                fy += pair_res[k, PR_FX + 1]
+                fz += pair_res[k, PR_FX + 2]
+                tx += pair_res[k, PR_TJ]
+                ty += pair_res[k, PR_TJ + 1]
+                tz += pair_res[k, PR_TJ + 2]
+            for h in range(HIST_LEN):
+                new_hist_val[u, h] = pair_res[k, PR_HIST + h]
         force[p, 0] = fx
         force[p, 1] = fy
         force[p, 2] = fz
         torque[p, 0] = tx
         torque[p, 1] = ty
         torque[p, 2] = tz
-    return longest
 
 
 @njit(cache=True)
-def wall_range(p0, p1, wall_m, wall_d, pos, vel, omega, rot, axes, shape, mass, material,
+def wall_range(p0, p1, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape, mass, material,
                estar_w, gstar_w, zeta_w, mu_w, wall_hist, dt, force, torque):
     """Add planar-wall contacts of particles p0..p1-1 (walls in fixed order), updating each
     particle's per-wall history. Wall planes: m.x = d with m the unit normal into the domain.
+    Body 1 is the particle, body 2 the (fixed) wall; the normal from particle into wall is -m.
     Returns (number of wall contacts, largest depth ratio = depth over the smallest semi-axis)."""
     out = np.zeros(OUT_LEN)
-    res = np.zeros(PR_LEN)
-    zero3 = np.zeros(3)
     worst = 0.0
     touching = 0
     for p in range(p0, p1):
-        c = pos[p]
         for w in range(wall_m.shape[0]):
             mx, my, mz = wall_m[w, 0], wall_m[w, 1], wall_m[w, 2]
-            dist = mx * c[0] + my * c[1] + mz * c[2] - wall_d[w]
-            hist = wall_hist[p, w]
-            if dist >= axes[p].max():
-                hist[H_A] = 0.0
+            dist = mx * pos[p, 0] + my * pos[p, 1] + mz * pos[p, 2] - wall_d[w]
+            if dist >= rbound[p]:
+                wall_hist[p, w, H_A] = 0.0
                 continue
             if shape[p] == SPHERE:
-                hit, depth, xcx, xcy, xcz, r_e = sphere_wall_contact(c, axes[p, 0], mx, my, mz, wall_d[w])
-                if not hit:
-                    hist[H_A] = 0.0
-                    continue
+                hit, depth, xcx, xcy, xcz, r_e = sphere_wall_contact(pos[p, 0], pos[p, 1], pos[p, 2], axes[p, 0],
+                                                                     mx, my, mz, wall_d[w])
                 kratio = 1.0
             else:
-                if ellipsoid_wall_contact(c, rot[p], axes[p], wall_m[w], wall_d[w], out) == 0:
-                    hist[H_A] = 0.0
-                    continue
+                hit = ellipsoid_wall_contact(pos[p], rot[p], axes[p], wall_m[w], wall_d[w], out) == 1
                 depth = out[OUT_DEPTH]
                 xcx, xcy, xcz = out[OUT_XCX], out[OUT_XCY], out[OUT_XCZ]
                 r_e = out[OUT_RE]
                 kratio = out[OUT_KRATIO]
+            if not hit:
+                wall_hist[p, w, H_A] = 0.0
+                continue
+            r1x, r1y, r1z = xcx - pos[p, 0], xcy - pos[p, 1], xcz - pos[p, 2]
+            vrx = -vel[p, 0] - (omega[p, 1] * r1z - omega[p, 2] * r1y)
+            vry = -vel[p, 1] - (omega[p, 2] * r1x - omega[p, 0] * r1z)
+            vrz = -vel[p, 2] - (omega[p, 0] * r1y - omega[p, 1] * r1x)
             a = material[p]
-            # body 1 = particle, body 2 = wall; normal from particle into the wall is -m
-            apply_law(depth, -mx, -my, -mz, xcx, xcy, xcz, r_e, kratio,
-                      c, vel[p], omega[p], c, zero3, zero3, mass[p],
-                      estar_w[a], gstar_w[a], zeta_w[a], mu_w[a], hist, hist[H_A] > 0.0, dt, res, 0.0)
-            force[p, 0] -= res[PR_FX]
-            force[p, 1] -= res[PR_FX + 1]
-            force[p, 2] -= res[PR_FX + 2]
-            torque[p, 0] += res[PR_TI]
-            torque[p, 1] += res[PR_TI + 1]
-            torque[p, 2] += res[PR_TI + 2]
-            for h in range(HIST_LEN):
-                hist[h] = res[PR_HIST + h]
-            worst = max(worst, depth / axes[p].min())
+            f = contact_force(depth, -mx, -my, -mz, r_e, kratio, r1x, r1y, r1z, 0.0, 0.0, 0.0, vrx, vry, vrz,
+                              mass[p], estar_w[a], gstar_w[a], zeta_w[a], mu_w[a],
+                              wall_hist[p, w, H_FT], wall_hist[p, w, H_FT + 1], wall_hist[p, w, H_FT + 2],
+                              wall_hist[p, w, H_A], wall_hist[p, w, H_A] > 0.0, dt)
+            force[p, 0] -= f[0]
+            force[p, 1] -= f[1]
+            force[p, 2] -= f[2]
+            torque[p, 0] += f[3]
+            torque[p, 1] += f[4]
+            torque[p, 2] += f[5]
+            wall_hist[p, w, H_FT] = f[9]
+            wall_hist[p, w, H_FT + 1] = f[10]
+            wall_hist[p, w, H_FT + 2] = f[11]
+            wall_hist[p, w, H_A] = f[12]
+            worst = max(worst, depth / min(axes[p, 0], min(axes[p, 1], axes[p, 2])))
             touching += 1
     return touching, worst

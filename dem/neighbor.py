@@ -20,24 +20,16 @@ HALF_SHELL = np.array([(dx, dy, dz) for dz in (-1, 0, 1) for dy in (-1, 0, 1) fo
 
 
 @njit(cache=True, inline="always")
-def _test_pair(a, b, pos, rbound, gid, n_owned, pi, pj, count):
-    """Append (a, b) in canonical order if their bounding spheres overlap; returns new count."""
-    if a >= n_owned and b >= n_owned:
-        return count
-    dx = pos[b, 0] - pos[a, 0]
-    dy = pos[b, 1] - pos[a, 1]
-    dz = pos[b, 2] - pos[a, 2]
-    r = rbound[a] + rbound[b]
-    if dx * dx + dy * dy + dz * dz < r * r:
-        if count < pi.shape[0]:
-            if gid[a] < gid[b]:
-                pi[count] = a
-                pj[count] = b
-            else:
-                pi[count] = b
-                pj[count] = a
-        count += 1
-    return count
+def _emit(a, b, ga, gb, pi, pj, count):
+    """Append pair (a, b) in canonical order (lower gid first); returns the new count."""
+    if count < pi.shape[0]:
+        if ga < gb:
+            pi[count] = a
+            pj[count] = b
+        else:
+            pi[count] = b
+            pj[count] = a
+    return count + 1
 
 
 @njit(cache=True)
@@ -48,10 +40,19 @@ def allpairs_rows(rows, pos, rbound, gid, n_owned, pi, pj):
     count = 0
     for r in range(rows.shape[0]):
         i = rows[r]
+        # the outer particle lives in registers: the pair writes may not alias pos for numba
+        xi, yi, zi, ri, gi = pos[i, 0], pos[i, 1], pos[i, 2], rbound[i], gid[i]
+        ghost_i = i >= n_owned
         for j in range(i + 1, n):
-            count = _test_pair(i, j, pos, rbound, gid, n_owned, pi, pj, count)
+            if ghost_i and j >= n_owned:
+                continue
+            dx = pos[j, 0] - xi
+            dy = pos[j, 1] - yi
+            dz = pos[j, 2] - zi
+            rr = ri + rbound[j]
+            if dx * dx + dy * dy + dz * dz < rr * rr:
+                count = _emit(i, j, gi, gid[j], pi, pj, count)
     return count
-
 
 
 @njit(cache=True)
@@ -108,9 +109,27 @@ def bin_particles(pos, cutoff):
 
 
 @njit(cache=True)
-def linkcell_rows(cells, dims, cell_start, cell_items, half_shell, pos, rbound, gid, n_owned, pi, pj):
-    """Half-shell link-cell search over the cells listed in `cells` (flat indices, x fastest).
-    Returns the pair count (see allpairs_rows for overflow)."""
+def sorted_copies(cell_items, pos, rbound, gid):
+    """Positions, bounding radii and gids [n] in cell order, so cell scans read contiguous memory."""
+    n = cell_items.shape[0]
+    spos = np.empty((n, 3))
+    srb = np.empty(n)
+    sgid = np.empty(n, dtype=np.int64)
+    for u in range(n):
+        p = cell_items[u]
+        spos[u, 0] = pos[p, 0]
+        spos[u, 1] = pos[p, 1]
+        spos[u, 2] = pos[p, 2]
+        srb[u] = rbound[p]
+        sgid[u] = gid[p]
+    return spos, srb, sgid
+
+
+@njit(cache=True)
+def linkcell_rows(cells, dims, cell_start, cell_items, half_shell, spos, srb, sgid, n_owned, pi, pj):
+    """Half-shell link-cell search over the cells listed in `cells` (flat indices, x fastest),
+    on the cell-ordered copies spos [n,3], srb [n], sgid [n] of sorted_copies. Pairs are written
+    as local indices (cell_items maps back). Returns the pair count (see allpairs_rows)."""
     nx, ny, nz = dims[0], dims[1], dims[2]
     count = 0
     for r in range(cells.shape[0]):
@@ -121,20 +140,35 @@ def linkcell_rows(cells, dims, cell_start, cell_items, half_shell, pos, rbound, 
         s0, s1 = cell_start[c], cell_start[c + 1]
         for u in range(s0, s1):
             a = cell_items[u]
+            xa, ya, za, ra, ga = spos[u, 0], spos[u, 1], spos[u, 2], srb[u], sgid[u]
+            ghost_a = a >= n_owned
             for v in range(u + 1, s1):
-                count = _test_pair(a, cell_items[v], pos, rbound, gid, n_owned, pi, pj, count)
-        for o in range(half_shell.shape[0]):
-            x = cx + half_shell[o, 0]
-            y = cy + half_shell[o, 1]
-            z = cz + half_shell[o, 2]
-            if x < 0 or y < 0 or z < 0 or x >= nx or y >= ny or z >= nz:
-                continue
-            d = x + nx * (y + ny * z)
-            t0, t1 = cell_start[d], cell_start[d + 1]
-            for u in range(s0, s1):
-                a = cell_items[u]
-                for v in range(t0, t1):
-                    count = _test_pair(a, cell_items[v], pos, rbound, gid, n_owned, pi, pj, count)
+                b = cell_items[v]
+                if ghost_a and b >= n_owned:
+                    continue
+                dx = spos[v, 0] - xa
+                dy = spos[v, 1] - ya
+                dz = spos[v, 2] - za
+                rr = ra + srb[v]
+                if dx * dx + dy * dy + dz * dz < rr * rr:
+                    count = _emit(a, b, ga, sgid[v], pi, pj, count)
+            for o in range(half_shell.shape[0]):
+                x = cx + half_shell[o, 0]
+                y = cy + half_shell[o, 1]
+                z = cz + half_shell[o, 2]
+                if x < 0 or y < 0 or z < 0 or x >= nx or y >= ny or z >= nz:
+                    continue
+                d = x + nx * (y + ny * z)
+                for v in range(cell_start[d], cell_start[d + 1]):
+                    b = cell_items[v]
+                    if ghost_a and b >= n_owned:
+                        continue
+                    dx = spos[v, 0] - xa
+                    dy = spos[v, 1] - ya
+                    dz = spos[v, 2] - za
+                    rr = ra + srb[v]
+                    if dx * dx + dy * dy + dz * dz < rr * rr:
+                        count = _emit(a, b, ga, sgid[v], pi, pj, count)
     return count
 
 
@@ -169,9 +203,10 @@ def candidate_pairs(method, pos, rbound, gid, n_owned, buf):
     elif method == "linkcell":
         cutoff = 2.0 * rbound.max() if n else 1.0
         dims, lo, size, cell_start, cell_items = bin_particles(pos, cutoff)
+        spos, srb, sgid = sorted_copies(cell_items, pos, rbound, gid)
         cells = np.arange(dims[0] * dims[1] * dims[2], dtype=np.int64)
         while True:
-            count = linkcell_rows(cells, dims, cell_start, cell_items, HALF_SHELL, pos, rbound, gid,
+            count = linkcell_rows(cells, dims, cell_start, cell_items, HALF_SHELL, spos, srb, sgid,
                                   n_owned, buf.pi, buf.pj)
             if buf.ensure(count):
                 break

@@ -165,12 +165,15 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
         raise SceneError(f"time.steps must be a non-negative integer, got {steps!r}")
     # --- build stage (settling before step 0, done and cached by the harness)
     build = _table(doc, "build", "[build]")
-    _check_keys(build, {"settle_steps", "settle_ke"}, "[build]")
+    _check_keys(build, {"method", "max_steps", "ke_tol", "rate", "coordination"}, "[build]")
     if build:
-        ss = build.get("settle_steps", 0)
-        if isinstance(ss, bool) or not isinstance(ss, int) or ss < 0:
-            raise SceneError(f"build.settle_steps must be a non-negative integer, got {ss!r}")
-        _num(build.get("settle_ke", 1e-4), "build.settle_ke", positive=True)
+        if build.get("method") not in ("settle", "compress"):
+            raise SceneError(f"build.method must be 'settle' or 'compress', got {build.get('method')!r}")
+        ss = build.get("max_steps", 5000)
+        if isinstance(ss, bool) or not isinstance(ss, int) or ss <= 0:
+            raise SceneError(f"build.max_steps must be a positive integer, got {ss!r}")
+        for key, default in (("ke_tol", 1e-4), ("rate", 2e-4), ("coordination", 4.5)):
+            _num(build.get(key, default), f"build.{key}", positive=True)
     # --- particles
     rows = []
     plist = doc.get("particles", [])
@@ -210,12 +213,7 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
             raise SceneError(f"unknown wall {w!r} (faces: {', '.join(WALL_FACES)})")
     if len(set(walls)) != len(walls):
         raise SceneError("domain.walls lists a face twice")
-    wall_m = np.zeros((len(walls), 3))
-    wall_d = np.zeros(len(walls))
-    for k, w in enumerate(walls):
-        axis, sign = WALL_FACES[w]
-        wall_m[k, axis] = sign
-        wall_d[k] = sign * (box[0][axis] if sign > 0 else box[1][axis])
+    wall_m, wall_d = wall_planes(walls, box)
     gravity = _vec(dom.get("gravity", [0.0, 0.0, 0.0]), 3, "domain.gravity")
     # --- assemble the state
     n = len(rows)
@@ -244,6 +242,17 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
     return Scene(name=name, box=box, walls=list(walls), wall_m=wall_m, wall_d=wall_d, gravity=gravity,
                  materials=table, dt=dt, steps=steps, state=state, source=source,
                  extras={"build": dict(build), "key": hashlib.sha256(key.encode()).hexdigest()[:16]})
+
+
+def wall_planes(walls, box):
+    """Planes m.x = d of the named box faces: m [n_walls, 3] unit normals into the box, d [n_walls]."""
+    wall_m = np.zeros((len(walls), 3))
+    wall_d = np.zeros(len(walls))
+    for k, w in enumerate(walls):
+        axis, sign = WALL_FACES[w]
+        wall_m[k, axis] = sign
+        wall_d[k] = sign * (box[0][axis] if sign > 0 else box[1][axis])
+    return wall_m, wall_d
 
 
 def _quat_matrix(q):

@@ -5,9 +5,12 @@ block's particles) follow. Serial runs have no ghosts. Orientation is a unit qua
 (w, x, y, z) body -> world; angular momentum L is kept in the world frame (the rotation
 integrator is a splitting on L, contact-mechanics.md §4.2); omega is derived from it.
 
-Contact history lives with the particles, keyed by partner global id: every particle holds a
-row for each of its current contacts, so that both ends of a pair (possibly on two ranks)
-carry identical history and migration moves it with the particle.
+Contact history lives with the particles, keyed by partner global id: every owned particle
+holds a row for each of its current contacts (a CSR: hist_start [n_owned+1], hist_partner [nnz]
+ascending per particle, hist_val [nnz, HIST_LEN]), so both ends of a pair (possibly on two
+ranks) carry identical history and migration moves it with the particle. The CSR is exactly
+the adjacency that the force gather builds each step, so it costs nnz x 64 bytes and is
+rewritten, never searched for free slots.
 """
 import math
 import numpy as np
@@ -42,15 +45,15 @@ class State:
     gid [n] int64; shape [n] int8; axes [n, 3] semi-axes [m] (a sphere repeats r); rbound [n]
     bounding radius [m]; mass [n] [kg]; inertia [n, 3] principal moments [kg m^2];
     material [n] int32; pos [n, 3] [m]; vel [n, 3] [m/s]; quat [n, 4]; angmom [n, 3] world
-    [kg m^2/s]; force, torque [n, 3] of the last step; hist_gid [n, K] (-1 = empty, ascending),
-    hist_val [n, K, HIST_LEN], hist_cnt [n]; wall_hist [n, n_walls, HIST_LEN].
+    [kg m^2/s]; force, torque [n, 3] of the last step; contact history hist_start [n_owned+1],
+    hist_partner [nnz] (partner gid), hist_val [nnz, HIST_LEN]; wall_hist [n, n_walls, HIST_LEN].
     """
 
     FIELDS = ("gid", "shape", "axes", "rbound", "mass", "inertia", "material",
               "pos", "vel", "quat", "angmom", "force", "torque")
 
     def __init__(self, gid, shape, axes, mass, inertia, material, pos, vel, quat, angmom,
-                 n_walls=0, hist_slots=8):
+                 n_walls=0):
         n = len(gid)
         self.gid = np.ascontiguousarray(gid, dtype=np.int64)
         self.shape = np.ascontiguousarray(shape, dtype=np.int8)
@@ -66,9 +69,9 @@ class State:
         self.force = np.zeros((n, 3))
         self.torque = np.zeros((n, 3))
         self.n_owned = n
-        self.hist_gid = np.full((n, hist_slots), -1, dtype=np.int64)
-        self.hist_val = np.zeros((n, hist_slots, HIST_LEN))
-        self.hist_cnt = np.zeros(n, dtype=np.int32)
+        self.hist_start = np.zeros(n + 1, dtype=np.int64)
+        self.hist_partner = np.zeros(0, dtype=np.int64)
+        self.hist_val = np.zeros((0, HIST_LEN))
         self.wall_hist = np.zeros((n, n_walls, HIST_LEN))
 
     @property
@@ -79,16 +82,24 @@ class State:
     def all_spheres(self):
         return bool(np.all(self.shape == SPHERE))
 
-    def grow_history(self, slots):
-        """Widen the per-particle contact tables to `slots` columns, keeping their content."""
-        n, k = self.hist_gid.shape
-        if slots <= k:
-            return
-        g = np.full((n, slots), -1, dtype=np.int64)
-        v = np.zeros((n, slots, HIST_LEN))
-        g[:, :k] = self.hist_gid
-        v[:, :k] = self.hist_val
-        self.hist_gid, self.hist_val = g, v
+    PER_PARTICLE = ("gid", "shape", "axes", "rbound", "mass", "inertia", "material", "pos", "vel",
+                    "quat", "angmom", "force", "torque", "wall_hist")
+
+    def permute(self, perm):
+        """Store the owned particles in the order perm [n_owned] (a permutation of 0..n_owned-1),
+        carrying every per-particle array and each particle's contact-history rows. Only the
+        memory order changes: results never depend on it (DESIGN.md, Determinism)."""
+        perm = np.asarray(perm, dtype=np.int64)
+        if self.n != self.n_owned:
+            raise ValueError("permute() needs a state without ghosts")
+        for f in self.PER_PARTICLE:
+            setattr(self, f, np.ascontiguousarray(getattr(self, f)[perm]))
+        counts = np.diff(self.hist_start)[perm]
+        rows = np.concatenate([np.arange(self.hist_start[p], self.hist_start[p + 1]) for p in perm]) \
+            if len(perm) else np.zeros(0, dtype=np.int64)
+        self.hist_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        self.hist_partner = np.ascontiguousarray(self.hist_partner[rows.astype(np.int64)])
+        self.hist_val = np.ascontiguousarray(self.hist_val[rows.astype(np.int64)])
 
     def omega(self):
         """Angular velocity in the world frame [n, 3]: omega = R diag(1/I) R^T L."""

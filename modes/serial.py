@@ -11,6 +11,7 @@ import numpy as np
 
 from dem.forces import PR_LEN, build_adjacency, gather_range, resolve_pairs_range, wall_range
 from dem.integrate import derive_range, integrate_range
+from dem.state import HIST_LEN
 from dem.neighbor import PairBuffer, candidate_pairs
 from modes.base import register
 
@@ -72,8 +73,8 @@ class SerialMode:
         self.work.ensure(len(pi))
         w = self.work
         ecalls = resolve_pairs_range(0, len(pi), pi, pj, s.pos, s.vel, self.omega, self.rot, s.axes,
-                                     s.shape, s.mass, s.material, s.gid, s.n_owned, s.hist_gid,
-                                     s.hist_cnt, s.hist_val, m.estar, m.gstar, m.mu, m.zeta, self.dt,
+                                     s.shape, s.mass, s.material, s.gid, s.n_owned, s.hist_start,
+                                     s.hist_partner, s.hist_val, m.estar, m.gstar, m.mu, m.zeta, self.dt,
                                      w.active, w.res, w.ratio)
         return ecalls
 
@@ -81,19 +82,16 @@ class SerialMode:
         s, m = self.state, self.scene.materials
         w = self.work
         active = w.active[:len(pi)]
-        start, items = build_adjacency(pi, pj, active, s.gid, s.n_owned)
-        longest = gather_range(0, s.n_owned, start, items, pi, pj, s.gid, w.res, s.force, s.torque,
-                               s.hist_gid, s.hist_val, s.hist_cnt)
-        if longest > s.hist_gid.shape[1]:
-            s.grow_history(2 * longest)
-            gather_range(0, s.n_owned, start, items, pi, pj, s.gid, w.res, s.force, s.torque,
-                         s.hist_gid, s.hist_val, s.hist_cnt)
+        start, items, keys = build_adjacency(pi, pj, active, s.gid, s.n_owned)
+        new_val = np.empty((len(items), HIST_LEN))
+        gather_range(0, s.n_owned, start, items, pi, pj, w.res, s.force, s.torque, new_val)
+        s.hist_start, s.hist_partner, s.hist_val = start, keys, new_val
         wall_worst = 0.0
         n_wall = 0
         if self.has_walls:
             sc = self.scene
             n_wall, wall_worst = wall_range(0, s.n_owned, sc.wall_m, sc.wall_d, s.pos, s.vel, self.omega, self.rot,
-                                    s.axes, s.shape, s.mass, s.material, m.estar_w, m.gstar_w, m.zeta_w,
+                                    s.axes, s.rbound, s.shape, s.mass, s.material, m.estar_w, m.gstar_w, m.zeta_w,
                                     m.mu_w, s.wall_hist, self.dt, s.force, s.torque)
         g = self.g
         integrate_range(0, s.n_owned, s.pos, s.vel, s.quat, s.angmom, s.mass, s.inertia, s.shape,
