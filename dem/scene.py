@@ -459,6 +459,6 @@ def _validate_positions(state, box, wall_m, wall_d):
             for w in range(len(wall_m)):
                 m = wall_m[w]
                 h = math.sqrt(m @ q @ m)
-                if m @ c - wall_d[w] < h:
+                if m @ c - wall_d[w] < h * (1.0 - 1e-9):  # touching (to round-off) is fine
                     raise SceneError(f"particle {k} overlaps a wall (centre {c.tolist()}, "
                                      f"reach {h:.3g} m, distance {m @ c - wall_d[w]:.3g} m)")

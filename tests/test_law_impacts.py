@@ -132,3 +132,40 @@ def test_sphere_on_incline(mu, expected):
     v2 = sc.state.vel[0, 0]
     acc = (v2 - v1) / (2000 * dt)
     assert acc == pytest.approx(expected, rel=1e-3)
+
+
+QUARTZ = dict(density=2650.0, young=29e9, poisson=0.25, friction=0.0, restitution=1.0)
+
+
+@pytest.mark.parametrize("v_rel,dmax,fmax,tc", [
+    (0.1, 2.344e-8, 3.70e-4, 6.90e-7),   # T2 / §4.3 table, R = 0.05 mm, 0.1 m/s
+    (1.0, 1.479e-7, 5.86e-3, 4.35e-7),   # T2, R = 0.05 mm, 1 m/s
+])
+def test_quartz_grain_impacts(v_rel, dmax, fmax, tc):
+    """T2: quartz grains R = 0.05 mm (E = 29 GPa, nu = 0.25, E* = 15.47 GPa) in a head-on elastic
+    impact: delta_max, F_max and t_c of the §4.3 table (1e-3 relative; the table has 3-4 digits)."""
+    h = head_on(QUARTZ, axes=(0.05e-3,), v=v_rel / 2, t_c=tc)
+    assert max(h["depth"]) == pytest.approx(dmax, rel=2e-3)
+    assert max(h["force"]) == pytest.approx(fmax, rel=2e-3)
+    assert h["touch"] * h["dt"] == pytest.approx(tc, rel=2e-3)
+
+
+@pytest.mark.parametrize("axes,expected", [
+    ((0.5e-3, 0.3e-3, 0.2e-3), 2.001e-10),   # T12: R_e = ab/c = 7.5e-4 m, f_H = 1.0217
+    ((0.5e-3, 0.05e-3, 0.05e-3), 2.195e-11),  # T12 needle: R_e = 5e-4 m, B/A = 100, f_H = 1.435
+])
+def test_ellipsoid_resting_on_plane(axes, expected):
+    """T12: a quartz ellipsoid at rest on a rigid floor, shortest axis vertical, sinks to
+    delta = [3 m g / (4 E* sqrt(R_e) f_H)]^(2/3) (E* = E/(1-nu^2) against a rigid wall). For the
+    needle the elliptical factor f_H = 1.435 matters: without it delta would be 2.793e-11 m."""
+    a, b, c = axes
+    mat = dict(density=2650.0, young=29e9, poisson=0.25, friction=0.5, restitution=0.3)
+    sc = make_scene([dict(shape="ellipsoid", axes=list(axes), pos=[0.0, 0.0, c])], materials={"default": mat},
+                    box=((-0.01, -0.01, 0.0), (0.01, 0.01, 0.01)), walls=["z-"], gravity=[0.0, 0.0, -9.81])
+    from bench.run import choose_dt
+    dt = choose_dt(sc, None)[0]
+    m = serial(sc, dt)
+    for _ in range(int(5e-4 / dt)):  # ~25 damped contact oscillations (period ~2e-5 s)
+        m.step()
+    depth = c - sc.state.pos[0, 2]
+    assert depth == pytest.approx(expected, rel=1e-3)

@@ -18,6 +18,10 @@ Method (reference notes contact-mechanics.md §1.4-1.6):
   best-phi bookkeeping: the reported depth is phi at the best normal seen, an upper bound of
   PD that equals PD at convergence; the PW normal is the fallback.
 * Any phi(n) < 0 proves separation (n is a separating axis).
+* Deep overlap (phi above a principal radius of W_1 + W_2, H_T indefinite; outside the DEM
+  regime delta << curvature radii): the steps use W_1 + W_2 (a descent direction) with up to
+  NEWTON_DEEP_MAXIT evaluations; the result is a local minimum of phi (or the best phi seen),
+  always finite, an upper bound of the true PD.
 * Warm start (optional n0): Newton from the previous normal is accepted without PW only if it
   converges with an SPD Hessian and 0 < phi* < rho1 + rho2, rho_i = c_i^2 / a_i the smallest
   radius of curvature of body i.  Then by Blaschke's rolling-ball theorem (all curvature radii of
@@ -34,30 +38,30 @@ import numpy as np
 from numba import njit
 
 # ---- output buffer layout (float64 array of length OUT_LEN) ----
-OUT_DEPTH = 0
-OUT_NX = 1
+OUT_DEPTH = 0           # penetration depth delta > 0 [m] (minimum translation distance)
+OUT_NX = 1              # unit common normal n, from body 1 towards body 2
 OUT_NY = 2
 OUT_NZ = 3
-OUT_P1X = 4
+OUT_P1X = 4             # p1 = s1(n), contact point on body 1's surface
 OUT_P1Y = 5
 OUT_P1Z = 6
-OUT_P2X = 7
+OUT_P2X = 7             # p2 = s2(-n) = p1 - delta n, contact point on body 2's surface
 OUT_P2Y = 8
 OUT_P2Z = 9
-OUT_XCX = 10
+OUT_XCX = 10            # x_c = (p1 + p2) / 2
 OUT_XCY = 11
 OUT_XCZ = 12
-OUT_RE = 13
-OUT_KRATIO = 14
-OUT_LAM = 15
-OUT_PW_ITERS = 16
-OUT_NEWTON_ITERS = 17
+OUT_RE = 13             # equivalent Hertz radius det(K1 + K2)^-1/2 [m]
+OUT_KRATIO = 14         # kappa'' / kappa' >= 1 of K1 + K2
+OUT_LAM = 15            # PW lambda* (warm-start path: h1/(h1 + h2) at n*, its touching limit)
+OUT_PW_ITERS = 16       # PW iterations (0: warm-start path, PW skipped)
+OUT_NEWTON_ITERS = 17   # evaluations of phi / Hessian on S^2 (each followed by a step)
 OUT_LEN = 18
 
 # ---- solver parameters (reference §1.5) ----
 PW_TOL = 1e-11          # |raw Newton step in lambda| for PW convergence
 PW_MAXIT = 50           # PW iteration cap
-NEWTON_MAXIT = 7         # phi evaluations on S^2 (at most 6 Newton steps)
+NEWTON_MAXIT = 7        # phi evaluations on S^2 (at most 6 Newton steps)
 NEWTON_WARM_MAXIT = 4   # phi evaluations on the warm-start path
 NEWTON_DEEP_MAXIT = 20  # phi evaluations once H_T was indefinite (deep overlap, cold path)
 NEWTON_TOL = 1e-10      # step length [rad] at which the sphere-Newton has converged

@@ -1,0 +1,67 @@
+"""`bench perf`: serial speed figures of the DEM core against the targets of issue 2.
+
+Targets (this 2-core machine, serial, N = 10k): ellipsoid contact resolution <= 2 us per pair
+(the paper's code: 42.7 us); packed ellipsoids <= 5 us per particle-step; packed spheres
+<= 0.15 us per particle-step (LAMMPS granular: 0.08 with Verlet lists and a skin).
+Per-step figures are medians over timed steps after a warm-up (JIT compile excluded).
+"""
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+TARGETS = {"ellipsoid_pair_us": 2.0, "packed_ellipsoid_us_per_particle_step": 5.0,
+           "packed_sphere_us_per_particle_step": 0.15}
+
+
+def time_packed(shape, particles, steps, log):
+    """Median step time of the packed scene; returns a dict of per-particle and per-pair figures."""
+    from bench.prepare import load_prepared
+    from bench.run import choose_dt
+    from modes.serial import SerialMode
+    scene = load_prepared("packed", particles=particles, shape=shape, log=log)
+    dt = choose_dt(scene, None)[0]
+    mode = SerialMode().setup(scene, dt=dt)
+    mode.warmup()
+    for _ in range(3):
+        mode.step()
+    rows = [mode.step() for _ in range(steps)]
+    med = {k: float(np.median([r[k] for r in rows])) for k in ("totalT", "neighborT", "resolveT",
+                                                              "n_candidates", "n_contacts")}
+    n = scene.n
+    return {"particles": n, "steps": steps, "shape": shape,
+            "us_per_particle_step": 1e6 * med["totalT"] / n,
+            "neighbor_us_per_particle": 1e6 * med["neighborT"] / n,
+            "resolve_us_per_candidate": 1e6 * med["resolveT"] / max(med["n_candidates"], 1),
+            "other_us_per_particle": 1e6 * (med["totalT"] - med["neighborT"] - med["resolveT"]) / n,
+            "candidates": med["n_candidates"], "contacts": med["n_contacts"],
+            "coordination": 2.0 * med["n_contacts"] / n, "build": scene.extras.get("built")}
+
+
+def perf(args):
+    log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
+    report = {"targets": TARGETS}
+    what = args.what
+    if what in ("all", "pairs"):
+        from bench.perf_contact import time_ellipsoid_pairs
+        r = time_ellipsoid_pairs()
+        report["ellipsoid_pairs"] = r
+        print(f"ellipsoid contact resolution (1:0.8:0.6, depth 1e-3 a, cold start): "
+              f"{r['us_per_pair']:.3f} us/pair (warm start {r['warm']['us_per_pair']:.3f}, "
+              f"separated {r['separated']['us_per_pair']:.3f}); target <= {TARGETS['ellipsoid_pair_us']}")
+    for shape, key in (("ellipsoid", "packed_ellipsoid_us_per_particle_step"),
+                       ("sphere", "packed_sphere_us_per_particle_step")):
+        if what in ("all", shape + "s"):
+            r = time_packed(shape, args.particles, args.steps, log)
+            report[f"packed_{shape}s"] = r
+            print(f"packed {shape}s, N = {r['particles']}: {r['us_per_particle_step']:.3f} us/particle-step "
+                  f"(neighbour {r['neighbor_us_per_particle']:.3f} us/particle, resolve "
+                  f"{r['resolve_us_per_candidate']:.3f} us/candidate pair, rest {r['other_us_per_particle']:.3f} "
+                  f"us/particle; coordination {r['coordination']:.2f}); target <= {TARGETS[key]}")
+    if args.out:
+        os.makedirs(args.out, exist_ok=True)
+        with open(os.path.join(args.out, "perf.json"), "w") as fh:
+            json.dump(report, fh, indent=1, default=str)
+    return 0
