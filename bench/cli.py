@@ -40,6 +40,16 @@ def _nonneg_int(text):
     return v
 
 
+def _skin(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not (0.0 <= v <= 10.0):
+        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 10], got {text!r}")
+    return v
+
+
 def build_parser():
     p = _Parser(prog="bench", description="DEM harness: MPI x threads mappings for particle simulation.")
     sub = p.add_subparsers(dest="command", parser_class=_Parser)
@@ -55,6 +65,9 @@ def build_parser():
     r.add_argument("--mapping", default="1-1-1-1-1", help="P-px-py-pz-T (default 1-1-1-1-1)")
     r.add_argument("--scheme", default=None, help="thread scheme (threads modes)")
     r.add_argument("--neighbor", choices=["allpairs", "linkcell"], default="linkcell")
+    r.add_argument("--skin", type=_skin, default=0.0, metavar="F",
+                   help="Verlet skin, fraction of the largest bounding diameter (default 0: "
+                        "estimate neighbours every step)")
     r.add_argument("--snapshot-every", type=_nonneg_int, default=0, metavar="K",
                    help="write VTK + npz snapshots every K steps")
     r.add_argument("--plot", action="store_true", help="draw DIR/run.png (timings, contacts, energy)")
@@ -70,6 +83,8 @@ def build_parser():
     pf.add_argument("--particles", type=_positive_int, default=10000)
     pf.add_argument("--steps", type=_positive_int, default=20)
     pf.add_argument("--what", default="all", choices=["all", "pairs", "ellipsoids", "spheres"])
+    pf.add_argument("--skin", type=_skin, default=0.1, metavar="F",
+                    help="Verlet skin for the second set of packed figures (default 0.1)")
     pf.add_argument("--out", default=None, help="write perf.json here")
     return p
 

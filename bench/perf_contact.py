@@ -11,25 +11,15 @@ import time
 import numpy as np
 from numba import njit
 
+from dem.quaternion import quat_to_matrices, random_quaternions
+
 from dem.contact.ellipsoid import (OUT_LEN, OUT_NEWTON_ITERS, OUT_PW_ITERS, OUT_LAM, OUT_NX,
                                    ellipsoid_contact)
 
 
 def _random_rotations(n, rng):
-    q = rng.standard_normal((n, 4))
-    q /= np.linalg.norm(q, axis=1)[:, None]
-    w, x, y, z = q.T
-    r = np.empty((n, 3, 3))
-    r[:, 0, 0] = 1 - 2 * (y * y + z * z)
-    r[:, 0, 1] = 2 * (x * y - w * z)
-    r[:, 0, 2] = 2 * (x * z + w * y)
-    r[:, 1, 0] = 2 * (x * y + w * z)
-    r[:, 1, 1] = 1 - 2 * (x * x + z * z)
-    r[:, 1, 2] = 2 * (y * z - w * x)
-    r[:, 2, 0] = 2 * (x * z - w * y)
-    r[:, 2, 1] = 2 * (y * z + w * x)
-    r[:, 2, 2] = 1 - 2 * (x * x + y * y)
-    return r
+    """n uniformly random rotation matrices [n, 3, 3]."""
+    return quat_to_matrices(random_quaternions(n, rng))
 
 
 def make_pairs(n_pairs, aspect=(1.0, 0.8, 0.6), rel_depth=1e-3, seed=0, scale=1e-3):

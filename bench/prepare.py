@@ -32,7 +32,11 @@ def cache_dir():
 
 def load_prepared(spec, particles=None, shape=None, seed=None, log=None):
     """load_scene + its build stage (from the cache when possible). Returns the Scene."""
-    scene = load_scene(spec, particles=particles, shape=shape, seed=seed)
+    return prepare(load_scene(spec, particles=particles, shape=shape, seed=seed), log=log)
+
+
+def prepare(scene, log=None):
+    """Run (or load from the cache) the scene's [build] stage in place; returns the scene."""
     build = scene.extras.get("build") or {}
     if not build:
         return scene

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 
 STEP_COLUMNS = ["step", "rank", "totalT", "commuT", "migraT", "compuT", "neighborT", "resolveT",
-                "n_owned", "n_ghost", "n_contacts", "n_wall_contacts", "n_candidates", "n_migrated", "bytes_sent",
+                "n_owned", "n_ghost", "n_contacts", "n_wall_contacts", "n_candidates", "neighbor_rebuilt", "n_migrated", "bytes_sent",
                 "ellipsoid_calls", "max_overlap_ratio"]
 
 

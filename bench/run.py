@@ -6,8 +6,8 @@ import time
 import numpy as np
 
 from bench.records import StepWriter, environment, write_json, write_state
-from bench.prepare import load_prepared
-from dem.scene import SceneError
+from bench.prepare import prepare
+from dem.scene import SceneError, load_scene
 from dem.timestep import time_step_bounds
 from modes.base import ModeError, mode_for, parse_mapping
 
@@ -52,14 +52,17 @@ def run(args):
     mode_cls = mode_for(mapping)
     if args.scheme is not None and mapping.threads == 1:
         raise ModeError(f"--scheme {args.scheme} needs a mapping with more than one thread")
-    log = None if args.quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
-    scene = load_prepared(args.scene, particles=args.particles, shape=args.shape, seed=args.seed, log=log)
+    # progress of a scene build only on a terminal: logs and tests see one line per outcome
+    log = None if args.quiet or not sys.stderr.isatty() else (lambda msg: print(msg, file=sys.stderr, flush=True))
+    scene = load_scene(args.scene, particles=args.particles, shape=args.shape, seed=args.seed)
     steps = scene.steps if args.steps is None else args.steps
-    dt, dt_auto, dt_crit, dt_info = choose_dt(scene, args.dt)
+    choose_dt(scene, args.dt)  # refuse a bad time step before any (expensive) build
     out = args.out or os.path.join("results", f"run-{scene.name}")
     prepare_output(out)
+    prepare(scene, log=log)
+    dt, dt_auto, dt_crit, dt_info = choose_dt(scene, args.dt)
 
-    mode = mode_cls().setup(scene, dt=dt, neighbor=args.neighbor)
+    mode = mode_cls().setup(scene, dt=dt, neighbor=args.neighbor, skin=args.skin)
     t_compile = time.perf_counter()
     mode.warmup()
     t_compile = time.perf_counter() - t_compile
@@ -68,7 +71,7 @@ def run(args):
             "argv": sys.argv, "scene": scene.name, "scene_source": scene.source,
             "particles": scene.n, "steps": steps, "mapping": str(mapping), "mode": mapping.kind,
             "procs": mapping.procs, "threads": mapping.threads, "scheme": args.scheme,
-            "neighbor": args.neighbor, "dt": dt, "dt_auto": dt_auto, "dt_critical": dt_crit,
+            "neighbor": args.neighbor, "skin": args.skin, "dt": dt, "dt_auto": dt_auto, "dt_critical": dt_crit,
             "dt_details": dt_info, "walls": scene.walls, "gravity": scene.gravity.tolist(),
             "materials": [m.__dict__ for m in scene.materials.materials],
             "environment": environment(), "warmup_s": t_compile, "build": scene.extras.get("built"), "stable": None,
@@ -105,6 +108,7 @@ def run(args):
     write_state(os.path.join(out, "state.npz"), snap)
     info.update({"stable": stable, "stability_reason": reason, "status": "done" if stable else "unstable",
                  "max_overlap_ratio": mode.max_overlap_ratio, "wall_s": wall,
+                 "neighbor_rebuilds": mode.verlet.rebuilds if getattr(mode, "verlet", None) else steps,
                  "kinetic_energy_initial": ke0, "kinetic_energy_final": kinetic_energy(mode.state),
                  "simulated_time": steps * dt})
     write_json(os.path.join(out, "run.json"), info)

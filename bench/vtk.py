@@ -6,26 +6,13 @@ semi-axes, ready for ParaView's Tensor Glyph or Glyph filters), vel, omega.
 """
 import numpy as np
 
-
-def _matrices(quat):
-    w, x, y, z = quat[:, 0], quat[:, 1], quat[:, 2], quat[:, 3]
-    r = np.empty((len(quat), 3, 3))
-    r[:, 0, 0] = 1 - 2 * (y * y + z * z)
-    r[:, 0, 1] = 2 * (x * y - w * z)
-    r[:, 0, 2] = 2 * (x * z + w * y)
-    r[:, 1, 0] = 2 * (x * y + w * z)
-    r[:, 1, 1] = 1 - 2 * (x * x + z * z)
-    r[:, 1, 2] = 2 * (y * z - w * x)
-    r[:, 2, 0] = 2 * (x * z - w * y)
-    r[:, 2, 1] = 2 * (y * z + w * x)
-    r[:, 2, 2] = 1 - 2 * (x * x + y * y)
-    return r
+from dem.quaternion import quat_to_matrices
 
 
 def write_vtk(path, snap, step=0, time=0.0):
     """Write snapshot dict (id, pos, quat, vel, omega, axes, shape) as ASCII legacy VTK."""
     n = len(snap["id"])
-    rot = _matrices(snap["quat"])
+    rot = quat_to_matrices(snap["quat"])
     lines = ["# vtk DataFile Version 3.0", f"DEM snapshot step {step} time {time:.9g}", "ASCII",
              "DATASET POLYDATA", f"POINTS {n} double"]
     lines += [f"{p[0]:.17g} {p[1]:.17g} {p[2]:.17g}" for p in snap["pos"]]

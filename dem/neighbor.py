@@ -32,26 +32,41 @@ def _emit(a, b, ga, gb, pi, pj, count):
     return count + 1
 
 
+@njit(cache=True, inline="always")
+def _scan(u, v0, v1, items, spos, srb, sgid, n_owned, pi, pj, count):
+    """Test the particle at scan row u against scan rows v0..v1-1; the one inner loop of both
+    neighbour methods.
+
+    spos [m,3], srb [m], sgid [m] hold positions, bounding radii and gids in scan order and
+    items [m] maps a scan row to its local index. The outer particle is read once into
+    registers: numba cannot tell that the pair writes do not alias the positions.
+    """
+    a = items[u]
+    xa, ya, za, ra, ga = spos[u, 0], spos[u, 1], spos[u, 2], srb[u], sgid[u]
+    ghost_a = a >= n_owned
+    for v in range(v0, v1):
+        b = items[v]
+        if ghost_a and b >= n_owned:
+            continue
+        dx = spos[v, 0] - xa
+        dy = spos[v, 1] - ya
+        dz = spos[v, 2] - za
+        rr = ra + srb[v]
+        if dx * dx + dy * dy + dz * dz < rr * rr:
+            count = _emit(a, b, ga, sgid[v], pi, pj, count)
+    return count
+
+
 @njit(cache=True)
 def allpairs_rows(rows, pos, rbound, gid, n_owned, pi, pj):
     """n-by-n search over outer rows i in `rows` against all j > i. Returns the pair count
     (which may exceed len(pi): then the caller enlarges the buffers and calls again)."""
     n = pos.shape[0]
+    identity = np.arange(n)
     count = 0
     for r in range(rows.shape[0]):
         i = rows[r]
-        # the outer particle lives in registers: the pair writes may not alias pos for numba
-        xi, yi, zi, ri, gi = pos[i, 0], pos[i, 1], pos[i, 2], rbound[i], gid[i]
-        ghost_i = i >= n_owned
-        for j in range(i + 1, n):
-            if ghost_i and j >= n_owned:
-                continue
-            dx = pos[j, 0] - xi
-            dy = pos[j, 1] - yi
-            dz = pos[j, 2] - zi
-            rr = ri + rbound[j]
-            if dx * dx + dy * dy + dz * dz < rr * rr:
-                count = _emit(i, j, gi, gid[j], pi, pj, count)
+        count = _scan(i, i + 1, n, identity, pos, rbound, gid, n_owned, pi, pj, count)
     return count
 
 
@@ -139,19 +154,7 @@ def linkcell_rows(cells, dims, cell_start, cell_items, half_shell, spos, srb, sg
         cz = c // (nx * ny)
         s0, s1 = cell_start[c], cell_start[c + 1]
         for u in range(s0, s1):
-            a = cell_items[u]
-            xa, ya, za, ra, ga = spos[u, 0], spos[u, 1], spos[u, 2], srb[u], sgid[u]
-            ghost_a = a >= n_owned
-            for v in range(u + 1, s1):
-                b = cell_items[v]
-                if ghost_a and b >= n_owned:
-                    continue
-                dx = spos[v, 0] - xa
-                dy = spos[v, 1] - ya
-                dz = spos[v, 2] - za
-                rr = ra + srb[v]
-                if dx * dx + dy * dy + dz * dz < rr * rr:
-                    count = _emit(a, b, ga, sgid[v], pi, pj, count)
+            count = _scan(u, u + 1, s1, cell_items, spos, srb, sgid, n_owned, pi, pj, count)
             for o in range(half_shell.shape[0]):
                 x = cx + half_shell[o, 0]
                 y = cy + half_shell[o, 1]
@@ -159,16 +162,8 @@ def linkcell_rows(cells, dims, cell_start, cell_items, half_shell, spos, srb, sg
                 if x < 0 or y < 0 or z < 0 or x >= nx or y >= ny or z >= nz:
                     continue
                 d = x + nx * (y + ny * z)
-                for v in range(cell_start[d], cell_start[d + 1]):
-                    b = cell_items[v]
-                    if ghost_a and b >= n_owned:
-                        continue
-                    dx = spos[v, 0] - xa
-                    dy = spos[v, 1] - ya
-                    dz = spos[v, 2] - za
-                    rr = ra + srb[v]
-                    if dx * dx + dy * dy + dz * dz < rr * rr:
-                        count = _emit(a, b, ga, sgid[v], pi, pj, count)
+                count = _scan(u, cell_start[d], cell_start[d + 1], cell_items, spos, srb, sgid, n_owned,
+                              pi, pj, count)
     return count
 
 
@@ -213,3 +208,52 @@ def candidate_pairs(method, pos, rbound, gid, n_owned, buf):
     else:
         raise ValueError(f"unknown neighbour method {method!r} (allpairs, linkcell)")
     return buf.pi[:count], buf.pj[:count]
+
+
+@njit(cache=True)
+def max_displacement2(pos, ref, n):
+    """Largest squared displacement [m^2] of particles 0..n-1 since the reference positions."""
+    worst = 0.0
+    for p in range(n):
+        dx = pos[p, 0] - ref[p, 0]
+        dy = pos[p, 1] - ref[p, 1]
+        dz = pos[p, 2] - ref[p, 2]
+        worst = max(worst, dx * dx + dy * dy + dz * dz)
+    return worst
+
+
+@njit(cache=True)
+def cell_order(pos, cutoff):
+    """Permutation [n] listing the particles cell by cell (x fastest): a spatial sort, so that
+    particles close in space are close in memory."""
+    return bin_particles(pos, cutoff)[4]
+
+
+class VerletList:
+    """Candidate pairs within r_i + r_j + skin, reused until some particle moved skin/2.
+
+    Bounding spheres do not change under rotation, so the list stays a superset of the touching
+    pairs until a particle has translated by half the skin (Verlet 1967; LAMMPS' neighbor skin).
+    The narrow phase then decides contact exactly, so the contact set, and the trajectory, are
+    those of a per-step estimate.
+    """
+
+    def __init__(self, method, skin):
+        self.method = method
+        self.skin = float(skin)     # [m]
+        self.ref = None
+        self.pi = self.pj = None
+        self.buf = PairBuffer(1024)
+        self.rebuilds = 0
+
+    def needs_rebuild(self, pos, n_owned):
+        if self.ref is None or self.ref.shape != pos.shape:
+            return True
+        return max_displacement2(pos, self.ref, pos.shape[0]) >= (0.5 * self.skin) ** 2
+
+    def rebuild(self, pos, rbound, gid, n_owned):
+        pi, pj = candidate_pairs(self.method, pos, rbound + 0.5 * self.skin, gid, n_owned, self.buf)
+        self.pi, self.pj = pi, pj
+        self.ref = pos.copy()
+        self.rebuilds += 1
+        return pi, pj

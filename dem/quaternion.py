@@ -63,6 +63,23 @@ def quat_from_matrix(r):
     return q / np.linalg.norm(q)
 
 
+def quat_to_matrices(q):
+    """Rotation matrices [n, 3, 3] of unit quaternions q [n, 4] (numpy, for set-up and I/O code)."""
+    q = np.asarray(q, dtype=np.float64).reshape(-1, 4)
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    r = np.empty((len(q), 3, 3))
+    r[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    r[:, 0, 1] = 2 * (x * y - w * z)
+    r[:, 0, 2] = 2 * (x * z + w * y)
+    r[:, 1, 0] = 2 * (x * y + w * z)
+    r[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    r[:, 1, 2] = 2 * (y * z - w * x)
+    r[:, 2, 0] = 2 * (x * z - w * y)
+    r[:, 2, 1] = 2 * (y * z + w * x)
+    r[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    return r
+
+
 def random_quaternions(n, rng):
     """n uniformly distributed unit quaternions [n, 4] (Shoemake 1992, normalised Gaussians)."""
     q = rng.standard_normal((n, 4))

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dem.materials import Material, MaterialTable
-from dem.quaternion import random_quaternions
+from dem.quaternion import quat_to_matrices, random_quaternions
 from dem.state import State, SHAPE_CODES, SPHERE, mass_properties
 
 WALL_FACES = {"x-": (0, +1), "x+": (0, -1), "y-": (1, +1), "y+": (1, -1), "z-": (2, +1), "z+": (2, -1)}
@@ -232,8 +232,9 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
     state = State(gid, shape_arr, axes, mass, inertia, mat, pos, vel, quat, np.zeros((n, 3)),
                   n_walls=len(walls))
     # L = R I R^T omega (world frame)
+    rots = quat_to_matrices(quat)
     for k in range(n):
-        r = _quat_matrix(quat[k])
+        r = rots[k]
         state.angmom[k] = r @ (inertia[k] * (r.T @ omega[k]))
     _validate_positions(state, box, wall_m, wall_d)
     import hashlib
@@ -253,13 +254,6 @@ def wall_planes(walls, box):
         wall_m[k, axis] = sign
         wall_d[k] = sign * (box[0][axis] if sign > 0 else box[1][axis])
     return wall_m, wall_d
-
-
-def _quat_matrix(q):
-    w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 def _explicit_particle(p, k, table):
@@ -449,12 +443,13 @@ def _random_placement(region, rb, rng, what, attempts=200):
 def _validate_positions(state, box, wall_m, wall_d):
     """Refuse particles whose centre is outside the box or whose body crosses a wall."""
     n = state.n
+    rots = quat_to_matrices(state.quat)
     for k in range(n):
         c = state.pos[k]
         if np.any(c < box[0]) or np.any(c > box[1]):
             raise SceneError(f"particle {k} centre {c.tolist()} is outside the box")
         if len(wall_m):
-            r = _quat_matrix(state.quat[k])
+            r = rots[k]
             q = r @ np.diag(state.axes[k] ** 2) @ r.T
             for w in range(len(wall_m)):
                 m = wall_m[w]

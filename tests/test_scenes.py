@@ -100,3 +100,13 @@ def test_packed_is_dense_and_static(tmp_path, monkeypatch):
     again = load_prepared("packed", particles=400)  # from the cache: same assembly at once
     assert again.extras["built"]["from_cache"]
     assert np.array_equal(again.state.pos, load_prepared("packed", particles=400).state.pos)
+
+
+@pytest.mark.parametrize("name", ["patch162", "pluviation", "packed"])
+@pytest.mark.parametrize("shape", [None, "sphere"])
+def test_builtin_scene_time_steps_are_accepted(name, shape):
+    """Each built-in scene's own dt is below its critical step at its default size."""
+    from bench.run import choose_dt
+    sc = load_scene(name, shape=shape)
+    dt, _, dt_crit, _ = choose_dt(sc, None)
+    assert dt <= dt_crit

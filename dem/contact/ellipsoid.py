@@ -259,24 +259,9 @@ def _sphere_newton(rot1, ax1, rot2, ax2, rx, ry, rz, rn, nx, ny, nz, maxit, deep
     return bx, by, bz, best, it, status
 
 
-@njit(cache=True)
-def _fill(c1, rot1, ax1, c2, rot2, ax2, nx, ny, nz, rx, ry, rz, lam, pw_it, nw_it, out):
-    """Write depth, normal, contact points, R_e, kratio at the normal n; returns the depth."""
-    h1, u0, u1, u2 = _hq(rot1, ax1, nx, ny, nz)
-    h2, w0, w1, w2 = _hq(rot2, ax2, nx, ny, nz)
-    depth = h1 + h2 - (nx * rx + ny * ry + nz * rz)
-    if not (depth > 0.0):
-        return 0.0
-    t1x, t1y, t1z, t2x, t2y, t2z = _basis(nx, ny, nz)
-    k1 = _curv(rot1, ax1, h1, t1x, t1y, t1z, t2x, t2y, t2z)
-    k2 = _curv(rot2, ax2, h2, t1x, t1y, t1z, t2x, t2y, t2z)
-    re, kr = _hertz_radius(k1[0] + k2[0], k1[1] + k2[1], k1[2] + k2[2])
-    p1x = c1[0] + u0 / h1
-    p1y = c1[1] + u1 / h1
-    p1z = c1[2] + u2 / h1
-    p2x = c2[0] - w0 / h2
-    p2y = c2[1] - w1 / h2
-    p2z = c2[2] - w2 / h2
+@njit(cache=True, inline="always")
+def _write_out(out, depth, nx, ny, nz, p1x, p1y, p1z, p2x, p2y, p2z, re, kr, lam, pw_it, nw_it):
+    """Fill the OUT_* layout; the contact point is the midpoint of p1 and p2."""
     out[OUT_DEPTH] = depth
     out[OUT_NX] = nx
     out[OUT_NY] = ny
@@ -295,6 +280,27 @@ def _fill(c1, rot1, ax1, c2, rot2, ax2, nx, ny, nz, rx, ry, rz, lam, pw_it, nw_i
     out[OUT_LAM] = lam
     out[OUT_PW_ITERS] = pw_it
     out[OUT_NEWTON_ITERS] = nw_it
+
+
+@njit(cache=True)
+def _fill(c1, rot1, ax1, c2, rot2, ax2, nx, ny, nz, rx, ry, rz, lam, pw_it, nw_it, out):
+    """Write depth, normal, contact points, R_e, kratio at the normal n; returns the depth."""
+    h1, u0, u1, u2 = _hq(rot1, ax1, nx, ny, nz)
+    h2, w0, w1, w2 = _hq(rot2, ax2, nx, ny, nz)
+    depth = h1 + h2 - (nx * rx + ny * ry + nz * rz)
+    if not (depth > 0.0):
+        return 0.0
+    t1x, t1y, t1z, t2x, t2y, t2z = _basis(nx, ny, nz)
+    k1 = _curv(rot1, ax1, h1, t1x, t1y, t1z, t2x, t2y, t2z)
+    k2 = _curv(rot2, ax2, h2, t1x, t1y, t1z, t2x, t2y, t2z)
+    re, kr = _hertz_radius(k1[0] + k2[0], k1[1] + k2[1], k1[2] + k2[2])
+    p1x = c1[0] + u0 / h1
+    p1y = c1[1] + u1 / h1
+    p1z = c1[2] + u2 / h1
+    p2x = c2[0] - w0 / h2
+    p2y = c2[1] - w1 / h2
+    p2z = c2[2] - w2 / h2
+    _write_out(out, depth, nx, ny, nz, p1x, p1y, p1z, p2x, p2y, p2z, re, kr, lam, pw_it, nw_it)
     return depth
 
 
@@ -478,22 +484,5 @@ def ellipsoid_wall_contact(c, rot, ax, m, d, out):
     p2x = p1x + depth * mx
     p2y = p1y + depth * my
     p2z = p1z + depth * mz
-    out[OUT_DEPTH] = depth
-    out[OUT_NX] = -mx
-    out[OUT_NY] = -my
-    out[OUT_NZ] = -mz
-    out[OUT_P1X] = p1x
-    out[OUT_P1Y] = p1y
-    out[OUT_P1Z] = p1z
-    out[OUT_P2X] = p2x
-    out[OUT_P2Y] = p2y
-    out[OUT_P2Z] = p2z
-    out[OUT_XCX] = 0.5 * (p1x + p2x)
-    out[OUT_XCY] = 0.5 * (p1y + p2y)
-    out[OUT_XCZ] = 0.5 * (p1z + p2z)
-    out[OUT_RE] = re
-    out[OUT_KRATIO] = kr
-    out[OUT_LAM] = 0.0
-    out[OUT_PW_ITERS] = 0.0
-    out[OUT_NEWTON_ITERS] = 0.0
+    _write_out(out, depth, -mx, -my, -mz, p1x, p1y, p1z, p2x, p2y, p2z, re, kr, 0.0, 0.0, 0.0)
     return 1

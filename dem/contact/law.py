@@ -28,10 +28,12 @@ def hertz_mindlin(depth, r_e, f_h, estar, gstar, mstar, zeta, mu,
     The tangential damping uses S_t = 8 G* a in place of S_n (contact-mechanics.md §3.2 step 6),
     i.e. sqrt(m* S_t) * 2 sqrt(5/6)|beta| = zeta sqrt(m* 8 G* a * 2/3).
     """
-    a = math.sqrt(r_e * depth)
-    k_h = (4.0 / 3.0) * estar * math.sqrt(r_e) * f_h
+    sqrt_r = math.sqrt(r_e)
     sqrt_d = math.sqrt(depth)
-    fn = k_h * depth * sqrt_d - zeta * math.sqrt(mstar * k_h) * math.sqrt(sqrt_d) * vn
+    a = sqrt_r * sqrt_d
+    k_h = (4.0 / 3.0) * estar * sqrt_r * f_h
+    # zeta sqrt(m* k_H) d^{1/4} = zeta sqrt(m* k_H sqrt(d)): one root instead of two
+    fn = k_h * depth * sqrt_d - zeta * math.sqrt(mstar * k_h * sqrt_d) * vn
     if fn < 0.0:
         fn = 0.0
     if a_old > a and a_old > 0.0:
