@@ -126,6 +126,35 @@ def pair_law(i, j, depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio, pos, vel, omeg
     _store(res, k, f, nx, ny, nz, lam)
 
 
+@njit(cache=True, inline="always")
+def _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, gid, n_owned, hist_start, hist_partner,
+                 hist_val, estar, gstar, mu, zeta, dt, active, pair_res, depth_ratio):
+    """Closed-form sphere-sphere contact and law for candidate pair k = (i, j)."""
+    hit, depth, nx, ny, nz, xcx, xcy, xcz, r_e = sphere_contact(
+        pos[i, 0], pos[i, 1], pos[i, 2], axes[i, 0], pos[j, 0], pos[j, 1], pos[j, 2], axes[j, 0])
+    if not hit:
+        active[k] = 0
+        return
+    own = i if i < n_owned else j
+    slot = find_history(hist_start, hist_partner, own, gid[j] if own == i else gid[i])
+    active[k] = 1
+    pair_law(i, j, depth, nx, ny, nz, xcx, xcy, xcz, r_e, 1.0, pos, vel, omega, mass, material,
+             estar, gstar, zeta, mu, hist_val, slot, dt, 0.0, pair_res, k)
+    depth_ratio[k] = depth / min(axes[i, 0], axes[j, 0])
+
+
+@njit(cache=True)
+def resolve_sphere_pairs_range(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, gid, n_owned,
+                               hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
+                               active, pair_res, depth_ratio):
+    """resolve_pairs_range for a scene of spheres only: the loop holds no ellipsoid solver, so
+    a sphere scene neither runs nor carries it (its loop body stays small). Returns 0 solver calls."""
+    for k in range(k0, k1):
+        _sphere_pair(k, pi[k], pj[k], pos, vel, omega, axes, mass, material, gid, n_owned, hist_start,
+                     hist_partner, hist_val, estar, gstar, mu, zeta, dt, active, pair_res, depth_ratio)
+    return 0
+
+
 @njit(cache=True)
 def resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid,
                         n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
@@ -133,7 +162,7 @@ def resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass,
     """Resolve candidate pairs k0..k1-1: geometry (closed form for two spheres, PW + Newton
     otherwise), then the contact law. Writes active [m] (1 = touching), pair_res [m, PR_LEN],
     depth_ratio [m] (depth over the smaller minimum semi-axis).
-    Returns the number of ellipsoid-solver calls (0 for a scene of spheres).
+    Returns the number of ellipsoid-solver calls.
     History is read from the owned end of the pair (both ends hold identical copies)."""
     out = np.zeros(OUT_LEN)
     n0 = np.zeros(3)
@@ -141,40 +170,29 @@ def resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass,
     for k in range(k0, k1):
         i = pi[k]
         j = pj[k]
-        lam = 0.0
         if shape[i] == SPHERE and shape[j] == SPHERE:
-            hit, depth, nx, ny, nz, xcx, xcy, xcz, r_e = sphere_contact(
-                pos[i, 0], pos[i, 1], pos[i, 2], axes[i, 0], pos[j, 0], pos[j, 1], pos[j, 2], axes[j, 0])
-            if not hit:
-                active[k] = 0
-                continue
-            kratio = 1.0
-            own = i if i < n_owned else j
-            slot = find_history(hist_start, hist_partner, own, gid[j] if own == i else gid[i])
-        else:
-            own = i if i < n_owned else j
-            slot = find_history(hist_start, hist_partner, own, gid[j] if own == i else gid[i])
-            lam0 = -1.0
-            n0[0] = n0[1] = n0[2] = 0.0
-            if slot >= 0:
-                # history normal is stored in the canonical (i -> j) direction on both ends
-                lam0 = hist_val[slot, H_LAM]
-                n0[0] = hist_val[slot, H_N]
-                n0[1] = hist_val[slot, H_N + 1]
-                n0[2] = hist_val[slot, H_N + 2]
-            ecalls += 1
-            if ellipsoid_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out) == 0:
-                active[k] = 0
-                continue
-            depth = out[OUT_DEPTH]
-            nx, ny, nz = out[OUT_NX], out[OUT_NY], out[OUT_NZ]
-            xcx, xcy, xcz = out[OUT_XCX], out[OUT_XCY], out[OUT_XCZ]
-            r_e = out[OUT_RE]
-            kratio = out[OUT_KRATIO]
-            lam = out[OUT_LAM]
+            _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, gid, n_owned, hist_start,
+                         hist_partner, hist_val, estar, gstar, mu, zeta, dt, active, pair_res, depth_ratio)
+            continue
+        own = i if i < n_owned else j
+        slot = find_history(hist_start, hist_partner, own, gid[j] if own == i else gid[i])
+        lam0 = -1.0
+        n0[0] = n0[1] = n0[2] = 0.0
+        if slot >= 0:
+            # the stored normal points i -> j (canonical order) on both ends
+            lam0 = hist_val[slot, H_LAM]
+            n0[0] = hist_val[slot, H_N]
+            n0[1] = hist_val[slot, H_N + 1]
+            n0[2] = hist_val[slot, H_N + 2]
+        ecalls += 1
+        if ellipsoid_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out) == 0:
+            active[k] = 0
+            continue
+        depth = out[OUT_DEPTH]
         active[k] = 1
-        pair_law(i, j, depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio, pos, vel, omega, mass, material,
-                 estar, gstar, zeta, mu, hist_val, slot, dt, lam, pair_res, k)
+        pair_law(i, j, depth, out[OUT_NX], out[OUT_NY], out[OUT_NZ], out[OUT_XCX], out[OUT_XCY],
+                 out[OUT_XCZ], out[OUT_RE], out[OUT_KRATIO], pos, vel, omega, mass, material,
+                 estar, gstar, zeta, mu, hist_val, slot, dt, out[OUT_LAM], pair_res, k)
         ai = min(axes[i, 0], min(axes[i, 1], axes[i, 2]))
         aj = min(axes[j, 0], min(axes[j, 1], axes[j, 2]))
         depth_ratio[k] = depth / min(ai, aj)

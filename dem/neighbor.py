@@ -8,8 +8,9 @@ both ghosts (index >= n_owned) are skipped: no rank needs them.
 - link-cell, O(n): cubic cells no smaller than the largest bounding diameter over the
   particles' bounding box; each cell against itself and its 13 forward neighbours (half-shell
   stencil), so no pair is produced twice (Grest, Duenweg & Kremer 1989).
-Each outer loop is written once over a given range of rows (particles or cells), so a thread
-scheme only chooses which rows each thread takes.
+The loop is written once (scan_rows) over a list of outer particle rows, for both methods (all-
+pairs is the same loop over a single cell), so a thread scheme only chooses which rows each
+thread takes.
 """
 import numpy as np
 from numba import njit
@@ -17,57 +18,6 @@ from numba import njit
 # 13 forward neighbour offsets of the half-shell stencil (lexicographically positive)
 HALF_SHELL = np.array([(dx, dy, dz) for dz in (-1, 0, 1) for dy in (-1, 0, 1) for dx in (-1, 0, 1)
                        if (dz, dy, dx) > (0, 0, 0)], dtype=np.int64)
-
-
-@njit(cache=True, inline="always")
-def _emit(a, b, ga, gb, pi, pj, count):
-    """Append pair (a, b) in canonical order (lower gid first); returns the new count."""
-    if count < pi.shape[0]:
-        if ga < gb:
-            pi[count] = a
-            pj[count] = b
-        else:
-            pi[count] = b
-            pj[count] = a
-    return count + 1
-
-
-@njit(cache=True, inline="always")
-def _scan(u, v0, v1, items, spos, srb, sgid, n_owned, pi, pj, count):
-    """Test the particle at scan row u against scan rows v0..v1-1; the one inner loop of both
-    neighbour methods.
-
-    spos [m,3], srb [m], sgid [m] hold positions, bounding radii and gids in scan order and
-    items [m] maps a scan row to its local index. The outer particle is read once into
-    registers: numba cannot tell that the pair writes do not alias the positions.
-    """
-    a = items[u]
-    xa, ya, za, ra, ga = spos[u, 0], spos[u, 1], spos[u, 2], srb[u], sgid[u]
-    ghost_a = a >= n_owned
-    for v in range(v0, v1):
-        b = items[v]
-        if ghost_a and b >= n_owned:
-            continue
-        dx = spos[v, 0] - xa
-        dy = spos[v, 1] - ya
-        dz = spos[v, 2] - za
-        rr = ra + srb[v]
-        if dx * dx + dy * dy + dz * dz < rr * rr:
-            count = _emit(a, b, ga, sgid[v], pi, pj, count)
-    return count
-
-
-@njit(cache=True)
-def allpairs_rows(rows, pos, rbound, gid, n_owned, pi, pj):
-    """n-by-n search over outer rows i in `rows` against all j > i. Returns the pair count
-    (which may exceed len(pi): then the caller enlarges the buffers and calls again)."""
-    n = pos.shape[0]
-    identity = np.arange(n)
-    count = 0
-    for r in range(rows.shape[0]):
-        i = rows[r]
-        count = _scan(i, i + 1, n, identity, pos, rbound, gid, n_owned, pi, pj, count)
-    return count
 
 
 @njit(cache=True)
@@ -91,7 +41,7 @@ def bin_particles(pos, cutoff):
     size = np.empty(3)
     for k in range(3):
         ext = hi[k] - lo[k] if n > 0 else 0.0
-        m = int(ext / cutoff) if cutoff > 0 else 1
+        m = int(ext / cutoff) if 0 < cutoff < np.inf else 1
         dims[k] = max(1, m)
     # a particle far from the rest must not blow the grid up: keep <= 8 cells per particle
     while dims[0] * dims[1] * dims[2] > 8 * n + 64:
@@ -99,7 +49,7 @@ def bin_particles(pos, cutoff):
         dims[k] = max(1, dims[k] // 2)
     for k in range(3):
         ext = hi[k] - lo[k] if n > 0 else 0.0
-        size[k] = max(ext / dims[k], cutoff)
+        size[k] = max(ext / dims[k], cutoff) if cutoff < np.inf else max(ext, 1.0)
     ncell = dims[0] * dims[1] * dims[2]
     cell_of = np.empty(n, dtype=np.int64)
     cell_start = np.zeros(ncell + 1, dtype=np.int64)
@@ -124,12 +74,14 @@ def bin_particles(pos, cutoff):
 
 
 @njit(cache=True)
-def sorted_copies(cell_items, pos, rbound, gid):
-    """Positions, bounding radii and gids [n] in cell order, so cell scans read contiguous memory."""
+def sorted_copies(cell_items, pos, rbound, gid, dims, lo, size):
+    """Positions, bounding radii, gids and cell indices [n] in cell order (scan order), so the
+    scans read contiguous memory."""
     n = cell_items.shape[0]
     spos = np.empty((n, 3))
     srb = np.empty(n)
     sgid = np.empty(n, dtype=np.int64)
+    scell = np.empty(n, dtype=np.int64)
     for u in range(n):
         p = cell_items[u]
         spos[u, 0] = pos[p, 0]
@@ -137,33 +89,67 @@ def sorted_copies(cell_items, pos, rbound, gid):
         spos[u, 2] = pos[p, 2]
         srb[u] = rbound[p]
         sgid[u] = gid[p]
-    return spos, srb, sgid
+        c = 0
+        for k in (2, 1, 0):
+            ck = int((pos[p, k] - lo[k]) / size[k])
+            if ck >= dims[k]:
+                ck = dims[k] - 1
+            c = c * dims[k] + ck
+        scell[u] = c
+    return spos, srb, sgid, scell
 
 
 @njit(cache=True)
-def linkcell_rows(cells, dims, cell_start, cell_items, half_shell, spos, srb, sgid, n_owned, pi, pj):
-    """Half-shell link-cell search over the cells listed in `cells` (flat indices, x fastest),
-    on the cell-ordered copies spos [n,3], srb [n], sgid [n] of sorted_copies. Pairs are written
-    as local indices (cell_items maps back). Returns the pair count (see allpairs_rows)."""
+def scan_rows(rows, scell, dims, cell_start, cell_items, half_shell, spos, srb, sgid, n_owned, pi, pj):
+    """The one neighbour loop: for each outer particle at scan row u in `rows`, test the later
+    particles of its own cell and all particles of its 13 forward (half-shell) cells.
+
+    Link-cell: cells of edge >= the largest bounding diameter, so no pair is missed or produced
+    twice (Grest, Duenweg & Kremer 1989). All-pairs is the same loop over a single cell (the
+    n-by-n search, i against j > i). Arrays are in scan (cell) order (sorted_copies); pairs are
+    written as local indices via cell_items. Returns the pair count, which may exceed len(pi):
+    then the caller enlarges the buffers and calls again.
+    """
     nx, ny, nz = dims[0], dims[1], dims[2]
     count = 0
-    for r in range(cells.shape[0]):
-        c = cells[r]
+    for r in range(rows.shape[0]):
+        u = rows[r]
+        c = scell[u]
         cx = c % nx
         cy = (c // nx) % ny
         cz = c // (nx * ny)
-        s0, s1 = cell_start[c], cell_start[c + 1]
-        for u in range(s0, s1):
-            count = _scan(u, u + 1, s1, cell_items, spos, srb, sgid, n_owned, pi, pj, count)
-            for o in range(half_shell.shape[0]):
-                x = cx + half_shell[o, 0]
-                y = cy + half_shell[o, 1]
-                z = cz + half_shell[o, 2]
+        a = cell_items[u]
+        # the outer particle lives in registers: numba cannot tell the pair writes do not alias spos
+        xa, ya, za, ra, ga = spos[u, 0], spos[u, 1], spos[u, 2], srb[u], sgid[u]
+        ghost_a = a >= n_owned
+        for o in range(half_shell.shape[0] + 1):
+            if o == 0:
+                v0, v1 = u + 1, cell_start[c + 1]
+            else:
+                x = cx + half_shell[o - 1, 0]
+                y = cy + half_shell[o - 1, 1]
+                z = cz + half_shell[o - 1, 2]
                 if x < 0 or y < 0 or z < 0 or x >= nx or y >= ny or z >= nz:
                     continue
                 d = x + nx * (y + ny * z)
-                count = _scan(u, cell_start[d], cell_start[d + 1], cell_items, spos, srb, sgid, n_owned,
-                              pi, pj, count)
+                v0, v1 = cell_start[d], cell_start[d + 1]
+            for v in range(v0, v1):
+                b = cell_items[v]
+                if ghost_a and b >= n_owned:
+                    continue
+                dx = spos[v, 0] - xa
+                dy = spos[v, 1] - ya
+                dz = spos[v, 2] - za
+                rr = ra + srb[v]
+                if dx * dx + dy * dy + dz * dz < rr * rr:
+                    if count < pi.shape[0]:
+                        if ga < sgid[v]:
+                            pi[count] = a
+                            pj[count] = b
+                        else:
+                            pi[count] = b
+                            pj[count] = a
+                    count += 1
     return count
 
 
@@ -183,30 +169,40 @@ class PairBuffer:
         return True
 
 
+class CellGrid:
+    """Particles binned for the neighbour loop: dims [3], cell_start [ncell+1], cell_items [n]
+    (scan row -> local index) and the scan-ordered copies spos, srb, sgid, scell (sorted_copies).
+    method "allpairs" uses a single cell (the n-by-n search); "linkcell" cells of edge >= the
+    largest bounding diameter over the particles' bounding box."""
+
+    def __init__(self, method, pos, rbound, gid):
+        n = pos.shape[0]
+        if method == "allpairs":
+            cutoff = np.inf
+        elif method == "linkcell":
+            cutoff = 2.0 * float(rbound.max()) if n else 1.0
+        else:
+            raise ValueError(f"unknown neighbour method {method!r} (allpairs, linkcell)")
+        self.dims, lo, size, self.cell_start, self.cell_items = bin_particles(pos, cutoff)
+        self.spos, self.srb, self.sgid, self.scell = sorted_copies(self.cell_items, pos, rbound, gid,
+                                                                   self.dims, lo, size)
+
+    def scan(self, rows, n_owned, pi, pj):
+        return scan_rows(rows, self.scell, self.dims, self.cell_start, self.cell_items, HALF_SHELL,
+                         self.spos, self.srb, self.sgid, n_owned, pi, pj)
+
+
 def candidate_pairs(method, pos, rbound, gid, n_owned, buf):
     """Serial neighbour estimate: returns (pi, pj) views of the candidate pairs.
 
     method: "allpairs" or "linkcell".
     """
-    n = pos.shape[0]
-    if method == "allpairs":
-        rows = np.arange(n, dtype=np.int64)
-        while True:
-            count = allpairs_rows(rows, pos, rbound, gid, n_owned, buf.pi, buf.pj)
-            if buf.ensure(count):
-                break
-    elif method == "linkcell":
-        cutoff = 2.0 * rbound.max() if n else 1.0
-        dims, lo, size, cell_start, cell_items = bin_particles(pos, cutoff)
-        spos, srb, sgid = sorted_copies(cell_items, pos, rbound, gid)
-        cells = np.arange(dims[0] * dims[1] * dims[2], dtype=np.int64)
-        while True:
-            count = linkcell_rows(cells, dims, cell_start, cell_items, HALF_SHELL, spos, srb, sgid,
-                                  n_owned, buf.pi, buf.pj)
-            if buf.ensure(count):
-                break
-    else:
-        raise ValueError(f"unknown neighbour method {method!r} (allpairs, linkcell)")
+    grid = CellGrid(method, pos, rbound, gid)
+    rows = np.arange(pos.shape[0], dtype=np.int64)
+    while True:
+        count = grid.scan(rows, n_owned, buf.pi, buf.pj)
+        if buf.ensure(count):
+            break
     return buf.pi[:count], buf.pj[:count]
 
 

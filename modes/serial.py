@@ -9,7 +9,8 @@ import time
 
 import numpy as np
 
-from dem.forces import PR_LEN, build_adjacency, gather_range, resolve_pairs_range, wall_range
+from dem.forces import (PR_LEN, build_adjacency, gather_range, resolve_pairs_range,
+                        resolve_sphere_pairs_range, wall_range)
 from dem.integrate import derive_range, integrate_range
 from dem.state import HIST_LEN
 from dem.neighbor import PairBuffer, VerletList, candidate_pairs, cell_order
@@ -45,6 +46,7 @@ class SerialMode:
         self.g = np.asarray(scene.gravity, dtype=np.float64)
         self.has_gravity = bool(np.any(self.g != 0.0))
         self.has_walls = len(scene.walls) > 0
+        self.all_spheres = self.state.all_spheres
         self.pairs = PairBuffer(max(1024, 8 * self.state.n))
         self.skin = float(skin)
         self.verlet = VerletList(neighbor, self.skin * 2.0 * float(self.state.rbound.max())) if skin > 0 else None
@@ -87,11 +89,15 @@ class SerialMode:
         derive_range(0, s.n, s.quat, s.angmom, s.inertia, s.shape, self.rot, self.omega)
         self.work.ensure(len(pi))
         w = self.work
-        ecalls = resolve_pairs_range(0, len(pi), pi, pj, s.pos, s.vel, self.omega, self.rot, s.axes,
-                                     s.shape, s.mass, s.material, s.gid, s.n_owned, s.hist_start,
-                                     s.hist_partner, s.hist_val, m.estar, m.gstar, m.mu, m.zeta, self.dt,
-                                     w.active, w.res, w.ratio)
-        return ecalls
+        if self.all_spheres:
+            return resolve_sphere_pairs_range(0, len(pi), pi, pj, s.pos, s.vel, self.omega, s.axes, s.mass,
+                                              s.material, s.gid, s.n_owned, s.hist_start, s.hist_partner,
+                                              s.hist_val, m.estar, m.gstar, m.mu, m.zeta, self.dt,
+                                              w.active, w.res, w.ratio)
+        return resolve_pairs_range(0, len(pi), pi, pj, s.pos, s.vel, self.omega, self.rot, s.axes,
+                                   s.shape, s.mass, s.material, s.gid, s.n_owned, s.hist_start,
+                                   s.hist_partner, s.hist_val, m.estar, m.gstar, m.mu, m.zeta, self.dt,
+                                   w.active, w.res, w.ratio)
 
     def gather_phase(self, pi, pj):
         s, m = self.state, self.scene.materials
