@@ -24,8 +24,8 @@ HALF_SHELL = np.array([(dx, dy, dz) for dz in (-1, 0, 1) for dy in (-1, 0, 1) fo
 def bin_particles(pos, cutoff):
     """Counting sort of particles into cubic cells of edge >= cutoff over their bounding box.
 
-    Returns (dims [3], lo [3], size [3], cell_start [ncell+1], cell_items [n]); items within a
-    cell keep ascending local index.
+    Returns (dims [3], lo [3], size [3], cell_start [ncell+1], cell_items [n], cell_of [n]); items
+    within a cell keep ascending local index.
     """
     n = pos.shape[0]
     lo = np.empty(3)
@@ -70,11 +70,11 @@ def bin_particles(pos, cutoff):
         c = cell_of[p]
         cell_items[fill[c]] = p
         fill[c] += 1
-    return dims, lo, size, cell_start, cell_items
+    return dims, lo, size, cell_start, cell_items, cell_of
 
 
 @njit(cache=True)
-def sorted_copies(cell_items, pos, rbound, gid, dims, lo, size):
+def sorted_copies(cell_items, cell_of, pos, rbound, gid):
     """Positions, bounding radii, gids and cell indices [n] in cell order (scan order), so the
     scans read contiguous memory."""
     n = cell_items.shape[0]
@@ -89,13 +89,7 @@ def sorted_copies(cell_items, pos, rbound, gid, dims, lo, size):
         spos[u, 2] = pos[p, 2]
         srb[u] = rbound[p]
         sgid[u] = gid[p]
-        c = 0
-        for k in (2, 1, 0):
-            ck = int((pos[p, k] - lo[k]) / size[k])
-            if ck >= dims[k]:
-                ck = dims[k] - 1
-            c = c * dims[k] + ck
-        scell[u] = c
+        scell[u] = cell_of[p]
     return spos, srb, sgid, scell
 
 
@@ -183,9 +177,8 @@ class CellGrid:
             cutoff = 2.0 * float(rbound.max()) if n else 1.0
         else:
             raise ValueError(f"unknown neighbour method {method!r} (allpairs, linkcell)")
-        self.dims, lo, size, self.cell_start, self.cell_items = bin_particles(pos, cutoff)
-        self.spos, self.srb, self.sgid, self.scell = sorted_copies(self.cell_items, pos, rbound, gid,
-                                                                   self.dims, lo, size)
+        self.dims, _, _, self.cell_start, self.cell_items, cell_of = bin_particles(pos, cutoff)
+        self.spos, self.srb, self.sgid, self.scell = sorted_copies(self.cell_items, cell_of, pos, rbound, gid)
 
     def scan(self, rows, n_owned, pi, pj):
         return scan_rows(rows, self.scell, self.dims, self.cell_start, self.cell_items, HALF_SHELL,

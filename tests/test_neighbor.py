@@ -36,7 +36,7 @@ def test_linkcell_cells_not_smaller_than_largest_diameter(rng):
     from dem.neighbor import bin_particles
     pos = rng.uniform(0, 1, (200, 3))
     pos[0] = [1e4, 1e4, 1e4]
-    dims, lo, size, start, items = bin_particles(pos, 0.05)
+    dims, lo, size, start, items, _ = bin_particles(pos, 0.05)
     assert np.all(size >= 0.05)
     assert dims.prod() <= 8 * 200 + 64
     assert sorted(items.tolist()) == list(range(200))
