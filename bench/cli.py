@@ -63,7 +63,11 @@ def build_parser():
     r.add_argument("--steps", type=_nonneg_int, help="override the scene's step count")
     r.add_argument("--dt", type=float, help="time step [s] (default: the scene's, usually auto)")
     r.add_argument("--mapping", default="1-1-1-1-1", help="P-px-py-pz-T (default 1-1-1-1-1)")
-    r.add_argument("--scheme", default=None, help="thread scheme (threads modes)")
+    r.add_argument("--scheme", default=None, help="thread scheme: partition, frogleap, headtail, static, "
+                                                  "dynamic (default dynamic; mappings with T > 1)")
+    r.add_argument("--threaded", choices=["step", "detection"], default="step",
+                   help="thread the whole step (default) or only contact detection (the paper's code)")
+    r.add_argument("--pin", action="store_true", help="pin threads to cores (OMP_PROC_BIND/OMP_PLACES)")
     r.add_argument("--neighbor", choices=["allpairs", "linkcell"], default="linkcell")
     r.add_argument("--skin", type=_skin, default=0.0, metavar="F",
                    help="Verlet skin, fraction of the largest bounding diameter (default 0: "
@@ -78,6 +82,13 @@ def build_parser():
     c.add_argument("scene", help="scene .toml file (or built-in name)")
 
     sub.add_parser("scenes", help="list built-in scenes")
+
+    sc = sub.add_parser("schemes", help="Table 1 in kind: contact-detection speedup of each thread scheme")
+    sc.add_argument("--particles", type=_positive_int, default=2500)
+    sc.add_argument("--threads", type=_positive_int, default=2)
+    sc.add_argument("--shape", choices=["sphere", "ellipsoid"], default="ellipsoid")
+    sc.add_argument("--repeats", type=_positive_int, default=5, help="timed repetitions (median reported)")
+    sc.add_argument("--out", default="results/schemes", help="folder for schemes.csv and schemes.png")
 
     pf = sub.add_parser("perf", help="serial speed figures (per pair, per particle-step)")
     pf.add_argument("--particles", type=_positive_int, default=10000)
@@ -128,10 +139,23 @@ def cmd_contacts(args):
 
 
 def cmd_run(args):
+    from bench.threads_env import configure_threads
+    configure_threads(args.mapping, args.pin)  # before numba starts
     from bench.run import run
     errors = _usage_errors()
     try:
         return run(args)
+    except errors as e:
+        raise UsageError(str(e)) from None
+
+
+def cmd_schemes(args):
+    from bench.threads_env import configure_threads
+    configure_threads(f"1-1-1-1-{args.threads}")  # before numba starts
+    from bench.schemes import schemes
+    errors = _usage_errors()
+    try:
+        return schemes(args)
     except errors as e:
         raise UsageError(str(e)) from None
 
@@ -141,7 +165,8 @@ def cmd_perf(args):
     return perf(args)
 
 
-COMMANDS = {"run": cmd_run, "contacts": cmd_contacts, "scenes": cmd_scenes, "perf": cmd_perf}
+COMMANDS = {"run": cmd_run, "contacts": cmd_contacts, "scenes": cmd_scenes, "perf": cmd_perf,
+            "schemes": cmd_schemes}
 
 
 if __name__ == "__main__":

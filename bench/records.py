@@ -10,7 +10,7 @@ import numpy as np
 
 STEP_COLUMNS = ["step", "rank", "totalT", "commuT", "migraT", "compuT", "neighborT", "resolveT",
                 "n_owned", "n_ghost", "n_contacts", "n_wall_contacts", "n_candidates", "neighbor_rebuilt", "n_migrated", "bytes_sent",
-                "ellipsoid_calls", "max_overlap_ratio"]
+                "ellipsoid_calls", "max_overlap_ratio", "busy_max", "busy_mean", "imbalance", "work_imbalance", "nsf"]
 
 
 def environment():
@@ -60,7 +60,9 @@ class StepWriter:
         self.w.writeheader()
 
     def write(self, step, rank, row):
-        self.w.writerow({"step": step, "rank": rank, **row})
+        detect = row.get("neighborT", 0.0) + row.get("resolveT", 0.0)
+        nsf = row.get("neighborT", 0.0) / detect if detect > 0 else 0.0
+        self.w.writerow({"step": step, "rank": rank, "nsf": nsf, **row})
 
     def close(self):
         self.fh.close()

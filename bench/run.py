@@ -47,11 +47,25 @@ def choose_dt(scene, user_dt):
     return dt, dt_auto, dt_crit, info
 
 
+def _threading_info():
+    import numba
+    info = {"NUMBA_NUM_THREADS": numba.config.NUMBA_NUM_THREADS, "layer": None}
+    for k in ("OMP_PROC_BIND", "OMP_PLACES", "OMP_WAIT_POLICY", "NUMBA_THREADING_LAYER"):
+        if k in os.environ:
+            info[k] = os.environ[k]
+    return info
+
+
 def run(args):
     mapping = parse_mapping(args.mapping)
     mode_cls = mode_for(mapping)
     if args.scheme is not None and mapping.threads == 1:
         raise ModeError(f"--scheme {args.scheme} needs a mapping with more than one thread")
+    scheme = args.scheme or ("dynamic" if mapping.threads > 1 else None)
+    if scheme is not None:
+        from modes.parallel import SCHEMES
+        if scheme not in SCHEMES:
+            raise ModeError(f"unknown scheme {scheme!r} (schemes: {', '.join(SCHEMES)})")
     # progress of a scene build only on a terminal: logs and tests see one line per outcome
     log = None if args.quiet or not sys.stderr.isatty() else (lambda msg: print(msg, file=sys.stderr, flush=True))
     scene = load_scene(args.scene, particles=args.particles, shape=args.shape, seed=args.seed)
@@ -62,19 +76,27 @@ def run(args):
     prepare(scene, log=log)
     dt, dt_auto, dt_crit, dt_info = choose_dt(scene, args.dt)
 
-    mode = mode_cls().setup(scene, dt=dt, neighbor=args.neighbor, skin=args.skin)
+    mode = mode_cls().setup(scene, dt=dt, neighbor=args.neighbor, skin=args.skin, threads=mapping.threads,
+                            scheme=scheme, threaded=args.threaded)
     t_compile = time.perf_counter()
     mode.warmup()
     t_compile = time.perf_counter() - t_compile
+    try:
+        import numba
+        layer = numba.threading_layer()
+    except ValueError:  # no parallel region has run (serial mode)
+        layer = None
 
     info = {"command": "bench " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("bench") else None,
             "argv": sys.argv, "scene": scene.name, "scene_source": scene.source,
             "particles": scene.n, "steps": steps, "mapping": str(mapping), "mode": mapping.kind,
-            "procs": mapping.procs, "threads": mapping.threads, "scheme": args.scheme,
+            "procs": mapping.procs, "threads": mapping.threads, "scheme": scheme,
+            "threaded": args.threaded if mapping.threads > 1 else None, "pin": args.pin,
+            "threading": _threading_info(),
             "neighbor": args.neighbor, "skin": args.skin, "dt": dt, "dt_auto": dt_auto, "dt_critical": dt_crit,
             "dt_details": dt_info, "walls": scene.walls, "gravity": scene.gravity.tolist(),
             "materials": [m.__dict__ for m in scene.materials.materials],
-            "environment": environment(), "warmup_s": t_compile, "build": scene.extras.get("built"), "stable": None,
+            "environment": environment(), "warmup_s": t_compile, "threading_layer": layer, "build": scene.extras.get("built"), "stable": None,
             "max_overlap_ratio": 0.0, "status": "running"}
     write_json(os.path.join(out, "run.json"), info)
     writer = StepWriter(os.path.join(out, "steps.csv"))

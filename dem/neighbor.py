@@ -94,19 +94,22 @@ def sorted_copies(cell_items, cell_of, pos, rbound, gid):
 
 
 @njit(cache=True)
-def scan_rows(rows, scell, dims, cell_start, cell_items, half_shell, spos, srb, sgid, n_owned, pi, pj):
+def scan_rows(rows, r0, r1, scell, dims, cell_start, cell_items, half_shell, spos, srb, sgid, n_owned,
+              pi, pj, count):
     """The one neighbour loop: for each outer particle at scan row u in `rows`, test the later
     particles of its own cell and all particles of its 13 forward (half-shell) cells.
 
     Link-cell: cells of edge >= the largest bounding diameter, so no pair is missed or produced
     twice (Grest, Duenweg & Kremer 1989). All-pairs is the same loop over a single cell (the
     n-by-n search, i against j > i). Arrays are in scan (cell) order (sorted_copies); pairs are
-    written as local indices via cell_items. Returns the pair count, which may exceed len(pi):
-    then the caller enlarges the buffers and calls again.
+    written as local indices via cell_items from position `count` of pi, pj on. Only rows[r0:r1]
+    are scanned, so a thread scheme hands each thread its rows.
+    Returns (pair count, which may exceed len(pi): then the caller enlarges the buffers and
+    scans again; number of pair tests made, the work of these rows).
     """
     nx, ny, nz = dims[0], dims[1], dims[2]
-    count = 0
-    for r in range(rows.shape[0]):
+    tests = 0
+    for r in range(r0, r1):
         u = rows[r]
         c = scell[u]
         cx = c % nx
@@ -127,6 +130,7 @@ def scan_rows(rows, scell, dims, cell_start, cell_items, half_shell, spos, srb, 
                     continue
                 d = x + nx * (y + ny * z)
                 v0, v1 = cell_start[d], cell_start[d + 1]
+            tests += v1 - v0
             for v in range(v0, v1):
                 b = cell_items[v]
                 if ghost_a and b >= n_owned:
@@ -144,7 +148,7 @@ def scan_rows(rows, scell, dims, cell_start, cell_items, half_shell, spos, srb, 
                             pi[count] = b
                             pj[count] = a
                     count += 1
-    return count
+    return count, tests
 
 
 class PairBuffer:
@@ -181,8 +185,9 @@ class CellGrid:
         self.spos, self.srb, self.sgid, self.scell = sorted_copies(self.cell_items, cell_of, pos, rbound, gid)
 
     def scan(self, rows, n_owned, pi, pj):
-        return scan_rows(rows, self.scell, self.dims, self.cell_start, self.cell_items, HALF_SHELL,
-                         self.spos, self.srb, self.sgid, n_owned, pi, pj)
+        """Serial scan of all rows; returns the pair count."""
+        return scan_rows(rows, 0, rows.shape[0], self.scell, self.dims, self.cell_start, self.cell_items,
+                         HALF_SHELL, self.spos, self.srb, self.sgid, n_owned, pi, pj, 0)[0]
 
 
 def candidate_pairs(method, pos, rbound, gid, n_owned, buf):
@@ -227,12 +232,10 @@ class VerletList:
     those of a per-step estimate.
     """
 
-    def __init__(self, method, skin):
-        self.method = method
+    def __init__(self, skin):
         self.skin = float(skin)     # [m]
         self.ref = None
         self.pi = self.pj = None
-        self.buf = PairBuffer(1024)
         self.rebuilds = 0
 
     def needs_rebuild(self, pos, n_owned):
@@ -240,9 +243,8 @@ class VerletList:
             return True
         return max_displacement2(pos, self.ref, pos.shape[0]) >= (0.5 * self.skin) ** 2
 
-    def rebuild(self, pos, rbound, gid, n_owned):
-        pi, pj = candidate_pairs(self.method, pos, rbound + 0.5 * self.skin, gid, n_owned, self.buf)
-        self.pi, self.pj = pi, pj
+    def keep(self, pos, pi, pj):
+        """Store a list built with radii rbound + skin/2 at positions pos."""
+        self.pi, self.pj = pi.copy(), pj.copy()
         self.ref = pos.copy()
         self.rebuilds += 1
-        return pi, pj

@@ -49,7 +49,7 @@ class SerialMode:
         self.all_spheres = self.state.all_spheres
         self.pairs = PairBuffer(max(1024, 8 * self.state.n))
         self.skin = float(skin)
-        self.verlet = VerletList(neighbor, self.skin * 2.0 * float(self.state.rbound.max())) if skin > 0 else None
+        self.verlet = VerletList(self.skin * 2.0 * float(self.state.rbound.max())) if skin > 0 else None
         self.rebuilt = True
         self.work = PairArrays()
         n = self.state.n
@@ -64,29 +64,38 @@ class SerialMode:
         twin.state = copy.deepcopy(self.state)
         twin.pairs = PairBuffer(self.pairs.pi.shape[0])
         if self.verlet is not None:
-            twin.verlet = VerletList(self.neighbor, self.verlet.skin)
+            twin.verlet = VerletList(self.verlet.skin)
         twin.work = PairArrays()
         twin.rot = self.rot.copy()
         twin.omega = self.omega.copy()
         twin.step()
 
     # --- phases -------------------------------------------------------------------------------
+    def find_pairs(self, radii):
+        """Candidate pairs whose spheres of radii [n] overlap (the mode's loop strategy)."""
+        s = self.state
+        return candidate_pairs(self.neighbor, s.pos, radii, s.gid, s.n_owned, self.pairs)
+
     def neighbour_phase(self):
         s = self.state
         if self.verlet is None:
             self.rebuilt = True
-            return candidate_pairs(self.neighbor, s.pos, s.rbound, s.gid, s.n_owned, self.pairs)
+            return self.find_pairs(s.rbound)
         v = self.verlet
         self.rebuilt = v.needs_rebuild(s.pos, s.n_owned)
         if self.rebuilt:
             # re-sort particles in space first: memory order never changes results (Determinism)
             s.permute(cell_order(s.pos, 2.0 * float(s.rbound.max())))
-            return v.rebuild(s.pos, s.rbound, s.gid, s.n_owned)
+            v.keep(s.pos, *self.find_pairs(s.rbound + 0.5 * v.skin))
         return v.pi, v.pj
+
+    def derive(self):
+        s = self.state
+        derive_range(0, s.n, s.quat, s.angmom, s.inertia, s.shape, self.rot, self.omega)
 
     def resolve_phase(self, pi, pj):
         s, m = self.state, self.scene.materials
-        derive_range(0, s.n, s.quat, s.angmom, s.inertia, s.shape, self.rot, self.omega)
+        self.derive()
         self.work.ensure(len(pi))
         w = self.work
         if self.all_spheres:
@@ -99,24 +108,32 @@ class SerialMode:
                                    s.hist_partner, s.hist_val, m.estar, m.gstar, m.mu, m.zeta, self.dt,
                                    w.active, w.res, w.ratio)
 
+    def gather(self, pi, pj, start, items, new_val):
+        s = self.state
+        gather_range(0, s.n_owned, start, items, pi, pj, self.work.res, s.force, s.torque, new_val)
+
+    def walls(self):
+        s, m, sc = self.state, self.scene.materials, self.scene
+        return wall_range(0, s.n_owned, sc.wall_m, sc.wall_d, s.pos, s.vel, self.omega, self.rot, s.axes,
+                          s.rbound, s.shape, s.mass, s.material, m.estar_w, m.gstar_w, m.zeta_w, m.mu_w,
+                          s.wall_hist, self.dt, s.force, s.torque)
+
+    def integrate(self):
+        s, g = self.state, self.g
+        integrate_range(0, s.n_owned, s.pos, s.vel, s.quat, s.angmom, s.mass, s.inertia, s.shape,
+                        s.force, s.torque, g[0], g[1], g[2], self.has_gravity, self.dt)
+
     def gather_phase(self, pi, pj):
-        s, m = self.state, self.scene.materials
+        """Gather (ascending partner gid), walls, gravity and integration of the owned particles."""
+        s = self.state
         w = self.work
         active = w.active[:len(pi)]
         start, items, keys = build_adjacency(pi, pj, active, s.gid, s.n_owned)
         new_val = np.empty((len(items), HIST_LEN))
-        gather_range(0, s.n_owned, start, items, pi, pj, w.res, s.force, s.torque, new_val)
+        self.gather(pi, pj, start, items, new_val)
         s.hist_start, s.hist_partner, s.hist_val = start, keys, new_val
-        wall_worst = 0.0
-        n_wall = 0
-        if self.has_walls:
-            sc = self.scene
-            n_wall, wall_worst = wall_range(0, s.n_owned, sc.wall_m, sc.wall_d, s.pos, s.vel, self.omega, self.rot,
-                                    s.axes, s.rbound, s.shape, s.mass, s.material, m.estar_w, m.gstar_w, m.zeta_w,
-                                    m.mu_w, s.wall_hist, self.dt, s.force, s.torque)
-        g = self.g
-        integrate_range(0, s.n_owned, s.pos, s.vel, s.quat, s.angmom, s.mass, s.inertia, s.shape,
-                        s.force, s.torque, g[0], g[1], g[2], self.has_gravity, self.dt)
+        n_wall, wall_worst = self.walls() if self.has_walls else (0, 0.0)
+        self.integrate()
         n_contacts = int(active.sum())
         pair_worst = float(w.ratio[:len(pi)][active == 1].max()) if n_contacts else 0.0
         return n_contacts, n_wall, max(pair_worst, wall_worst)

@@ -1,0 +1,46 @@
+"""Thread environment of a run, set before numba starts (numba reads it at import).
+
+NUMBA_NUM_THREADS = T of the mapping. --pin binds the omp layer's threads to cores
+(OMP_PROC_BIND=close, OMP_PLACES=cores). More threads than the CPUs this process may use get a
+one-line warning and OMP_WAIT_POLICY=PASSIVE: spinning GNU OpenMP threads on shared cores were
+seen to make steps 100x slower.
+"""
+import os
+import re
+import sys
+
+
+def usable_cpus():
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+def configure_threads(mapping_text, pin=False, procs_per_node=1):
+    """Set the thread variables for mapping 'P-px-py-pz-T' (ignored if malformed: the run
+    reports that). Returns a dict of what was set, for run.json."""
+    m = re.fullmatch(r"\s*(\d+)-(\d+)-(\d+)-(\d+)-(\d+)\s*", mapping_text or "")
+    if not m:
+        return {}
+    threads = int(m.group(5))
+    if threads < 1:
+        return {}
+    if "numba" in sys.modules:
+        import numba
+        if numba.config.NUMBA_NUM_THREADS < threads:
+            return {}  # too late: the mode refuses with one line
+    os.environ["NUMBA_NUM_THREADS"] = str(threads)
+    info = {"NUMBA_NUM_THREADS": threads}
+    if pin:
+        os.environ.setdefault("OMP_PROC_BIND", "close")
+        os.environ.setdefault("OMP_PLACES", "cores")
+        info.update(OMP_PROC_BIND=os.environ["OMP_PROC_BIND"], OMP_PLACES=os.environ["OMP_PLACES"])
+    cpus = usable_cpus()
+    if threads * procs_per_node > cpus:
+        os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+        info["OMP_WAIT_POLICY"] = os.environ["OMP_WAIT_POLICY"]
+        print(f"bench: warning: {threads * procs_per_node} threads on {cpus} usable CPUs oversubscribes them; "
+              f"fine for correctness, not for timings", file=sys.stderr)
+    info["usable_cpus"] = cpus
+    return info
