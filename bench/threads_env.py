@@ -23,9 +23,9 @@ def configure_threads(mapping_text, pin=False, procs_per_node=1):
     m = re.fullmatch(r"\s*(\d+)-(\d+)-(\d+)-(\d+)-(\d+)\s*", mapping_text or "")
     if not m:
         return {}
-    threads = int(m.group(5))
-    if threads < 1:
-        return {}
+    procs, px, py, pz, threads = (int(g) for g in m.groups())
+    if min(procs, px, py, pz, threads) < 1 or procs != px * py * pz:
+        return {}  # malformed: the run refuses it with one line
     if "numba" in sys.modules:
         import numba
         if numba.config.NUMBA_NUM_THREADS < threads:
