@@ -1,6 +1,11 @@
 import os
 import sys
 
+# before numba starts: room for 3 threads (more than this 2-core machine has: correctness only),
+# and passive waiting so oversubscribed OpenMP threads do not spin
+os.environ.setdefault("NUMBA_NUM_THREADS", "3")
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 import numpy as np
 import pytest
 
