@@ -87,13 +87,16 @@ def build_parser():
     sc.add_argument("--particles", type=_positive_int, default=2500)
     sc.add_argument("--threads", type=_positive_int, default=2)
     sc.add_argument("--shape", choices=["sphere", "ellipsoid"], default="ellipsoid")
-    sc.add_argument("--repeats", type=_positive_int, default=5, help="timed repetitions (median reported)")
+    sc.add_argument("--repeats", type=_positive_int, default=41,
+                    help="timed repetitions, median reported (default 41: single runs are noisy on shared machines)")
     sc.add_argument("--out", default="results/schemes", help="folder for schemes.csv and schemes.png")
 
     pf = sub.add_parser("perf", help="serial speed figures (per pair, per particle-step)")
     pf.add_argument("--particles", type=_positive_int, default=10000)
     pf.add_argument("--steps", type=_positive_int, default=20)
     pf.add_argument("--what", default="all", choices=["all", "pairs", "ellipsoids", "spheres"])
+    pf.add_argument("--threads", type=_positive_int, default=1,
+                    help="also time each thread scheme at T threads (packed ellipsoids)")
     pf.add_argument("--skin", type=_skin, default=0.1, metavar="F",
                     help="Verlet skin for the second set of packed figures (default 0.1)")
     pf.add_argument("--out", default=None, help="write perf.json here")
@@ -161,6 +164,8 @@ def cmd_schemes(args):
 
 
 def cmd_perf(args):
+    from bench.threads_env import configure_threads
+    configure_threads(f"1-1-1-1-{args.threads}")  # before numba starts
     from bench.perf import perf
     return perf(args)
 

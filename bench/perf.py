@@ -16,7 +16,7 @@ TARGETS = {"ellipsoid_pair_us": 2.0, "packed_ellipsoid_us_per_particle_step": 5.
            "packed_sphere_us_per_particle_step": 0.15}
 
 
-def time_packed(shape, particles, steps, log, skin=0.0):
+def time_packed(shape, particles, steps, log, skin=0.0, threads=1, scheme=None):
     """Step times of the packed scene (skin: Verlet skin fraction, 0 = neighbours every step).
     Per-particle figures are means over the timed steps (amortising list rebuilds); the median
     step is reported too. Returns a dict of per-particle and per-pair figures."""
@@ -25,7 +25,11 @@ def time_packed(shape, particles, steps, log, skin=0.0):
     from modes.serial import SerialMode
     scene = load_prepared("packed", particles=particles, shape=shape, log=log)
     dt = choose_dt(scene, None)[0]
-    mode = SerialMode().setup(scene, dt=dt, skin=skin)
+    if threads > 1:
+        from modes.threads import ThreadsMode
+        mode = ThreadsMode().setup(scene, dt=dt, skin=skin, threads=threads, scheme=scheme)
+    else:
+        mode = SerialMode().setup(scene, dt=dt, skin=skin)
     mode.warmup()
     for _ in range(3):
         mode.step()
@@ -66,6 +70,20 @@ def perf(args):
                       f"{r['rebuilds']} rebuilds in {r['steps']} steps; resolve {r['resolve_us_per_candidate']:.3f} "
                       f"us/candidate pair; rest {r['other_us_per_particle']:.3f} us/particle; coordination "
                       f"{r['coordination']:.2f}); target <= {TARGETS[key]}")
+    if args.threads > 1 and what in ("all", "ellipsoids"):
+        # issue 3: whole-step efficiency of each scheme against serial, measured in this run
+        serial = report["packed_ellipsoids_skin0"]["us_per_particle_step"]
+        from modes.parallel import SCHEMES
+        eff = {}
+        for scheme in SCHEMES:
+            r = time_packed("ellipsoid", args.particles, args.steps, log, 0.0, args.threads, scheme)
+            eff[scheme] = {"us_per_particle_step": r["us_per_particle_step"],
+                           "speedup": serial / r["us_per_particle_step"],
+                           "efficiency": serial / r["us_per_particle_step"] / args.threads}
+            print(f"packed ellipsoids, N = {r['particles']}, {args.threads} threads, {scheme}: "
+                  f"{r['us_per_particle_step']:.3f} us/particle-step, speedup {eff[scheme]['speedup']:.2f}, "
+                  f"whole-step efficiency {eff[scheme]['efficiency']:.2f} (target >= 0.9 for the best)")
+        report["threads"] = {"threads": args.threads, "schemes": eff}
     if args.out:
         os.makedirs(args.out, exist_ok=True)
         with open(os.path.join(args.out, "perf.json"), "w") as fh:

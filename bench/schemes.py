@@ -239,11 +239,11 @@ def plot_schemes(csv_path, png_path):
             if not math.isnan(v):
                 ax.text(b.get_x() + b.get_width() / 2, v, f"{v:.2f}", ha="center", va="bottom", fontsize=7)
         top = max(top, np.nanmax(vals) if not np.all(np.isnan(vals)) else 0.0)
-    ax.axhline(1.0, color="k", lw=0.8, ls=":", label="ideal (speedup = threads)")
+    ax.axhline(1.0, color="k", lw=0.8, ls=":", label="all-pairs ideal (speedup = threads)")
     lc = get.get(("serial", "linkcell"))
     if lc is not None:
         ax.axhline(lc["speedup"], color="C1", lw=0.8, ls="--",
-                   label=f"ours, serial link-cell speedup ({lc['speedup']:.2f}): link-cell ideal")
+                   label=f"link-cell ideal: ours, serial link-cell speedup ({lc['speedup']:.2f})")
         top = max(top, lc["speedup"])
     ax.set_xticks(x)
     ax.set_xticklabels(SCHEMES)
