@@ -76,6 +76,7 @@ def build_parser():
                    help="write VTK + npz snapshots every K steps")
     r.add_argument("--plot", action="store_true", help="draw DIR/run.png (timings, contacts, energy)")
     r.add_argument("--out", default=None, help="output folder (default results/run-<scene>)")
+    r.add_argument("--timeout", type=_positive_int, default=3600, help="seconds before MPI ranks are killed")
     r.add_argument("--quiet", action="store_true")
 
     c = sub.add_parser("contacts", help="print the contacts of a configuration as JSON")

@@ -75,9 +75,22 @@ def run(args):
     prepare_output(out)
     prepare(scene, log=log)
     dt, dt_auto, dt_crit, dt_info = choose_dt(scene, args.dt)
-
+    if mapping.procs > 1:
+        from bench.launch import launch_mpi
+        return launch_mpi(args, mapping, scene, out)
     mode = mode_cls().setup(scene, dt=dt, neighbor=args.neighbor, skin=args.skin, threads=mapping.threads,
                             scheme=scheme, threaded=args.threaded)
+    return execute(args, scene, mapping, scheme, mode, out, (dt, dt_auto, dt_crit, dt_info))
+
+
+def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
+    """The timed run loop of one process, or of every rank (comm given): warm-up, steps, records.
+
+    Rank 0 writes run.json, state.npz and (merged) steps.csv; each rank writes its own rows.
+    Decisions that end the loop are taken collectively so that no rank waits for a dead one."""
+    dt, dt_auto, dt_crit, dt_info = dts
+    rank = comm.Get_rank() if comm is not None else 0
+    steps = scene.steps if args.steps is None else args.steps
     t_compile = time.perf_counter()
     mode.warmup()
     t_compile = time.perf_counter() - t_compile
@@ -87,23 +100,33 @@ def run(args):
     except ValueError:  # no parallel region has run (serial mode)
         layer = None
 
+    def total(x):
+        return comm.allreduce(x) if comm is not None else x
+
+    n_total = total(mode.state.n_owned)
     info = {"command": "bench " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("bench") else None,
             "argv": sys.argv, "scene": scene.name, "scene_source": scene.source,
-            "particles": scene.n, "steps": steps, "mapping": str(mapping), "mode": mapping.kind,
-            "procs": mapping.procs, "threads": mapping.threads, "scheme": scheme,
+            "particles": n_total, "steps": steps, "mapping": str(mapping), "mode": mapping.kind,
+            "procs": mapping.procs, "px": mapping.px, "py": mapping.py, "pz": mapping.pz,
+            "threads": mapping.threads, "scheme": scheme,
             "threaded": args.threaded if mapping.threads > 1 else None, "pin": args.pin,
             "threading": _threading_info(),
             "neighbor": args.neighbor, "skin": args.skin, "dt": dt, "dt_auto": dt_auto, "dt_critical": dt_crit,
             "dt_details": dt_info, "walls": scene.walls, "gravity": scene.gravity.tolist(),
             "materials": [m.__dict__ for m in scene.materials.materials],
-            "environment": environment(), "warmup_s": t_compile, "threading_layer": layer, "build": scene.extras.get("built"), "stable": None,
-            "max_overlap_ratio": 0.0, "status": "running"}
-    write_json(os.path.join(out, "run.json"), info)
-    writer = StepWriter(os.path.join(out, "steps.csv"))
+            "environment": environment(), "warmup_s": t_compile, "threading_layer": layer,
+            "build": scene.extras.get("built"), "stable": None, "max_overlap_ratio": 0.0, "status": "running"}
+    if comm is not None:
+        from mpi4py import MPI
+        info["mpi_library"] = MPI.Get_library_version().strip().splitlines()[0]
+    if rank == 0:
+        write_json(os.path.join(out, "run.json"), info)
+    step_file = os.path.join(out, "steps.csv" if comm is None else f"steps.rank{rank}.csv")
+    writer = StepWriter(step_file)
     snap_dir = os.path.join(out, "snapshots")
-    if args.snapshot_every:
+    if args.snapshot_every and rank == 0:
         os.makedirs(snap_dir, exist_ok=True)
-    ke0 = kinetic_energy(mode.state)
+    ke0 = total(kinetic_energy(mode.state))
     series = {"step": [], "totalT": [], "n_contacts": [], "ke": []}
     t_wall = time.perf_counter()
     stable = True
@@ -111,44 +134,73 @@ def run(args):
     try:
         for k in range(1, steps + 1):
             row = mode.step()
-            writer.write(k, 0, row)
+            writer.write(k, rank, row)
             if args.plot:
                 series["step"].append(k)
                 series["totalT"].append(row["totalT"])
-                series["n_contacts"].append(row["n_contacts"])
-                series["ke"].append(kinetic_energy(mode.state))
-            if not np.isfinite(mode.state.pos[:mode.state.n_owned]).all():
+                series["n_contacts"].append(total(row["n_contacts"]))
+                series["ke"].append(total(kinetic_energy(mode.state)))
+            finite = bool(np.isfinite(mode.state.pos[:mode.state.n_owned]).all())
+            if comm is not None:
+                from mpi4py import MPI
+                finite = bool(comm.allreduce(finite, op=MPI.LAND))
+            if not finite:
                 stable = False
                 reason = f"non-finite positions at step {k}"
                 break
             if args.snapshot_every and k % args.snapshot_every == 0:
-                _snapshot(mode, snap_dir, k, dt)
+                _snapshot(mode, snap_dir, k, dt, rank)
     finally:
         writer.close()
     wall = time.perf_counter() - t_wall
     snap = mode.snapshot()
+    worst = mode.max_overlap_ratio if comm is None else comm.allreduce(mode.max_overlap_ratio, op=_max_op())
+    ke1 = total(kinetic_energy(mode.state))
+    if comm is not None:
+        comm.Barrier()
+    if rank != 0:
+        return 0
+    if comm is not None:
+        _merge_step_files(out, comm.Get_size())
     write_state(os.path.join(out, "state.npz"), snap)
     info.update({"stable": stable, "stability_reason": reason, "status": "done" if stable else "unstable",
-                 "max_overlap_ratio": mode.max_overlap_ratio, "wall_s": wall,
+                 "max_overlap_ratio": worst, "wall_s": wall,
                  "neighbor_rebuilds": mode.verlet.rebuilds if getattr(mode, "verlet", None) else steps,
-                 "kinetic_energy_initial": ke0, "kinetic_energy_final": kinetic_energy(mode.state),
+                 "kinetic_energy_initial": ke0, "kinetic_energy_final": ke1,
                  "simulated_time": steps * dt})
     write_json(os.path.join(out, "run.json"), info)
     if args.plot:
         from bench.plots import plot_run
-        plot_run(series, os.path.join(out, "run.png"), title=f"{scene.name}, {scene.n} particles, {mapping}")
+        plot_run(series, os.path.join(out, "run.png"), title=f"{scene.name}, {n_total} particles, {mapping}")
     if not args.quiet:
-        print(f"{scene.name}: {scene.n} particles, {steps} steps of {dt:.3g} s, mapping {mapping}: "
-              f"{wall:.2f} s ({1e6 * wall / max(steps, 1) / max(scene.n, 1):.3f} us/particle-step), "
-              f"max overlap {mode.max_overlap_ratio:.2e}; records in {out}")
+        print(f"{scene.name}: {n_total} particles, {steps} steps of {dt:.3g} s, mapping {mapping}: "
+              f"{wall:.2f} s ({1e6 * wall / max(steps, 1) / max(n_total, 1):.3f} us/particle-step), "
+              f"max overlap {worst:.2e}; records in {out}")
     if not stable:
         print(f"bench: error: run unstable: {reason}", file=sys.stderr)
         return 1
     return 0
 
 
-def _snapshot(mode, snap_dir, k, dt):
+def _max_op():
+    from mpi4py import MPI
+    return MPI.MAX
+
+
+def _merge_step_files(out, size):
+    """Merge the ranks' step rows into one steps.csv ordered by (step, rank)."""
+    import pandas as pd
+    parts = [pd.read_csv(os.path.join(out, f"steps.rank{r}.csv")) for r in range(size)]
+    merged = pd.concat(parts).sort_values(["step", "rank"], kind="stable")
+    merged.to_csv(os.path.join(out, "steps.csv"), index=False)
+    for r in range(size):
+        os.remove(os.path.join(out, f"steps.rank{r}.csv"))
+
+
+def _snapshot(mode, snap_dir, k, dt, rank=0):
     from bench.vtk import write_vtk
-    snap = mode.snapshot()
+    snap = mode.snapshot()  # collective in MPI modes: every rank calls it, rank 0 gets the data
+    if rank != 0:
+        return
     write_vtk(os.path.join(snap_dir, f"step{k:08d}.vtk"), snap, step=k, time=k * dt)
     np.savez(os.path.join(snap_dir, f"step{k:08d}.npz"), **snap)

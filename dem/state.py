@@ -49,9 +49,6 @@ class State:
     hist_partner [nnz] (partner gid), hist_val [nnz, HIST_LEN]; wall_hist [n, n_walls, HIST_LEN].
     """
 
-    FIELDS = ("gid", "shape", "axes", "rbound", "mass", "inertia", "material",
-              "pos", "vel", "quat", "angmom", "force", "torque")
-
     def __init__(self, gid, shape, axes, mass, inertia, material, pos, vel, quat, angmom,
                  n_walls=0):
         n = len(gid)
@@ -85,21 +82,26 @@ class State:
     PER_PARTICLE = ("gid", "shape", "axes", "rbound", "mass", "inertia", "material", "pos", "vel",
                     "quat", "angmom", "force", "torque", "wall_hist")
 
+    def permute_keep(self, rows):
+        """Keep only the owned particles `rows` (in that order), with their history rows."""
+        rows = np.asarray(rows, dtype=np.int64)
+        counts = np.diff(self.hist_start)[rows]
+        hrows = np.concatenate([np.arange(self.hist_start[p], self.hist_start[p + 1]) for p in rows]) \
+            if len(rows) else np.zeros(0, dtype=np.int64)
+        for f in self.PER_PARTICLE:
+            setattr(self, f, np.ascontiguousarray(getattr(self, f)[rows]))
+        self.hist_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        self.hist_partner = np.ascontiguousarray(self.hist_partner[hrows.astype(np.int64)])
+        self.hist_val = np.ascontiguousarray(self.hist_val[hrows.astype(np.int64)])
+        self.n_owned = len(rows)
+
     def permute(self, perm):
         """Store the owned particles in the order perm [n_owned] (a permutation of 0..n_owned-1),
         carrying every per-particle array and each particle's contact-history rows. Only the
         memory order changes: results never depend on it (DESIGN.md, Determinism)."""
-        perm = np.asarray(perm, dtype=np.int64)
         if self.n != self.n_owned:
             raise ValueError("permute() needs a state without ghosts")
-        for f in self.PER_PARTICLE:
-            setattr(self, f, np.ascontiguousarray(getattr(self, f)[perm]))
-        counts = np.diff(self.hist_start)[perm]
-        rows = np.concatenate([np.arange(self.hist_start[p], self.hist_start[p + 1]) for p in perm]) \
-            if len(perm) else np.zeros(0, dtype=np.int64)
-        self.hist_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        self.hist_partner = np.ascontiguousarray(self.hist_partner[rows.astype(np.int64)])
-        self.hist_val = np.ascontiguousarray(self.hist_val[rows.astype(np.int64)])
+        self.permute_keep(perm)
 
     def omega(self):
         """Angular velocity in the world frame [n, 3]: omega = R diag(1/I) R^T L."""

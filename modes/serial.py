@@ -89,8 +89,17 @@ class SerialMode:
             v.keep(s.pos, *self.find_pairs(s.rbound + 0.5 * v.skin))
         return v.pi, v.pj
 
+    def ensure_derived(self):
+        """Per-step rotation matrices [n,3,3] and angular velocities [n,3] sized to the current n
+        (MPI changes n every step: ghosts and migrants)."""
+        n = self.state.n
+        if self.rot.shape[0] != n:
+            self.rot = np.zeros((n, 3, 3))
+            self.omega = np.zeros((n, 3))
+
     def derive(self):
         s = self.state
+        self.ensure_derived()
         derive_range(0, s.n, s.quat, s.angmom, s.inertia, s.shape, self.rot, self.omega)
 
     def resolve_phase(self, pi, pj):

@@ -103,6 +103,7 @@ class ThreadsMode(SerialMode):
     # --- the rest of the step --------------------------------------------------------------------
     def derive(self):
         s = self.state
+        self.ensure_derived()
         if self.threaded == "step":
             par.derive_threads(self.threads, s.n, s.quat, s.angmom, s.inertia, s.shape, self.rot, self.omega)
         else:

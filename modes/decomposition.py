@@ -1,0 +1,92 @@
+"""Link-block space decomposition (Yan & Regueiro §3): px x py x pz blocks over the domain box.
+
+A particle is owned by the block that holds its centre (floor of its scaled coordinate, so a
+centre exactly on a face belongs to the upper block; centres outside the box belong to the
+nearest edge block). Each block needs as ghosts every particle that can touch one of its own:
+a pair touches only if the centres are closer than r_i + r_j <= 2 r_max (bounding radii), so
+the border layer is the largest bounding diameter wide (slightly widened against round-off),
+and a block must be at least that wide, or a ghost would have to come from beyond the 26
+neighbours. Pure numpy: no MPI, no physics.
+"""
+import itertools
+
+import numpy as np
+
+# the 26 neighbour offsets, in a fixed order; direction k's opposite is 25 - k
+DIRECTIONS = np.array([d for d in itertools.product((-1, 0, 1), repeat=3) if d != (0, 0, 0)], dtype=np.int64)
+OPPOSITE = np.array([int(np.flatnonzero((DIRECTIONS == -d).all(axis=1))[0]) for d in DIRECTIONS])
+
+
+class DecompositionError(ValueError):
+    """A decomposition that cannot work; str() is one line."""
+
+
+class BlockGrid:
+    """Blocks of the box [2, 3] split dims = (px, py, pz) ways; block edges lo + i h."""
+
+    def __init__(self, box, dims):
+        self.lo = np.asarray(box[0], dtype=np.float64)
+        self.hi = np.asarray(box[1], dtype=np.float64)
+        self.dims = np.asarray(dims, dtype=np.int64)
+        self.h = (self.hi - self.lo) / self.dims
+
+    def block_of(self, pos):
+        """Block coordinates [n, 3] of centres pos [n, 3]."""
+        idx = np.floor((pos - self.lo) / self.h).astype(np.int64)
+        return np.clip(idx, 0, self.dims - 1)
+
+    def bounds(self, coords):
+        """Lower and upper corner [3] of block `coords`."""
+        coords = np.asarray(coords)
+        return self.lo + coords * self.h, self.lo + (coords + 1) * self.h
+
+    def neighbour(self, coords, k):
+        """Coordinates of the neighbour in direction k, or None beyond the grid (not periodic)."""
+        c = np.asarray(coords) + DIRECTIONS[k]
+        if np.any(c < 0) or np.any(c >= self.dims):
+            return None
+        return c
+
+    def check_width(self, width):
+        """Refuse blocks narrower than the border layer (a particle larger than a block)."""
+        for k, name in enumerate("xyz"):
+            if self.dims[k] > 1 and self.h[k] < width:
+                raise DecompositionError(
+                    f"blocks are {self.h[k]:.3g} m wide along {name} ({self.dims[k]} blocks) but the largest "
+                    f"particle needs a border layer of {width:.3g} m (its bounding diameter): use fewer "
+                    f"blocks along {name}")
+
+
+def border_width(rbound_max):
+    """Border (ghost) layer width [m]: the largest bounding diameter, widened by 1e-9 relative."""
+    return 2.0 * rbound_max * (1.0 + 1e-9)
+
+
+def send_masks(pos, lo, hi, width):
+    """For each of the 26 directions, the particles (centres pos [n, 3]) within `width` of the
+    block faces on that side: a bool array [26, n]. Per axis, offset -1 needs x - lo < width,
+    +1 needs hi - x < width, 0 nothing (a box-distance test, a superset of the sphere test)."""
+    near_lo = pos - lo < width
+    near_hi = hi - pos < width
+    masks = np.ones((len(DIRECTIONS), len(pos)), dtype=bool)
+    for k, d in enumerate(DIRECTIONS):
+        for axis in range(3):
+            if d[axis] < 0:
+                masks[k] &= near_lo[:, axis]
+            elif d[axis] > 0:
+                masks[k] &= near_hi[:, axis]
+    return masks
+
+
+def direction_of(coords_from, coords_to):
+    """Direction index k with coords_to = coords_from + DIRECTIONS[k] (coords_to [n, 3]);
+    -1 where the target is not a neighbour (a particle that jumped more than a block)."""
+    d = np.asarray(coords_to) - np.asarray(coords_from)
+    out = np.full(len(d), -1, dtype=np.int64)
+    code = (d[:, 0] + 1) * 9 + (d[:, 1] + 1) * 3 + (d[:, 2] + 1)
+    table = np.full(27, -1, dtype=np.int64)
+    for k, dd in enumerate(DIRECTIONS):
+        table[(dd[0] + 1) * 9 + (dd[1] + 1) * 3 + (dd[2] + 1)] = k
+    ok = np.all(np.abs(d) <= 1, axis=1)
+    out[ok] = table[code[ok]]
+    return out
