@@ -151,7 +151,7 @@ def test_bad_scene_one_line_exit_2(tmp_path, text, words):
     (["run", "--scene", "patch162", "--mapping", "9-3-3-2-4"], "px*py*pz"),
     (["run", "--scene", "patch162", "--mapping", "two"], "malformed mapping"),
     (["run", "--scene", "patch162", "--mapping", "1-1-1-1-0"], "T must be >= 1"),
-    (["run", "--scene", "patch162", "--mapping", "2-2-1-1-1"], "not available yet"),
+    (["run", "--scene", "patch162", "--mapping", "18-18-1-1-1"], "use fewer blocks along x"),
     (["run", "--scene", "patch162", "--steps", "x"], "--steps"),
     (["run", "--scene", "patch162", "--neighbor", "octree"], "--neighbor"),
     (["run", "--scene", "patch162", "--shape", "cube"], "--shape"),

@@ -1,0 +1,129 @@
+"""MPI and hybrid modes, launched through `bench run` (mpiexec started by the harness, with a
+timeout): every mapping reproduces the serial trajectory bit for bit."""
+import json
+import os
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tests.test_cli import GOOD, bench, one_line_error, write
+
+FIELDS = ("id", "pos", "quat", "vel", "omega")
+pytestmark = pytest.mark.skipif(not os.path.exists(os.path.join(os.path.dirname(os.sys.executable), "mpiexec"))
+                                and not __import__("shutil").which("mpiexec"), reason="no mpiexec")
+
+_SERIAL = {}
+
+
+def serial_state(tmp_path_factory, scene, steps, extra=()):
+    key = (scene, steps, tuple(extra))
+    if key not in _SERIAL:
+        out = tmp_path_factory.mktemp("serial")
+        res = bench("run", "--scene", scene, "--steps", str(steps), "--out", str(out), "--quiet", *extra)
+        assert res.returncode == 0, res.stderr
+        _SERIAL[key] = dict(np.load(out / "state.npz"))
+    return _SERIAL[key]
+
+
+def mpi_run(tmp_path, scene, steps, mapping, *extra):
+    out = tmp_path / mapping
+    res = bench("run", "--scene", scene, "--steps", str(steps), "--mapping", mapping, "--out", str(out),
+                "--quiet", "--timeout", "600", *extra, timeout=900)
+    assert res.returncode == 0, res.stderr
+    return dict(np.load(out / "state.npz")), pd.read_csv(out / "steps.csv"), json.loads((out / "run.json").read_text())
+
+
+def assert_same(a, b):
+    for f in FIELDS:
+        assert np.array_equal(a[f], b[f]), f
+
+
+@pytest.mark.parametrize("mapping", ["2-2-1-1-1", "2-1-2-1-1", "4-2-2-1-1", "3-3-1-1-1"])
+def test_patch162_bit_identical(tmp_path, tmp_path_factory, mapping):
+    """The paper's patch test on 2, 3 and 4 blocks: the deposited ellipsoids touch across block
+    borders from step 1; the final state equals the serial one exactly."""
+    ref = serial_state(tmp_path_factory, "patch162", 150)
+    got, steps, info = mpi_run(tmp_path, "patch162", 150, mapping)
+    assert_same(ref, got)
+    assert (steps.groupby("step")["rank"].count() == info["procs"]).all()
+    assert steps["n_ghost"].sum() > 0 and steps["bytes_sent"].sum() > 0
+
+
+@pytest.mark.parametrize("mapping", ["2-2-1-1-1", "3-1-3-1-1", "4-2-2-1-1", "8-2-2-2-1"])
+def test_gas_crossing_borders_bit_identical(tmp_path, tmp_path_factory, mapping):
+    """A soft granular gas with walls: particles migrate across block faces, edges and corners
+    (8 = 2x2x2 blocks) many times, carrying their contact history; bit-identical to serial."""
+    ref = serial_state(tmp_path_factory, "gas", 800)
+    got, steps, _ = mpi_run(tmp_path, "gas", 800, mapping)
+    assert steps["n_migrated"].sum() > 20
+    assert steps["n_contacts"].sum() > 0
+    assert_same(ref, got)
+
+
+@pytest.mark.parametrize("scheme", ["partition", "frogleap", "headtail", "static", "dynamic"])
+def test_hybrid_bit_identical(tmp_path, tmp_path_factory, scheme):
+    """Hybrid 2 processes x 2 threads with each scheme, on the gas (migration) scene."""
+    ref = serial_state(tmp_path_factory, "gas", 600)
+    got, steps, info = mpi_run(tmp_path, "gas", 600, "2-2-1-1-2", "--scheme", scheme)
+    assert info["threads"] == 2 and info["scheme"] == scheme
+    assert steps["n_migrated"].sum() > 0
+    assert_same(ref, got)
+
+
+def scene_with(particles, box="[[0.0, 0.0, 0.0], [0.02, 0.02, 0.02]]"):
+    head = GOOD.split("[[particles]]")[0].replace('box = [[0.0, 0.0, 0.0], [0.02, 0.02, 0.04]]', f"box = {box}")
+    head = head.replace('gravity = [0.0, 0.0, -9.81]', 'gravity = [0.0, 0.0, -9.81]')
+    body = "".join(f"""
+[[particles]]
+shape = "{shape}"
+axes = {axes}
+pos = {pos}
+vel = {vel}
+""" for shape, axes, pos, vel in particles)
+    return head + body
+
+
+EDGE_CASES = {
+    # centre exactly on the block face x = 0.01 (owned by the upper block), touching a neighbour
+    "on-face": [("sphere", [1e-3], [0.01, 0.01, 0.0011], [0.0, 0.0, 0.0]),
+                ("sphere", [1e-3], [0.0081, 0.01, 0.0011], [0.2, 0.0, 0.0]),
+                ("ellipsoid", [1e-3, 8e-4, 6e-4], [0.0119, 0.0101, 0.0011], [-0.1, 0.0, 0.0])],
+    # everything in one block of four: three blocks stay empty until particles arrive
+    "one-block": [("sphere", [1e-3], [0.003, 0.003, 0.0011], [0.3, 0.3, 0.0]),
+                  ("sphere", [1e-3], [0.0055, 0.003, 0.0011], [0.0, 0.2, 0.0]),
+                  ("ellipsoid", [1e-3, 8e-4, 6e-4], [0.003, 0.006, 0.0011], [0.2, 0.0, 0.0])],
+}
+
+
+@pytest.mark.parametrize("case", sorted(EDGE_CASES))
+def test_edge_cases_bit_identical(tmp_path, case):
+    """A particle exactly on a block face, empty blocks and all particles in one block."""
+    scene = write(tmp_path, scene_with(EDGE_CASES[case]), f"{case}.toml")
+    ref_out = tmp_path / "serial"
+    res = bench("run", "--scene", scene, "--steps", "600", "--out", str(ref_out), "--quiet")
+    assert res.returncode == 0, res.stderr
+    ref = dict(np.load(ref_out / "state.npz"))
+    got, steps, _ = mpi_run(tmp_path, scene, 600, "4-2-2-1-1")
+    assert_same(ref, got)
+    if case == "one-block":
+        first = steps[steps["step"] == 1]
+        assert sorted(first["n_owned"].tolist()) == [0, 0, 0, 3]
+
+
+def test_particle_larger_than_block_refused(tmp_path):
+    """Blocks narrower than the largest particle's bounding diameter are refused in one line."""
+    scene = write(tmp_path, scene_with(EDGE_CASES["on-face"]))
+    one_line_error(bench("run", "--scene", scene, "--mapping", "16-16-1-1-1", "--out", str(tmp_path / "o")),
+                   "use fewer blocks along x")
+
+
+def test_records_of_a_pure_mpi_run(tmp_path):
+    """steps.csv has one row per step and rank with commuT, migraT, ghosts and bytes; compuT is
+    totalT - commuT - migraT; run.json names the MPI library."""
+    _, steps, info = mpi_run(tmp_path, "gas", 50, "2-2-1-1-1")
+    assert len(steps) == 2 * 50 and set(steps["rank"]) == {0, 1}
+    assert (steps["commuT"] > 0).all() and (steps["migraT"] > 0).all()
+    assert np.allclose(steps["compuT"], steps["totalT"] - steps["commuT"] - steps["migraT"])
+    assert steps["n_owned"].groupby(steps["step"]).sum().eq(300).all()
+    assert "MPICH" in info["mpi_library"] or "Open MPI" in info["mpi_library"]
