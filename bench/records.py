@@ -10,7 +10,7 @@ import numpy as np
 
 STEP_COLUMNS = ["step", "rank", "totalT", "commuT", "migraT", "compuT", "neighborT", "resolveT",
                 "n_owned", "n_ghost", "n_contacts", "n_wall_contacts", "n_candidates", "neighbor_rebuilt", "n_migrated", "bytes_sent",
-                "ellipsoid_calls", "max_overlap_ratio", "busy_max", "busy_mean", "imbalance", "work_imbalance", "nsf"]
+                "ellipsoid_calls", "max_overlap_ratio", "busy_max", "busy_mean", "imbalance", "work_imbalance", "nsf", "rss_mb"]
 
 
 def environment():
@@ -55,6 +55,8 @@ class StepWriter:
     """Appends one steps.csv row per step and rank, flushed as it goes (a crash keeps its rows)."""
 
     def __init__(self, path):
+        import psutil
+        self.proc = psutil.Process()
         self.fh = open(path, "w", newline="")
         self.w = csv.DictWriter(self.fh, fieldnames=STEP_COLUMNS, extrasaction="ignore")
         self.w.writeheader()
@@ -62,7 +64,8 @@ class StepWriter:
     def write(self, step, rank, row):
         detect = row.get("neighborT", 0.0) + row.get("resolveT", 0.0)
         nsf = row.get("neighborT", 0.0) / detect if detect > 0 else 0.0
-        self.w.writerow({"step": step, "rank": rank, "nsf": nsf, **row})
+        rss = self.proc.memory_info().rss / 2**20  # resident memory of this rank [MiB], outside the timers
+        self.w.writerow({"step": step, "rank": rank, "nsf": nsf, "rss_mb": rss, **row})
 
     def close(self):
         self.fh.close()

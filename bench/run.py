@@ -118,7 +118,11 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
             "build": scene.extras.get("built"), "stable": None, "max_overlap_ratio": 0.0, "status": "running"}
     if comm is not None:
         from mpi4py import MPI
+        from modes.halo import GHOST_GENERAL, GHOST_SPHERE, WIDTH
         info["mpi_library"] = MPI.Get_library_version().strip().splitlines()[0]
+        fields = GHOST_SPHERE if mode.all_spheres else GHOST_GENERAL
+        info["ghost_fields"] = list(fields)
+        info["ghost_bytes_per_particle"] = 8 * sum(WIDTH[f] for f in fields)  # the paper: 624 per ellipsoid
     if rank == 0:
         write_json(os.path.join(out, "run.json"), info)
     step_file = os.path.join(out, "steps.csv" if comm is None else f"steps.rank{rank}.csv")

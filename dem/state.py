@@ -29,6 +29,15 @@ H_N = 5
 HIST_LEN = 8
 
 
+def csr_rows(start, rows):
+    """Entries of CSR rows `rows` (in that order): (index array into the CSR data, counts [len(rows)])."""
+    rows = np.asarray(rows, dtype=np.int64)
+    counts = start[rows + 1] - start[rows]
+    total = int(counts.sum())
+    offsets = np.repeat(start[rows] - (np.cumsum(counts) - counts), counts)
+    return offsets + np.arange(total, dtype=np.int64), counts
+
+
 def mass_properties(shape, axes, density):
     """Mass [kg] and principal moments [kg m^2] [3] of a sphere (axes [r]) or ellipsoid (a, b, c).
 
@@ -85,14 +94,12 @@ class State:
     def permute_keep(self, rows):
         """Keep only the owned particles `rows` (in that order), with their history rows."""
         rows = np.asarray(rows, dtype=np.int64)
-        counts = np.diff(self.hist_start)[rows]
-        hrows = np.concatenate([np.arange(self.hist_start[p], self.hist_start[p + 1]) for p in rows]) \
-            if len(rows) else np.zeros(0, dtype=np.int64)
+        hrows, counts = csr_rows(self.hist_start, rows)
         for f in self.PER_PARTICLE:
             setattr(self, f, np.ascontiguousarray(getattr(self, f)[rows]))
         self.hist_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        self.hist_partner = np.ascontiguousarray(self.hist_partner[hrows.astype(np.int64)])
-        self.hist_val = np.ascontiguousarray(self.hist_val[hrows.astype(np.int64)])
+        self.hist_partner = np.ascontiguousarray(self.hist_partner[hrows])
+        self.hist_val = np.ascontiguousarray(self.hist_val[hrows])
         self.n_owned = len(rows)
 
     def permute(self, perm):

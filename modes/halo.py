@@ -4,7 +4,7 @@ Ghosts (commuT): every step each block sends the owned particles inside the bord
 each neighbour that needs them, directly to all 26 neighbours (the paper's exchange). The
 message carries only what the contact kernels read: for a scene of spheres 14 doubles
 (gid, material, mass, radius, moment of inertia, position, velocity, angular momentum: 112
-bytes); otherwise 22 (plus shape, three semi-axes, three moments, quaternion: 176 bytes). The
+bytes); otherwise 23 (plus shape, three semi-axes, three moments, quaternion: 184 bytes). The
 paper sends 624 bytes per ellipsoid. Ghosts are exact binary copies, so each rank derives the
 same rotation matrix and angular velocity from them as the owner does.
 
@@ -17,7 +17,7 @@ row counts, then the rows, all with Irecv/Isend and one Waitall per round.
 """
 import numpy as np
 
-from dem.state import HIST_LEN, SPHERE
+from dem.state import HIST_LEN, SPHERE, csr_rows
 from modes.decomposition import DIRECTIONS, OPPOSITE, direction_of, send_masks
 
 GHOST_SPHERE = ("gid", "material", "mass", "axes0", "inertia0", "pos", "vel", "angmom")
@@ -80,22 +80,25 @@ class Halo:
             self.ranks.append(None if c is None else cart.Get_cart_rank([int(x) for x in c]))
         self.bytes_sent = 0
 
-    def exchange(self, outgoing, width):
-        """Send outgoing[k] (float64 [rows, width] or None) to neighbour k; return the list of
-        arrays received from each neighbour (None where there is none)."""
+    def exchange(self, outgoing, widths):
+        """Send outgoing[k] (a tuple of float64 arrays [rows_a, widths[a]], or None) to neighbour k
+        and return what each neighbour sent (tuples; None where there is no neighbour). One round
+        of row counts, then one round of data: two Waitalls whatever the number of arrays."""
         from mpi4py import MPI
-        counts_in = {k: np.zeros(1, dtype=np.int64) for k, r in enumerate(self.ranks) if r is not None}
+        na = len(widths)
+        counts_in = {k: np.zeros(na, dtype=np.int64) for k, r in enumerate(self.ranks) if r is not None}
+        sizes = {}
         reqs = []
         for k, r in enumerate(self.ranks):
             if r is None:
                 continue
             # what neighbour k sent towards me travelled in the opposite direction
             reqs.append(self.cart.Irecv(counts_in[k], source=r, tag=int(OPPOSITE[k])))
-        sizes = {}
         for k, r in enumerate(self.ranks):
             if r is None:
                 continue
-            sizes[k] = np.array([0 if outgoing[k] is None else len(outgoing[k])], dtype=np.int64)
+            sizes[k] = (np.array([len(a) for a in outgoing[k]], dtype=np.int64) if outgoing[k] is not None
+                        else np.zeros(na, dtype=np.int64))
             reqs.append(self.cart.Isend(sizes[k], dest=r, tag=k))
         MPI.Request.Waitall(reqs)
         incoming = [None] * len(DIRECTIONS)
@@ -103,15 +106,18 @@ class Halo:
         for k, r in enumerate(self.ranks):
             if r is None:
                 continue
-            incoming[k] = np.empty((int(counts_in[k][0]), width))
-            if len(incoming[k]):
-                reqs.append(self.cart.Irecv(incoming[k], source=r, tag=100 + int(OPPOSITE[k])))
+            incoming[k] = tuple(np.empty((int(counts_in[k][a]), widths[a])) for a in range(na))
+            for a in range(na):
+                if len(incoming[k][a]):
+                    reqs.append(self.cart.Irecv(incoming[k][a], source=r, tag=100 + 32 * a + int(OPPOSITE[k])))
         for k, r in enumerate(self.ranks):
-            if r is None or outgoing[k] is None or not len(outgoing[k]):
+            if r is None or outgoing[k] is None:
                 continue
-            buf = np.ascontiguousarray(outgoing[k])
-            self.bytes_sent += buf.nbytes
-            reqs.append(self.cart.Isend(buf, dest=r, tag=100 + k))
+            for a in range(na):
+                if len(outgoing[k][a]):
+                    buf = np.ascontiguousarray(outgoing[k][a])
+                    self.bytes_sent += buf.nbytes
+                    reqs.append(self.cart.Isend(buf, dest=r, tag=100 + 32 * a + k))
         MPI.Request.Waitall(reqs)
         return incoming
 
@@ -130,9 +136,9 @@ class Halo:
         outgoing = [None] * len(DIRECTIONS)
         for k, r in enumerate(self.ranks):
             if r is not None:
-                outgoing[k] = _columns(state, fields, np.flatnonzero(masks[k]))
-        incoming = self.exchange(outgoing, ncol)
-        parts = [m for m in incoming if m is not None and len(m)]
+                outgoing[k] = (_columns(state, fields, np.flatnonzero(masks[k])),)
+        incoming = self.exchange(outgoing, (ncol,))
+        parts = [m[0] for m in incoming if m is not None and len(m[0])]
         if not parts:
             return 0
         g = _split(np.concatenate(parts), fields)
@@ -161,8 +167,7 @@ class Halo:
         base = sum(WIDTH[f] for f in fields)
         ncol = base + nw * HIST_LEN + 1
         counts = np.diff(state.hist_start)
-        out_p = [None] * len(DIRECTIONS)
-        out_h = [None] * len(DIRECTIONS)
+        out = [None] * len(DIRECTIONS)
         for k, r in enumerate(self.ranks):
             if r is None:
                 continue
@@ -171,19 +176,17 @@ class Halo:
             rows[:, :base] = _columns(state, fields, sel)
             rows[:, base:base + nw * HIST_LEN] = state.wall_hist[sel].reshape(len(sel), nw * HIST_LEN)
             rows[:, -1] = counts[sel]
-            out_p[k] = rows
-            hrows = np.concatenate([np.arange(state.hist_start[p], state.hist_start[p + 1]) for p in sel]) \
-                if len(sel) else np.zeros(0, dtype=np.int64)
+            hrows, _ = csr_rows(state.hist_start, sel)
             h = np.empty((len(hrows), 1 + HIST_LEN))
             h[:, 0] = state.hist_partner[hrows].view(np.float64)
             h[:, 1:] = state.hist_val[hrows]
-            out_h[k] = h
-        in_p = self.exchange(out_p, ncol)
-        in_h = self.exchange(out_h, 1 + HIST_LEN)
-        keep = np.ones(n, dtype=bool)
-        keep[leaving] = False
-        state.permute_keep(np.flatnonzero(keep))
-        parts = [(p, h) for p, h in zip(in_p, in_h) if p is not None and len(p)]
+            out[k] = (rows, h)
+        incoming = self.exchange(out, (ncol, 1 + HIST_LEN))
+        if len(leaving):
+            keep = np.ones(n, dtype=bool)
+            keep[leaving] = False
+            state.permute_keep(np.flatnonzero(keep))
+        parts = [m for m in incoming if m is not None and len(m[0])]
         if parts:
             rows = np.concatenate([p for p, _ in parts])
             hist = np.concatenate([h for _, h in parts])
@@ -204,7 +207,7 @@ def drop_ghosts(state):
     if state.n == n:
         return
     for f in PER_PARTICLE:
-        setattr(state, f, getattr(state, f)[:n].copy())
+        setattr(state, f, getattr(state, f)[:n])  # a view: appending ghosts makes new arrays anyway
 
 
 def append_ghosts(state, g):
