@@ -76,6 +76,11 @@ def build_parser():
                    help="write VTK + npz snapshots every K steps")
     r.add_argument("--plot", action="store_true", help="draw DIR/run.png (timings, contacts, energy)")
     r.add_argument("--out", default=None, help="output folder (default results/run-<scene>)")
+    r.add_argument("--halo", choices=["26", "6"], default="26",
+                   help="ghost exchange: 26 direct messages (default, the paper's) or 3 sweeps of 6")
+    r.add_argument("--update-grid", type=_nonneg_int, default=0, metavar="K",
+                   help="re-fit the block grid to the particles' extent every K steps (the paper's "
+                        "updateGrid; default 0: off)")
     r.add_argument("--timeout", type=_positive_int, default=3600, help="seconds before MPI ranks are killed")
     r.add_argument("--quiet", action="store_true")
 

@@ -73,7 +73,8 @@ def launch_mpi(args, mapping, scene, out):
 def _run_argv(args, out):
     """The bench-run options the ranks need (the same run, with the resolved output folder)."""
     argv = ["--scene", args.scene, "--mapping", args.mapping, "--neighbor", args.neighbor, "--out", out,
-            "--threaded", args.threaded, "--snapshot-every", str(args.snapshot_every)]
+            "--threaded", args.threaded, "--snapshot-every", str(args.snapshot_every), "--halo", args.halo,
+            "--update-grid", str(args.update_grid)]
     for name in ("particles", "shape", "seed", "steps", "dt", "scheme"):
         v = getattr(args, name)
         if v is not None:

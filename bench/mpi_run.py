@@ -19,7 +19,8 @@ def main(argv):
     dts = choose_dt(scene, args.dt)
     scheme = args.scheme or ("dynamic" if mapping.threads > 1 else None)
     mode = mode_for(mapping)().setup(scene, dt=dts[0], cart=cart, neighbor=args.neighbor, threads=mapping.threads,
-                                     scheme=scheme, threaded=args.threaded)
+                                     scheme=scheme, threaded=args.threaded, halo=args.halo,
+                                     update_grid=args.update_grid)
     return execute(args, scene, mapping, scheme, mode, args.out, dts, comm=cart)
 
 

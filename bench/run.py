@@ -111,7 +111,8 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
             "threads": mapping.threads, "scheme": scheme,
             "threaded": args.threaded if mapping.threads > 1 else None, "pin": args.pin,
             "threading": _threading_info(),
-            "neighbor": args.neighbor, "skin": args.skin, "dt": dt, "dt_auto": dt_auto, "dt_critical": dt_crit,
+            "neighbor": args.neighbor, "skin": args.skin, "halo": args.halo if mapping.procs > 1 else None,
+            "update_grid": args.update_grid if mapping.procs > 1 else None, "dt": dt, "dt_auto": dt_auto, "dt_critical": dt_crit,
             "dt_details": dt_info, "walls": scene.walls, "gravity": scene.gravity.tolist(),
             "materials": [m.__dict__ for m in scene.materials.materials],
             "environment": environment(), "warmup_s": t_compile, "threading_layer": layer,
@@ -170,6 +171,7 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
     info.update({"stable": stable, "stability_reason": reason, "status": "done" if stable else "unstable",
                  "max_overlap_ratio": worst, "wall_s": wall,
                  "neighbor_rebuilds": mode.verlet.rebuilds if getattr(mode, "verlet", None) else steps,
+                 "grid_updates": getattr(mode, "grid_updates", None),
                  "kinetic_energy_initial": ke0, "kinetic_energy_final": ke1,
                  "simulated_time": steps * dt})
     write_json(os.path.join(out, "run.json"), info)

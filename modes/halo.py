@@ -1,7 +1,9 @@
 """Ghost exchange and particle migration between link blocks (MPI; no physics here).
 
 Ghosts (commuT): every step each block sends the owned particles inside the border layer to
-each neighbour that needs them, directly to all 26 neighbours (the paper's exchange). The
+each neighbour that needs them, directly to all 26 neighbours (the paper's exchange, --halo 26)
+or in three sweeps of two messages that forward what earlier sweeps brought (--halo 6: fewer,
+larger messages; the same ghosts). The
 message carries only what the contact kernels read: for a scene of spheres 14 doubles
 (gid, material, mass, radius, moment of inertia, position, velocity, angular momentum: 112
 bytes); otherwise 23 (plus shape, three semi-axes, three moments, quaternion: 184 bytes). The
@@ -69,7 +71,10 @@ class Halo:
 
     cart: MPI Cartesian communicator (not periodic); grid: BlockGrid; coords: this block."""
 
-    def __init__(self, cart, grid, coords):
+    def __init__(self, cart, grid, coords, halo="26"):
+        if halo not in ("26", "6"):
+            raise ValueError(f"halo must be '26' or '6', got {halo!r}")
+        self.halo = halo
         self.cart = cart
         self.grid = grid
         self.coords = np.asarray(coords)
@@ -80,21 +85,22 @@ class Halo:
             self.ranks.append(None if c is None else cart.Get_cart_rank([int(x) for x in c]))
         self.bytes_sent = 0
 
-    def exchange(self, outgoing, widths):
+    def exchange(self, outgoing, widths, dirs=None):
         """Send outgoing[k] (a tuple of float64 arrays [rows_a, widths[a]], or None) to neighbour k
         and return what each neighbour sent (tuples; None where there is no neighbour). One round
         of row counts, then one round of data: two Waitalls whatever the number of arrays."""
         from mpi4py import MPI
         na = len(widths)
-        counts_in = {k: np.zeros(na, dtype=np.int64) for k, r in enumerate(self.ranks) if r is not None}
+        ranks = [r if (dirs is None or k in dirs) else None for k, r in enumerate(self.ranks)]
+        counts_in = {k: np.zeros(na, dtype=np.int64) for k, r in enumerate(ranks) if r is not None}
         sizes = {}
         reqs = []
-        for k, r in enumerate(self.ranks):
+        for k, r in enumerate(ranks):
             if r is None:
                 continue
             # what neighbour k sent towards me travelled in the opposite direction
             reqs.append(self.cart.Irecv(counts_in[k], source=r, tag=int(OPPOSITE[k])))
-        for k, r in enumerate(self.ranks):
+        for k, r in enumerate(ranks):
             if r is None:
                 continue
             sizes[k] = (np.array([len(a) for a in outgoing[k]], dtype=np.int64) if outgoing[k] is not None
@@ -103,14 +109,14 @@ class Halo:
         MPI.Request.Waitall(reqs)
         incoming = [None] * len(DIRECTIONS)
         reqs = []
-        for k, r in enumerate(self.ranks):
+        for k, r in enumerate(ranks):
             if r is None:
                 continue
             incoming[k] = tuple(np.empty((int(counts_in[k][a]), widths[a])) for a in range(na))
             for a in range(na):
                 if len(incoming[k][a]):
                     reqs.append(self.cart.Irecv(incoming[k][a], source=r, tag=100 + 32 * a + int(OPPOSITE[k])))
-        for k, r in enumerate(self.ranks):
+        for k, r in enumerate(ranks):
             if r is None or outgoing[k] is None:
                 continue
             for a in range(na):
@@ -132,22 +138,44 @@ class Halo:
         n = state.n_owned
         fields = self.ghost_fields(all_spheres)
         ncol = sum(WIDTH[f] for f in fields)
-        masks = send_masks(state.pos[:n], self.lo, self.hi, width)
-        outgoing = [None] * len(DIRECTIONS)
-        for k, r in enumerate(self.ranks):
-            if r is not None:
-                outgoing[k] = (_columns(state, fields, np.flatnonzero(masks[k])),)
-        incoming = self.exchange(outgoing, (ncol,))
+        if self.halo == "26":
+            # direct: each border particle goes straight to every neighbour that needs it
+            masks = send_masks(state.pos[:n], self.lo, self.hi, width)
+            outgoing = [None] * len(DIRECTIONS)
+            for k, r in enumerate(self.ranks):
+                if r is not None:
+                    outgoing[k] = (_columns(state, fields, np.flatnonzero(masks[k])),)
+            self._append(state, self.exchange(outgoing, (ncol,)), fields, all_spheres)
+        else:
+            # three sweeps (x, y, z) of two messages; each sweep forwards the ghosts received
+            # in the earlier ones, so edge and corner neighbours are served in two or three hops
+            # (the same particles as the direct exchange: the faces crossed are the same planes)
+            for axis in range(3):
+                pos = state.pos
+                outgoing = [None] * len(DIRECTIONS)
+                sweep = []
+                for sign in (-1, 1):
+                    d = np.zeros(3, dtype=np.int64)
+                    d[axis] = sign
+                    k = int(np.flatnonzero((DIRECTIONS == d).all(axis=1))[0])
+                    sweep.append(k)
+                    near = (pos[:, axis] - self.lo[axis] < width) if sign < 0 else (self.hi[axis] - pos[:, axis] < width)
+                    if self.ranks[k] is not None:
+                        outgoing[k] = (_columns(state, fields, np.flatnonzero(near)),)
+                self._append(state, self.exchange(outgoing, (ncol,), dirs=sweep), fields, all_spheres)
+        return state.n - n
+
+    @staticmethod
+    def _append(state, incoming, fields, all_spheres):
         parts = [m[0] for m in incoming if m is not None and len(m[0])]
         if not parts:
-            return 0
+            return
         g = _split(np.concatenate(parts), fields)
         m = len(g["gid"])
         if all_spheres:
             g["shape"] = np.full(m, SPHERE, dtype=np.int64)
             g["quat"] = np.tile([1.0, 0.0, 0.0, 0.0], (m, 1))  # never read for spheres
         append_ghosts(state, g)
-        return m
 
     # --- migration ----------------------------------------------------------------------------
     def migrate(self, state):
@@ -195,6 +223,35 @@ class Halo:
             append_owned(state, g, rows[:, -1].astype(np.int64),
                          np.ascontiguousarray(hist[:, 0]).view(np.int64), hist[:, 1:])
         return len(leaving), sum(len(p) for p, _ in parts)
+
+
+def redistribute(cart, grid, state, coords):
+    """After a change of block grid: send every owned particle to the rank whose new block holds
+    its centre (one all-to-all; owners may change by more than one block). Whole state and
+    contact history travel, as in migration. Returns the number of particles this rank sent away."""
+    drop_ghosts(state)
+    n = state.n_owned
+    target = grid.block_of(state.pos[:n])
+    dest = np.array([cart.Get_cart_rank([int(c) for c in t]) for t in target], dtype=np.int64) \
+        if n else np.zeros(0, dtype=np.int64)
+    me = cart.Get_rank()
+    fields = GHOST_GENERAL
+    nw = state.wall_hist.shape[1]
+    counts = np.diff(state.hist_start)
+    outgoing = []
+    for r in range(cart.Get_size()):
+        sel = np.flatnonzero(dest == r) if r != me else np.zeros(0, dtype=np.int64)
+        hrows, _ = csr_rows(state.hist_start, sel)
+        outgoing.append((_columns(state, fields, sel), state.wall_hist[sel], counts[sel],
+                         state.hist_partner[hrows], state.hist_val[hrows]))
+    incoming = cart.alltoall(outgoing)  # rare: pickled lists are fine here
+    state.permute_keep(np.flatnonzero(dest == me))
+    for rows, wall, hc, hp, hv in incoming:
+        if len(rows):
+            g = _split(rows, fields)
+            g["wall_hist"] = wall
+            append_owned(state, g, hc, hp, hv)
+    return int(np.count_nonzero(dest != me))
 
 
 PER_PARTICLE = ("gid", "shape", "axes", "rbound", "mass", "inertia", "material", "pos", "vel", "quat",

@@ -20,7 +20,7 @@ from modes.threads import ThreadsMode
 class _Blocks:
     """Mixin: decomposition + halo around a step driver's step()."""
 
-    def setup(self, scene, dt, cart=None, skin=0.0, **kw):
+    def setup(self, scene, dt, cart=None, skin=0.0, halo="26", update_grid=0, **kw):
         from mpi4py import MPI
         self.wtime = MPI.Wtime
         super().setup(scene, dt, skin=0.0, **kw)
@@ -33,7 +33,10 @@ class _Blocks:
         self.grid.check_width(self.width)
         mine = np.flatnonzero(np.all(self.grid.block_of(s.pos) == self.coords, axis=1))
         s.permute_keep(mine)
-        self.halo = Halo(cart, self.grid, self.coords)
+        self.halo = Halo(cart, self.grid, self.coords, halo=halo)
+        self.update_grid = int(update_grid)
+        self.steps_done = 0
+        self.grid_updates = 0
         # walls only where the block touches the box face (others are farther than any radius)
         touch = []
         for w in scene.walls:
@@ -46,9 +49,36 @@ class _Blocks:
         super().warmup()  # collective: every rank steps its twin once
         self.halo.bytes_sent = 0
 
+    def refit_grid(self):
+        """The paper's updateGrid: re-fit the block grid to the extent of the particle centres
+        (all ranks agree through two allreduces) when the blocks stay wide enough, and hand
+        particles to their new owners. Returns the number of particles this rank sent."""
+        from mpi4py import MPI
+        from modes.halo import redistribute
+        s = self.state
+        n = s.n_owned
+        lo = s.pos[:n].min(axis=0) if n else np.full(3, np.inf)
+        hi = s.pos[:n].max(axis=0) if n else np.full(3, -np.inf)
+        self.cart.Allreduce(MPI.IN_PLACE, lo, op=MPI.MIN)
+        self.cart.Allreduce(MPI.IN_PLACE, hi, op=MPI.MAX)
+        span = np.maximum(hi - lo, 1e-300)
+        grid = BlockGrid(np.array([lo - 1e-9 * span, hi + 1e-9 * span]), self.grid.dims)
+        if np.any((grid.dims > 1) & (grid.h < self.width)):
+            return 0  # too tight for the border layer: keep the current grid
+        self.grid = grid
+        self.halo.grid = grid
+        self.halo.lo, self.halo.hi = grid.bounds(self.coords)
+        self.grid_updates += 1
+        return redistribute(self.cart, grid, s, self.coords)
+
     def step(self):
         t0 = self.wtime()
+        self.steps_done += 1
+        moved = 0
+        if self.update_grid and self.steps_done % self.update_grid == 0:
+            moved = self.refit_grid()
         sent, received = self.halo.migrate(self.state)
+        sent += moved
         t1 = self.wtime()
         n_ghost = self.halo.exchange_ghosts(self.state, self.width, self.all_spheres)
         t2 = self.wtime()

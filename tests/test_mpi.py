@@ -127,3 +127,25 @@ def test_records_of_a_pure_mpi_run(tmp_path):
     assert np.allclose(steps["compuT"], steps["totalT"] - steps["commuT"] - steps["migraT"])
     assert steps["n_owned"].groupby(steps["step"]).sum().eq(300).all()
     assert "MPICH" in info["mpi_library"] or "Open MPI" in info["mpi_library"]
+
+
+def test_six_message_halo_same_ghosts(tmp_path, tmp_path_factory):
+    """--halo 6 (three sweeps forwarding ghosts) delivers exactly the ghosts of the direct
+    26-neighbour exchange on 2x2x2 blocks (same count every step) and the serial trajectory."""
+    ref = serial_state(tmp_path_factory, "gas", 800)
+    got6, steps6, info = mpi_run(tmp_path, "gas", 800, "8-2-2-2-1", "--halo", "6")
+    assert info["halo"] == "6"
+    assert_same(ref, got6)
+    _, steps26, _ = mpi_run(tmp_path / "direct", "gas", 800, "8-2-2-2-1")
+    assert steps6["n_ghost"].tolist() == steps26["n_ghost"].tolist()
+
+
+def test_update_grid_bit_identical(tmp_path, tmp_path_factory):
+    """The paper's updateGrid: re-fitting the block grid to the settling pluviation every 500
+    steps hands particles to new owners (whole state and history) without changing a bit."""
+    ref = serial_state(tmp_path_factory, "pluviation", 7000, ("--particles", "300"))
+    got, steps, info = mpi_run(tmp_path, "pluviation", 7000, "2-1-1-2-1", "--particles", "300",
+                               "--update-grid", "500")
+    assert info["grid_updates"] >= 10
+    assert steps["n_contacts"].sum() > 0
+    assert_same(ref, got)
