@@ -61,6 +61,8 @@ def build_parser():
     r.add_argument("--shape", choices=["sphere", "ellipsoid"], help="override the generated shape")
     r.add_argument("--seed", type=_nonneg_int, help="override the generator seed")
     r.add_argument("--steps", type=_nonneg_int, help="override the scene's step count")
+    r.add_argument("--warmup", type=_nonneg_int, default=0, metavar="W",
+                   help="untimed steps before the timed ones (after JIT compilation, which is never timed)")
     r.add_argument("--dt", type=float, help="time step [s] (default: the scene's, usually auto)")
     r.add_argument("--mapping", default="1-1-1-1-1", help="P-px-py-pz-T (default 1-1-1-1-1)")
     r.add_argument("--scheme", default=None, help="thread scheme: partition, frogleap, headtail, static, "
@@ -88,6 +90,32 @@ def build_parser():
     c.add_argument("scene", help="scene .toml file (or built-in name)")
 
     sub.add_parser("scenes", help="list built-in scenes")
+
+    sw = sub.add_parser("sweep", help="run a scene under many mappings; records, metrics, figures")
+    sw.add_argument("--mappings", help="comma-separated P-px-py-pz-T list (1-1-1-1-1 is added when missing)")
+    sw.add_argument("--file", help="sweep file (TOML, a [sweep] table with the same fields) instead of options")
+    sw.add_argument("--schemes", help="comma-separated thread schemes for mappings with T > 1 (default dynamic)")
+    sw.add_argument("--scene")
+    sw.add_argument("--particles", type=_positive_int)
+    sw.add_argument("--shape", choices=["sphere", "ellipsoid"])
+    sw.add_argument("--steps", type=_positive_int)
+    sw.add_argument("--warmup", type=_nonneg_int, default=0, help="untimed steps before the timed ones")
+    sw.add_argument("--repeats", type=_positive_int, default=1, help="runs per point (medians recorded)")
+    sw.add_argument("--neighbor", choices=["allpairs", "linkcell"], default="linkcell")
+    sw.add_argument("--halo", choices=["26", "6"], default="26")
+    sw.add_argument("--pin", action="store_true")
+    sw.add_argument("--timeout", type=_positive_int, default=1800, help="seconds per point run")
+    sw.add_argument("--launcher", choices=["local", "slurm"], default="local")
+    sw.add_argument("--dry-run", action="store_true", help="print every command and environment, run nothing")
+    sw.add_argument("--resume", action="store_true", help="skip the points already done in OUT/runs.csv")
+    sw.add_argument("--out")
+
+    pl = sub.add_parser("plot", help="draw a sweep's figures from its records")
+    pl.add_argument("dir")
+    pl.add_argument("--paper", action="store_true", help="also overlay the paper's Tables 4 and 1")
+
+    co = sub.add_parser("collect", help="gather a (Slurm) sweep's point folders into runs.csv")
+    co.add_argument("dir")
 
     sc = sub.add_parser("schemes", help="Table 1 in kind: contact-detection speedup of each thread scheme")
     sc.add_argument("--particles", type=_positive_int, default=2500)
@@ -158,6 +186,76 @@ def cmd_run(args):
         raise UsageError(str(e)) from None
 
 
+SWEEP_FIELDS = {"mappings": str, "schemes": str, "scene": str, "particles": int, "shape": str, "steps": int,
+                "warmup": int, "repeats": int, "neighbor": str, "halo": str, "pin": bool, "timeout": int,
+                "launcher": str, "out": str}
+
+
+def _sweep_file(args):
+    """Fill sweep options from a TOML [sweep] table (lists allowed for mappings and schemes);
+    options given on the command line win."""
+    import tomllib
+    try:
+        with open(args.file, "rb") as fh:
+            doc = tomllib.load(fh)
+    except OSError as e:
+        raise UsageError(f"cannot read sweep file {args.file}: {e.strerror}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise UsageError(f"malformed TOML in {args.file}: {e}") from None
+    table = doc.get("sweep", doc)
+    for key, value in table.items():
+        if key not in SWEEP_FIELDS:
+            raise UsageError(f"unknown key {key!r} in {args.file} (allowed: {', '.join(SWEEP_FIELDS)})")
+        if isinstance(value, list):
+            value = ",".join(str(v) for v in value)
+        want = SWEEP_FIELDS[key]
+        if want is int and (isinstance(value, bool) or not isinstance(value, int) or value <= 0 and key != "warmup"):
+            raise UsageError(f"{key} in {args.file} must be a positive integer, got {value!r}")
+        if want is bool and not isinstance(value, bool):
+            raise UsageError(f"{key} in {args.file} must be true or false, got {value!r}")
+        default = build_parser()._subparsers._group_actions[0].choices["sweep"].get_default(key)
+        if getattr(args, key, None) in (None, default, False):
+            setattr(args, key, value)
+
+
+def cmd_sweep(args):
+    if args.file:
+        _sweep_file(args)
+    for need in ("mappings", "scene", "out"):
+        if not getattr(args, need):
+            raise UsageError(f"bench sweep: --{need} is required (or set it in the sweep file)")
+    if args.neighbor not in ("allpairs", "linkcell") or args.halo not in ("26", "6") or \
+            args.launcher not in ("local", "slurm"):
+        raise UsageError("bench sweep: neighbor must be allpairs|linkcell, halo 26|6, launcher local|slurm")
+    from bench.sweep import sweep
+    errors = _usage_errors()
+    try:
+        from dem.scene import load_scene
+        load_scene(args.scene, particles=args.particles, shape=args.shape)  # a bad scene fails here, once
+        return sweep(args)
+    except errors as e:
+        raise UsageError(str(e)) from None
+
+
+def cmd_plot(args):
+    import os
+    if not os.path.exists(os.path.join(args.dir, "runs.csv")):
+        raise UsageError(f"bench plot: {args.dir} has no runs.csv (not a sweep folder)")
+    from bench.sweep_plots import plot_paper, plot_sweep
+    figs = plot_sweep(args.dir) + (plot_paper(args.dir) if args.paper else [])
+    print("\n".join(figs))
+    return 0
+
+
+def cmd_collect(args):
+    from bench.slurm import collect
+    errors = _usage_errors()
+    try:
+        return collect(args)
+    except errors as e:
+        raise UsageError(str(e)) from None
+
+
 def cmd_schemes(args):
     from bench.threads_env import configure_threads
     configure_threads(f"1-1-1-1-{args.threads}")  # before numba starts
@@ -177,7 +275,7 @@ def cmd_perf(args):
 
 
 COMMANDS = {"run": cmd_run, "contacts": cmd_contacts, "scenes": cmd_scenes, "perf": cmd_perf,
-            "schemes": cmd_schemes}
+            "schemes": cmd_schemes, "sweep": cmd_sweep, "plot": cmd_plot, "collect": cmd_collect}
 
 
 if __name__ == "__main__":

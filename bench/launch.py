@@ -75,7 +75,7 @@ def _run_argv(args, out):
     argv = ["--scene", args.scene, "--mapping", args.mapping, "--neighbor", args.neighbor, "--out", out,
             "--threaded", args.threaded, "--snapshot-every", str(args.snapshot_every), "--halo", args.halo,
             "--update-grid", str(args.update_grid)]
-    for name in ("particles", "shape", "seed", "steps", "dt", "scheme"):
+    for name in ("particles", "shape", "seed", "steps", "dt", "scheme", "warmup"):
         v = getattr(args, name)
         if v is not None:
             argv += [f"--{name}", str(v)]

@@ -94,6 +94,8 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
     t_compile = time.perf_counter()
     mode.warmup()
     t_compile = time.perf_counter() - t_compile
+    for _ in range(getattr(args, "warmup", 0)):  # untimed, unrecorded: the state advances
+        mode.step()
     try:
         import numba
         layer = numba.threading_layer()
@@ -115,7 +117,7 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
             "update_grid": args.update_grid if mapping.procs > 1 else None, "dt": dt, "dt_auto": dt_auto, "dt_critical": dt_crit,
             "dt_details": dt_info, "walls": scene.walls, "gravity": scene.gravity.tolist(),
             "materials": [m.__dict__ for m in scene.materials.materials],
-            "environment": environment(), "warmup_s": t_compile, "threading_layer": layer,
+            "environment": environment(), "warmup_s": t_compile, "warmup_steps": getattr(args, "warmup", 0), "threading_layer": layer,
             "build": scene.extras.get("built"), "stable": None, "max_overlap_ratio": 0.0, "status": "running"}
     if comm is not None:
         from mpi4py import MPI

@@ -1,0 +1,739 @@
+"""Figures of a mapping sweep, drawn from DIR/runs.csv (plotting only reads records).
+
+plot_sweep(DIR) writes, in DIR:
+- speedup.png: speedup T(1)/T(p) against cores p = procs x threads (log2-log2), one series per
+  family (threads: 1 process; MPI: 1 thread; hybrid: both > 1; split by thread scheme and by
+  neighbour method when those vary), every point labelled with its mapping P-px-py-pz-T, the
+  ideal y = x and, when DIR/summary.json holds one, the Amdahl curve of the fitted serial fraction;
+- efficiency.png: speedup / cores against cores, ideal line at 1;
+- edsf.png: the Karp-Flatt experimentally determined serial fraction against cores (p > 1), a
+  line at 0 and the Amdahl fit when present;
+- modules.png: per mapping (x axis ordered by cores, then procs; grouped by core count) stacked
+  bars of compuT, commuT, migraT in ms/step (top) and as % of totalT (bottom), the paper's
+  Figs. 19-21 in kind;
+- error_vs_time.png: err_max (final-position error against the serial run over the mean
+  particle radius) against totalT [ms/step], log-log; zero errors (bit-identical modes) are
+  drawn hollow on a dashed floor line a decade below the smallest non-zero error.
+
+plot_paper(DIR) writes paper_table4.png (module times normalised by each side's pure-MPI
+totalT, ours at our largest core count beside the paper's pinned Table 4 on 36 cores) and,
+only when DIR/schemes.csv exists (bench schemes), paper_table1.png (efficiency per thread scheme,
+ours vs the paper's Table 1).
+
+Points with status != done are not plotted; they are listed in a note at the foot of each
+figure (and once on stdout by plot_sweep). Neither function raises on a runs.csv with only the
+serial point, with every point failed, with NaN columns or with a single core count.
+"""
+import math
+import os
+import sys
+import textwrap
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
+from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullFormatter, NullLocator  # noqa: E402
+
+RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores", "scheme", "neighbor", "scene",
+               "particles", "steps", "repeats", "status", "reason", "totalT", "commuT", "migraT", "compuT",
+               "neighborT", "resolveT", "overhead_pct", "speedup", "efficiency", "edsf", "rss_mb", "err_max",
+               "err_rms", "stable", "wall_s", "load_before", "load_after"]
+TEXT_COLUMNS = ("point", "mapping", "scheme", "neighbor", "scene", "status", "reason", "stable")
+NUMERIC_COLUMNS = [c for c in RUN_COLUMNS if c not in TEXT_COLUMNS]
+FAMILY_STYLE = {"serial": ("k", "*"), "threads": ("C0", "o"), "MPI": ("C3", "s"), "hybrid": ("C2", "^")}
+FAMILY_ORDER = ("serial", "threads", "MPI", "hybrid")
+MODULES = (("compuT", "compuT (computation)", "C0"), ("commuT", "commuT (communication)", "C1"),
+           ("migraT", "migraT (migration)", "C2"))
+SCHEME_ORDER = ("partition", "frogleap", "headtail", "static", "dynamic")
+PAPER_MAP = {"partitioning": "partition", "frog-leap": "frogleap", "head-tail": "headtail",
+             "static": "static", "dynamic": "dynamic"}
+PAPER_THREADS = 12
+PAPER_CORES = 36
+DPI = 120
+FONT = 7
+
+
+# --- records --------------------------------------------------------------------------------------------
+def repo_root():
+    """The repository root: the parent of the bench/ package folder."""
+    return os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def paper_path(name):
+    return os.path.join(repo_root(), "..", "shared", "paper", name)
+
+
+def read_runs(directory):
+    """DIR/runs.csv as a DataFrame with every column of RUN_COLUMNS (NaN where absent), numbers
+    parsed, text columns as str ('' for empty), procs/threads/cores filled from the mapping string
+    when empty, and a `family` column (serial, threads, MPI, hybrid)."""
+    import pandas as pd
+    path = os.path.join(directory, "runs.csv")
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"{path}: no runs.csv (run `bench sweep` first)")
+    df = pd.read_csv(path, keep_default_na=True)
+    for c in RUN_COLUMNS:
+        if c not in df:
+            df[c] = math.nan
+    for c in NUMERIC_COLUMNS:
+        df[c] = pd.to_numeric(df[c], errors="coerce").astype(float)
+    for c in TEXT_COLUMNS:
+        df[c] = df[c].map(lambda v: "" if v is None or (isinstance(v, float) and math.isnan(v)) else str(v))
+    for i, m in df["mapping"].items():
+        parts = m.strip().split("-")
+        if len(parts) == 5 and all(p.isdigit() for p in parts):
+            p, px, py, pz, t = (float(x) for x in parts)
+            for col, v in (("procs", p), ("px", px), ("py", py), ("pz", pz), ("threads", t)):
+                if math.isnan(df.at[i, col]):
+                    df.at[i, col] = v
+    miss = df["cores"].isna()
+    df.loc[miss, "cores"] = df.loc[miss, "procs"] * df.loc[miss, "threads"]
+    # a row without a status counts as done when it has a time
+    nostat = df["status"] == ""
+    df.loc[nostat, "status"] = np.where(np.isfinite(df.loc[nostat, "totalT"]), "done", "unknown")
+    df["family"] = [_family(p, t) for p, t in zip(df["procs"], df["threads"])]
+    return df
+
+
+def _family(procs, threads):
+    if not (np.isfinite(procs) and np.isfinite(threads)):
+        return "hybrid" if np.isfinite(procs) and procs > 1 else "threads"
+    if procs == 1 and threads == 1:
+        return "serial"
+    if procs == 1:
+        return "threads"
+    return "MPI" if threads == 1 else "hybrid"
+
+
+def _done(df):
+    return df[(df["status"] == "done") & np.isfinite(df["totalT"])].copy()
+
+
+def _first(df, col):
+    vals = [v for v in df[col] if (v != "" if isinstance(v, str) else np.isfinite(v))]
+    return vals[0] if vals else None
+
+
+def _context(df):
+    """'scene X, N particles, S steps, neighbour' from the first record that has them."""
+    scene = _first(df, "scene") or "scene ?"
+    n = _first(df, "particles")
+    steps = _first(df, "steps")
+    nb = _first(df, "neighbor")
+    bits = [f"{scene}", f"{int(n):,} particles" if n is not None else "particles ?"]
+    if steps is not None:
+        bits.append(f"{int(steps)} steps")
+    if nb:
+        bits.append(nb)
+    return ", ".join(bits)
+
+
+def _point_name(r, with_scheme=True):
+    s = r["mapping"] or r["point"] or "?"
+    if with_scheme and r["scheme"] and r["threads"] > 1:
+        s += f" {r['scheme']}"
+    return s
+
+
+def _skipped(df):
+    """'mapping scheme: status (reason)' of every point not done."""
+    out = []
+    for _, r in df[df["status"] != "done"].iterrows():
+        reason = (r["reason"] or "").strip().replace("\n", " ")
+        if len(reason) > 70:
+            reason = reason[:67] + "..."
+        out.append(f"{_point_name(r)}: {r['status'] or 'no status'}{' (' + reason + ')' if reason else ''}")
+    # done but without a time (cannot be drawn either)
+    for _, r in df[(df["status"] == "done") & ~np.isfinite(df["totalT"])].iterrows():
+        out.append(f"{_point_name(r)}: done but no totalT")
+    return out
+
+
+def _series(done):
+    """{series label: (family, rows)} in a stable order; the family is split by scheme (threaded
+    points) and by neighbour method when those take more than one value among the plotted points."""
+    threaded = done[done["threads"] > 1]
+    split_scheme = len(set(threaded["scheme"])) > 1
+    split_nb = len(set(done["neighbor"])) > 1
+    keys = {}
+    for i, r in done.iterrows():
+        fam = r["family"]
+        label = fam
+        extra = []
+        if split_scheme and r["threads"] > 1 and r["scheme"]:
+            extra.append(r["scheme"])
+        if split_nb and r["neighbor"]:
+            extra.append(r["neighbor"])
+        if extra:
+            label += f" ({', '.join(extra)})"
+        keys.setdefault((FAMILY_ORDER.index(fam) if fam in FAMILY_ORDER else 9, label, fam), []).append(i)
+    return [(label, fam, done.loc[idx]) for (_, label, fam), idx in sorted(keys.items())]
+
+
+def _series_colors(series):
+    """Color per series: the family's color for the first series of a family, then tab10 leftovers."""
+    used, out = set(), {}
+    spare = [f"C{k}" for k in (1, 4, 5, 6, 8, 9, 7)]
+    for label, fam, _ in series:
+        c = FAMILY_STYLE.get(fam, ("C7", "o"))[0]
+        if c in used:
+            c = next((s for s in spare if s not in used), "0.4")
+        used.add(c)
+        out[label] = c
+    return out
+
+
+def _amdahl(directory):
+    try:
+        import json
+        with open(os.path.join(directory, "summary.json")) as fh:
+            f = json.load(fh).get("serial_fraction")
+        return float(f) if f is not None and math.isfinite(float(f)) else None
+    except Exception:  # noqa: BLE001  (an absent or odd summary just means no fit line)
+        return None
+
+
+# --- layout helpers -------------------------------------------------------------------------------------
+def _note_lines(lines, width_in, head="Not plotted (status != done): "):
+    if not lines:
+        return []
+    chars = max(40, int(width_in * 72 / (0.52 * FONT)))
+    return textwrap.wrap(head + "; ".join(lines), chars)
+
+
+def _finish(fig, note, path):
+    """tight layout leaving room for the foot note, write the note, save, close."""
+    h_in = fig.get_size_inches()[1]
+    bottom = (len(note) * FONT * 1.35 + 6) / (72 * h_in) if note else 0.0
+    fig.tight_layout(rect=(0, min(bottom, 0.4), 1, 1))
+    if note:
+        fig.text(0.01, 0.006, "\n".join(note), fontsize=FONT, va="bottom", ha="left", color="0.25")
+    return bottom
+
+
+def _save(fig, path):
+    fig.savefig(path, dpi=DPI, bbox_inches="tight", pad_inches=0.08)
+    plt.close(fig)
+    return path
+
+
+def _place_labels(ax, pts, fontsize=FONT - 0.5):
+    """Annotate points (x, y, text, color) right of the marker (left when near the right edge),
+    nudged vertically in display space so that labels do not overlap; call once limits and the
+    layout are final."""
+    if not pts:
+        return
+    fig = ax.figure
+    k = 72.0 / fig.dpi  # pixels -> points
+    bbox = ax.get_window_extent()
+    right = bbox.x1 * k
+    h = fontsize * 1.2
+    disp = []
+    for x, y, text, color in pts:
+        if not (np.isfinite(x) and np.isfinite(y)):
+            continue
+        X, Y = ax.transData.transform((x, y))
+        disp.append((X * k, Y * k, text, color, x, y))
+    disp.sort(key=lambda d: (round(d[0], 1), d[1]))
+    boxes = [(X - 3, Y - 3, X + 3, Y + 3) for X, Y, *_ in disp]  # the markers themselves
+
+    def free(b):
+        return all(b[2] <= o[0] or b[0] >= o[2] or b[3] <= o[1] or b[1] >= o[3] for o in boxes)
+
+    for X, Y, text, color, x, y in disp:
+        w = 0.56 * fontsize * len(text)
+        side = 1 if X + 6 + w < right + 40 else -1
+        chosen = None
+        for step in [0, 1, -1, 2, -2, 3, -3, 4, -4, 5, -5, 6, -6, 8, -8]:
+            dy = step * h
+            x0 = X + 5 if side > 0 else X - 5 - w
+            b = (x0, Y + dy - h / 2, x0 + w, Y + dy + h / 2)
+            if free(b):
+                chosen = (dy, b)
+                break
+        if chosen is None:
+            dy = 0.0
+            x0 = X + 5 if side > 0 else X - 5 - w
+            chosen = (dy, (x0, Y - h / 2, x0 + w, Y + h / 2))
+        dy, b = chosen
+        boxes.append(b)
+        arrow = dict(arrowstyle="-", lw=0.4, color="0.55", shrinkA=0, shrinkB=2) if abs(dy) > h * 0.6 else None
+        ax.annotate(text, (x, y), xytext=(5 * side, dy), textcoords="offset points", fontsize=fontsize,
+                    ha="left" if side > 0 else "right", va="center", color=color, arrowprops=arrow,
+                    annotation_clip=False, zorder=4,
+                    bbox=dict(boxstyle="square,pad=0.05", fc="white", ec="none", alpha=0.75))
+
+
+def _log2_cores_axis(ax, cores, label_room=1.8):
+    cores = sorted({int(c) for c in cores if np.isfinite(c) and c > 0}) or [1]
+    ax.set_xscale("log", base=2)
+    ax.set_xlim(min(cores) / 1.35, max(cores) * label_room)
+    ax.xaxis.set_major_locator(FixedLocator(cores))
+    ax.xaxis.set_minor_locator(NullLocator())
+    ax.set_xticklabels([str(c) for c in cores])
+    ax.set_xlabel("cores = processes x threads")
+    return cores
+
+
+def _empty(ax, text):
+    ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", fontsize=9, color="0.35")
+
+
+# --- plot_sweep -----------------------------------------------------------------------------------------
+def plot_sweep(directory):
+    """Read DIR/runs.csv and write speedup.png, efficiency.png, edsf.png, modules.png and
+    error_vs_time.png in DIR; return their paths. Points not done are listed in a foot note
+    of each figure and on stdout."""
+    df = read_runs(directory)
+    done = _done(df)
+    skipped = _skipped(df)
+    if skipped:
+        print(f"sweep plots: not plotted (status != done): {'; '.join(skipped)}")
+    ctx = _context(df)
+    fit = _amdahl(directory)
+    paths = [
+        _plot_metric(done, skipped, ctx, fit, "speedup", os.path.join(directory, "speedup.png")),
+        _plot_metric(done, skipped, ctx, fit, "efficiency", os.path.join(directory, "efficiency.png")),
+        _plot_metric(done, skipped, ctx, fit, "edsf", os.path.join(directory, "edsf.png")),
+        _plot_modules(done, skipped, ctx, os.path.join(directory, "modules.png")),
+        _plot_error(done, skipped, ctx, os.path.join(directory, "error_vs_time.png")),
+    ]
+    return paths
+
+
+def _plot_metric(done, skipped, ctx, fit, metric, path):
+    """speedup / efficiency / edsf against cores, one series per family (and scheme)."""
+    fig, ax = plt.subplots(figsize=(8.6, 5.0))
+    d = done[np.isfinite(done[metric]) & np.isfinite(done["cores"])]
+    if metric == "edsf":
+        d = d[d["cores"] > 1]
+    series = _series(d)
+    colors = _series_colors(series)
+    serial = done[done["family"] == "serial"]
+    s_ref = (1.0, float(serial[metric].iloc[0]) if metric != "edsf" and len(serial) and
+             np.isfinite(serial[metric].iloc[0]) else None)
+    labels = []
+    for label, fam, rows in series:
+        color, marker = colors[label], FAMILY_STYLE.get(fam, ("C7", "o"))[1]
+        ax.plot(rows["cores"], rows[metric], ls="none", marker=marker, ms=8 if marker == "*" else 6,
+                color=color, label=label, zorder=3)
+        # a thin line through the best point per core count, from the serial reference
+        best = rows.sort_values("totalT").groupby("cores", sort=True)[metric].first()
+        xs, ys = list(best.index), list(best.values)
+        if fam != "serial" and s_ref[1] is not None and (not xs or xs[0] > 1):
+            xs, ys = [1.0] + xs, [s_ref[1]] + ys
+        if len(xs) > 1:
+            ax.plot(xs, ys, color=color, lw=1.0, alpha=0.6, zorder=2)
+        for _, r in rows.iterrows():
+            labels.append((r["cores"], r[metric], r["mapping"] or r["point"], color))
+    cores = _log2_cores_axis(ax, list(d["cores"]) + ([] if metric == "edsf" and len(d) else [1]))
+    xlo, xhi = ax.get_xlim()
+    pp = np.geomspace(max(xlo, 1.0), xhi, 100)
+    if metric == "speedup":
+        ax.set_yscale("log", base=2)
+        ax.plot([xlo, xhi], [xlo, xhi], "k--", lw=0.8, label="ideal: speedup = cores", zorder=1)
+        if fit is not None:
+            ax.plot(pp, 1 / (fit + (1 - fit) / pp), color="0.5", ls=":", lw=1.0,
+                    label=f"Amdahl fit, serial fraction f = {fit:.3f}")
+        vals = [v for v in d[metric] if v > 0] + [1.0, max(cores)]
+        lo, hi = min(vals) / 1.5, max(vals) * 1.5
+        ax.set_ylim(lo, hi)
+        ticks = [2.0 ** k for k in range(int(math.floor(math.log2(lo))), int(math.ceil(math.log2(hi))) + 1)]
+        ax.yaxis.set_major_locator(FixedLocator(ticks))
+        ax.yaxis.set_minor_locator(NullLocator())
+        ax.set_yticklabels([f"{t:g}" for t in ticks])
+        ax.set_ylabel("speedup T(1) / T(p)  [totalT of serial 1-1-1-1-1 / totalT]")
+        ax.set_title(f"Speedup against cores\n{ctx}", fontsize=9)
+    elif metric == "efficiency":
+        ax.axhline(1.0, color="k", ls="--", lw=0.8, label="ideal: efficiency = 1", zorder=1)
+        if fit is not None:
+            ax.plot(pp, 1 / (fit * pp + (1 - fit)), color="0.5", ls=":", lw=1.0,
+                    label=f"Amdahl fit, serial fraction f = {fit:.3f}")
+        top = max([1.0] + [v for v in d[metric] if np.isfinite(v)])
+        ax.set_ylim(0, 1.15 * top)
+        ax.set_ylabel("parallel efficiency = speedup / cores")
+        ax.set_title(f"Parallel efficiency against cores\n{ctx}", fontsize=9)
+    else:
+        ax.axhline(0.0, color="k", ls="--", lw=0.8, label="e = 0 (ideal; < 0 is superlinear)", zorder=1)
+        if fit is not None:
+            ax.axhline(fit, color="0.5", ls=":", lw=1.0, label=f"Amdahl fit, serial fraction f = {fit:.3f}")
+        vals = [v for v in d[metric] if np.isfinite(v)] + [0.0] + ([fit] if fit is not None else [])
+        lo, hi = min(vals), max(vals)
+        span = max(hi - lo, 0.05)
+        ax.set_ylim(lo - 0.12 * span, hi + 0.18 * span)
+        ax.set_ylabel("Karp-Flatt serial fraction e = (1/S - 1/p) / (1 - 1/p)\n(S = speedup, p = cores; "
+                      "undefined at p = 1)")
+        ax.set_title(f"Experimentally determined serial fraction (Karp-Flatt) against cores\n{ctx}", fontsize=9)
+    if len(d) == 0:
+        if len(done) == 0:
+            msg = "no completed point"
+        elif metric == "edsf" and not (done["cores"] > 1).any():
+            msg = "no completed point with more than one core"
+        else:
+            msg = f"no completed point has a {metric} value\n(it needs the serial reference 1-1-1-1-1 done)"
+        _empty(ax, msg)
+    ax.grid(True, which="major", lw=0.4, alpha=0.5)
+    ax.legend(fontsize=FONT, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+    _finish(fig, _note_lines(skipped, 8.6), path)
+    _place_labels(ax, labels)
+    return _save(fig, path)
+
+
+def _plot_modules(done, skipped, ctx, path):
+    """Stacked module times per mapping, grouped by core count (paper Figs. 19-21 in kind)."""
+    d = done[np.isfinite(done["cores"])].sort_values(["cores", "procs", "threads", "scheme", "neighbor"])
+    n = len(d)
+    width = max(6.4, 0.62 * n + 2.0)
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(width, 6.4), sharex=True, gridspec_kw=dict(height_ratios=(3, 2)))
+    split_scheme = len(set(d.loc[d["threads"] > 1, "scheme"])) > 1
+    split_nb = len(set(d["neighbor"])) > 1
+    x = np.arange(n)
+    commu = np.nan_to_num(d["commuT"].to_numpy(), nan=0.0)
+    migra = np.nan_to_num(d["migraT"].to_numpy(), nan=0.0)
+    total = d["totalT"].to_numpy()
+    compu = d["compuT"].to_numpy()
+    compu = np.where(np.isfinite(compu), compu, total - commu - migra)
+    vals = {"compuT": np.clip(compu, 0, None), "commuT": np.clip(commu, 0, None), "migraT": np.clip(migra, 0, None)}
+    bottom = np.zeros(n)
+    bottom2 = np.zeros(n)
+    for key, label, color in MODULES:
+        v = vals[key]
+        ax.bar(x, 1e3 * v, 0.7, bottom=1e3 * bottom, color=color, label=label)
+        frac = np.where(total > 0, 100.0 * v / total, 0.0)
+        ax2.bar(x, frac, 0.7, bottom=bottom2, color=color)
+        bottom += v
+        bottom2 += frac
+    top = max([1e3 * t for t in total if np.isfinite(t)] + [1e-9])
+    for xi, t in zip(x, total):
+        ax.text(xi, 1e3 * t + 0.01 * top, f"{1e3 * t:.3g}" if t < 1 else f"{1e3 * t:.0f}", ha="center", va="bottom", fontsize=FONT - 1)
+    # communication + migration share printed on the lower panel
+    recorded = np.isfinite(d["commuT"].to_numpy()) | np.isfinite(d["migraT"].to_numpy())
+    for xi, c, m, t, rec in zip(x, commu, migra, total, recorded):
+        if t > 0:
+            ax2.text(xi, 101, f"{100 * (c + m) / t:.1f}%" if rec else "n/a", ha="center", va="bottom",
+                     fontsize=FONT - 1, color="C1")
+    ax.set_ylim(0, 1.14 * top)
+    ax2.set_ylim(0, 112)
+    # core-count groups: separators and labels
+    cores = d["cores"].to_numpy()
+    starts = ([0] if n else []) + [i for i in range(1, n) if cores[i] != cores[i - 1]]
+    for k, s in enumerate(starts):
+        e = starts[k + 1] if k + 1 < len(starts) else n
+        if s > 0:
+            for a in (ax, ax2):
+                a.axvline(s - 0.5, color="0.5", lw=0.8, ls="--")
+        c = int(cores[s])
+        ax.text((s + e - 1) / 2, 1.12 * top, f"{c} core{'s' if c != 1 else ''}", ha="center", va="top",
+                fontsize=FONT + 1, fontweight="bold", color="0.3")
+    ticks = []
+    for _, r in d.iterrows():
+        t = r["mapping"] or r["point"]
+        extra = [s for s, on in ((r["scheme"], split_scheme and r["threads"] > 1), (r["neighbor"], split_nb))
+                 if on and s]
+        ticks.append(t + ("\n" + ", ".join(extra) if extra else ""))
+    ax2.set_xticks(x)
+    ax2.set_xticklabels(ticks, rotation=45 if n > 6 else 0, ha="right" if n > 6 else "center", fontsize=FONT)
+    ax2.set_xlabel("mapping P-px-py-pz-T (ordered by cores, then processes)")
+    ax.set_ylabel("time per step [ms]\n(totalT printed on top)")
+    ax2.set_ylabel("share of totalT [%]\n(commuT + migraT printed)")
+    ax.set_title(f"Module times per mapping (paper Figs. 19-21 in kind)\n{ctx}", fontsize=9)
+    ax.legend(handles=[Patch(color=c, label=lab) for _, lab, c in MODULES], fontsize=FONT, loc="upper left",
+              bbox_to_anchor=(1.005, 1.0), borderaxespad=0.0)
+    if n == 0:
+        ax.set_xlim(-0.5, 0.5)
+        ax.set_ylim(0, 1)
+        _empty(ax, "no completed point")
+    else:
+        ax.set_xlim(-0.6, n - 0.4)
+    for a in (ax, ax2):
+        a.grid(True, axis="y", lw=0.4, alpha=0.5)
+    _finish(fig, _note_lines(skipped, width), path)
+    return _save(fig, path)
+
+
+def _plot_error(done, skipped, ctx, path):
+    """err_max against totalT, log-log, zeros at a floor marked bit-identical."""
+    fig, ax = plt.subplots(figsize=(8.6, 5.0))
+    d = done[np.isfinite(done["totalT"]) & (done["totalT"] > 0)]
+    noerr = [f"{_point_name(r)}" for _, r in d.iterrows() if not np.isfinite(r["err_max"])]
+    d = d[np.isfinite(d["err_max"])]
+    errs = np.concatenate([d["err_max"].to_numpy(), d["err_rms"].to_numpy()])
+    pos = errs[np.isfinite(errs) & (errs > 0)]
+    floor = 10.0 ** (math.floor(math.log10(pos.min())) - 1) if len(pos) else 1e-16
+    series = _series(d)
+    colors = _series_colors(series)
+    labels = []
+    any_zero = False
+    for label, fam, rows in series:
+        color, marker = colors[label], FAMILY_STYLE.get(fam, ("C7", "o"))[1]
+        y = rows["err_max"].to_numpy()
+        zero = y <= 0
+        any_zero |= bool(zero.any())
+        ms = 8 if marker == "*" else 6
+        if (~zero).any():
+            ax.plot(1e3 * rows["totalT"].to_numpy()[~zero], y[~zero], ls="none", marker=marker, ms=ms, color=color,
+                    label=label, zorder=3)
+        if zero.any():
+            ax.plot(1e3 * rows["totalT"].to_numpy()[zero], np.full(zero.sum(), floor), ls="none", marker=marker, ms=ms,
+                    mfc="white", mec=color, mew=1.3,
+                    label=label + (" (err = 0)" if (~zero).any() else " (all err = 0)"),
+                    zorder=3)
+        rms = rows["err_rms"].to_numpy()
+        ok = np.isfinite(rms)
+        if ok.any():
+            ax.plot(1e3 * rows["totalT"].to_numpy()[ok], np.where(rms[ok] > 0, rms[ok], floor), ls="none", marker=".",
+                    ms=4, color=color, alpha=0.6, zorder=2)
+        for (_, r), yy in zip(rows.iterrows(), np.where(zero, floor, y)):
+            name = r["mapping"] or r["point"]
+            if fam == "serial":
+                name += " (reference)"
+            labels.append((1e3 * r["totalT"], yy, name, color))
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    if len(d):
+        t = 1e3 * d["totalT"].to_numpy()
+        ax.set_xlim(t.min() / 1.6, t.max() * 2.8)
+        hi = max(pos.max() if len(pos) else floor * 100, floor * 100)
+        ax.set_ylim(floor / 4, hi * 4)
+    else:
+        _empty(ax, "no completed point with an error recorded")
+    if any_zero or len(d):
+        ax.axhline(floor, color="0.4", ls="--", lw=0.8, zorder=1,
+                   label=f"bit-identical (err = 0), drawn at floor {floor:.0e}")
+    ax.plot([], [], ls="none", marker=".", color="0.4", label="err_rms (small dots)")
+    ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.yaxis.set_major_locator(LogLocator(base=10, numticks=12))
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.yaxis.set_minor_formatter(NullFormatter())
+    ax.set_xlabel("totalT: wall time per step [ms] (mean over steps of the max over ranks)")
+    ax.set_ylabel("err_max: final-position error vs serial\n[in mean particle radii]")
+    ax.set_title(f"Final-position error against time per step\n{ctx}", fontsize=9)
+    ax.grid(True, which="major", lw=0.4, alpha=0.5)
+    ax.legend(fontsize=FONT, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+    note = _note_lines(skipped, 8.6)
+    if noerr:
+        note += _note_lines(noerr, 8.6, head="Done, no error recorded (not plotted): ")
+    _finish(fig, note, path)
+    _place_labels(ax, labels)
+    return _save(fig, path)
+
+
+# --- plot_paper -----------------------------------------------------------------------------------------
+def _read_paper_table4():
+    import pandas as pd
+    path = paper_path("table4_mappings_one_node.csv")
+    if not os.path.exists(path):
+        print(f"sweep plots: paper table {os.path.normpath(path)} not found; no paper overlay", file=sys.stderr)
+        return None
+    t = pd.read_csv(path, comment="#")
+    t["pinned"] = t["pinned"].astype(str).str.strip().str.lower()
+    return t
+
+
+def _normalise(rows, procs, threads, cores):
+    """(reference totalT, what it is): pure MPI (procs = cores, 1 thread) when present, else the best."""
+    pure = rows[(rows[procs] == cores) & (rows[threads] == 1)]
+    if len(pure) and pure["totalT"].min() > 0:
+        return float(pure["totalT"].min()), f"pure MPI {int(cores)}x1"
+    return float(rows["totalT"].min()), "best totalT"
+
+
+def _grouped_log_bars(ax, labels, table, ref, hatch=None):
+    """Grouped bars (totalT, compuT, commuT, migraT)/ref on a log axis; zeros marked '0'."""
+    x = np.arange(len(labels))
+    w = 0.2
+    cols = [("totalT", "totalT", "0.55")] + [(k, lab, c) for k, lab, c in MODULES]
+    for k, (key, lab, color) in enumerate(cols):
+        v = np.asarray(table[key], dtype=float) / ref
+        xs = x + (k - 1.5) * w
+        good = np.isfinite(v) & (v > 0)
+        ax.bar(xs[good], v[good], w, color=color, label=lab, hatch=hatch, edgecolor="white" if hatch else None,
+               lw=0.3)
+        for xi, vi in zip(xs[~good], v[~good]):
+            ax.text(xi, 0.01, "0" if np.isfinite(vi) else "-", transform=ax.get_xaxis_transform(),
+                    ha="center", va="bottom", fontsize=FONT - 1, color=color)
+    ax.set_xticks(x)
+    ax.set_xticklabels(labels, fontsize=FONT)
+    ax.set_xlim(-0.6, len(labels) - 0.4)
+
+
+def plot_paper(directory):
+    """Overlay the paper's tables on ours: paper_table4.png (module times per procs x threads,
+    normalised by each side's pure-MPI totalT, ours at our largest core count beside the paper's
+    pinned Table 4, 36 cores) and, when DIR/schemes.csv exists, paper_table1.png (efficiency per
+    thread scheme, ours vs the paper's Table 1). Returns the written paths."""
+    paths = []
+    p = _plot_paper_table4(directory)
+    if p:
+        paths.append(p)
+    if os.path.exists(os.path.join(directory, "schemes.csv")):
+        paths.append(_plot_paper_table1(directory))
+    return paths
+
+
+def _plot_paper_table4(directory):
+    if not os.path.exists(os.path.join(directory, "runs.csv")):
+        print(f"sweep plots: {os.path.join(directory, 'runs.csv')} not found; no paper_table4.png", file=sys.stderr)
+        return None
+    df = read_runs(directory)
+    done = _done(df)
+    done = done[np.isfinite(done["cores"]) & (done["totalT"] > 0)]
+    skipped = _skipped(df)
+    ctx = _context(df)
+    paper = _read_paper_table4()
+    fig, axes = plt.subplots(1, 2, figsize=(11.5, 5.0), sharey=True, gridspec_kw=dict(width_ratios=(1, 1.25)))
+    ax, axp = axes
+    ymin, ymax = [], []
+    # ours: the largest core count, one bar group per procs x threads (the fastest when several)
+    if len(done):
+        cmax = done["cores"].max()
+        ours = done[done["cores"] == cmax].sort_values("totalT").drop_duplicates(["procs", "threads"])
+        ours = ours.sort_values(["procs", "threads"])
+        ref, what = _normalise(ours, "procs", "threads", cmax)
+        labels = [f"{int(r['procs'])} x {int(r['threads'])}\n{r['mapping']}" for _, r in ours.iterrows()]
+        tab = {k: ours[k].to_numpy(dtype=float) for k in ("totalT", "compuT", "commuT", "migraT")}
+        tab["compuT"] = np.where(np.isfinite(tab["compuT"]), tab["compuT"],
+                                 tab["totalT"] - np.nan_to_num(tab["commuT"]) - np.nan_to_num(tab["migraT"]))
+        _grouped_log_bars(ax, labels, tab, ref)
+        v = np.concatenate([t / ref for t in tab.values()])
+        v = v[np.isfinite(v) & (v > 0)]
+        ymin.append(v.min())
+        ymax.append(v.max())
+        several = len(done[done["cores"] == cmax]) > len(ours)
+        ax.set_title(f"ours: {int(cmax)} core{'s' if cmax != 1 else ''}, {ctx}\nnormalised by our {what} "
+                     f"= {1e3 * ref:.3g} ms/step" + ("\n(fastest point per procs x threads)" if several else ""),
+                     fontsize=8)
+    else:
+        _empty(ax, "ours: no completed point")
+        ax.set_xticks([])
+        ax.set_title(f"ours: {ctx}", fontsize=8)
+    ax.set_xlabel("procs x threads (mapping)")
+    ax.set_ylabel("time per step / reference totalT  (log)")
+    # the paper: pinned Table 4, 36 cores
+    if paper is not None:
+        pin = paper[paper["pinned"] == "yes"].sort_values("procs")
+        unpin = paper[paper["pinned"] == "no"].set_index("procs")
+        pref, pwhat = _normalise(pin, "procs", "threads", PAPER_CORES)
+        strings = {}
+        mpath = paper_path("table4_mapping_strings.csv")
+        if os.path.exists(mpath):
+            import pandas as pd
+            for m in pd.read_csv(mpath, comment="#")["mapping"]:
+                strings[int(str(m).split("-")[0])] = str(m)
+        labels = [f"{int(r['procs'])} x {int(r['threads'])}" + (f"\n{strings[int(r['procs'])]}"
+                                                                if int(r["procs"]) in strings else "")
+                  for _, r in pin.iterrows()]
+        tab = {k: pin[k].to_numpy(dtype=float) for k in ("totalT", "compuT", "commuT", "migraT")}
+        _grouped_log_bars(axp, labels, tab, pref)
+        # unpinned totals as markers, same normalisation (pinned pure MPI)
+        un = np.array([unpin["totalT"].get(int(p), np.nan) for p in pin["procs"]], dtype=float) / pref
+        axp.plot(np.arange(len(pin)) - 1.5 * 0.2, un, ls="none", marker="x", color="k", ms=6,
+                 label="totalT, not pinned")
+        v = np.concatenate([t / pref for t in tab.values()] + [un])
+        v = v[np.isfinite(v) & (v > 0)]
+        ymin.append(v.min())
+        ymax.append(v.max())
+        axp.set_title(f"paper (Yan & Regueiro, Table 4): 12k ellipsoids, one {PAPER_CORES}-core node, pinned\n"
+                      f"normalised by its {pwhat} = {1e3 * pref:.3g} ms/step", fontsize=8)
+        axp.legend(fontsize=FONT, loc="upper right", framealpha=0.9)
+    else:
+        _empty(axp, "paper table 4 not found\n(../shared/paper/table4_mappings_one_node.csv)")
+        axp.set_title("paper (Yan & Regueiro, Table 4)", fontsize=8)
+        if len(done):
+            ax.legend(fontsize=FONT, loc="upper right", framealpha=0.9)
+    axp.set_xlabel("procs x threads (mapping)")
+    if ymin:
+        axp.set_yscale("log")
+        axp.set_ylim(min(ymin) / 3, max(ymax) * 3)
+        axp.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        axp.yaxis.set_minor_formatter(NullFormatter())
+    for a in axes:
+        a.grid(True, axis="y", which="major", lw=0.4, alpha=0.5)
+        a.axhline(1.0, color="k", lw=0.7, ls=":")
+    fig.suptitle("Module times per process x thread mapping, each side normalised by its own pure-MPI totalT "
+                 "(best totalT when it has no pure-MPI point); '0' = zero time, '-' = not recorded", fontsize=9)
+    path = os.path.join(directory, "paper_table4.png")
+    _finish(fig, _note_lines(skipped, 11.5), path)
+    return _save(fig, path)
+
+
+def _read_paper_table1():
+    """{our scheme: paper efficiency (speedup / 12)} from the paper's Table 1, or {} if absent."""
+    import pandas as pd
+    path = paper_path("table1_thread_schemes.csv")
+    if not os.path.exists(path):
+        print(f"sweep plots: paper table {os.path.normpath(path)} not found; no paper overlay", file=sys.stderr)
+        return {}
+    t = pd.read_csv(path, comment="#")
+    return {PAPER_MAP[m]: float(s) / PAPER_THREADS for m, s in zip(t["method"], t["speedup"]) if m in PAPER_MAP}
+
+
+def _plot_paper_table1(directory):
+    """Grouped bars of parallel efficiency per thread scheme: ours per (neighbour method, threads)
+    against its own serial (efficiency_own = T(serial, same neighbour method) / (threads x T));
+    the paper's Table 1 (12 threads, n-by-n loops, so against serial n-by-n) beside them."""
+    import pandas as pd
+    s = pd.read_csv(os.path.join(directory, "schemes.csv"))
+    for c in ("method", "neighbor", "shape"):
+        s[c] = s[c].fillna("").astype(str) if c in s else ""
+    for c in ("threads", "particles", "speedup", "efficiency", "efficiency_own", "paper_speedup",
+              "paper_efficiency"):
+        s[c] = pd.to_numeric(s[c], errors="coerce") if c in s else math.nan
+    # efficiency against the serial run of the same neighbour method where recorded, else vs all-pairs
+    own = bool(np.isfinite(s["efficiency_own"]).any())
+    metric = "efficiency_own" if own else "efficiency"
+    thr = s[(s["method"] != "serial") & (s["method"] != "")]
+    methods = [m for m in SCHEME_ORDER if m in set(thr["method"])] + sorted(set(thr["method"]) - set(SCHEME_ORDER))
+    paper = {m: v for m, v in thr.groupby("method")["paper_efficiency"].max().items() if np.isfinite(v)}
+    if not paper:
+        paper = _read_paper_table1()
+    groups = sorted({(nb, t) for nb, t in zip(thr["neighbor"], thr["threads"])}, key=lambda g: (g[0], g[1]))
+    nser = len(groups) + 1
+    w = 0.8 / nser
+    x = np.arange(len(methods))
+    fig, ax = plt.subplots(figsize=(max(7.5, 1.3 * len(methods) + 2.5), 4.8))
+    top = 1.0
+    nbname = {"allpairs": "all-pairs", "linkcell": "link-cell"}
+    for k, (nb, t) in enumerate(groups):
+        sub = thr[(thr["neighbor"] == nb) & (thr["threads"] == t)].drop_duplicates("method").set_index("method")
+        vals = np.array([float(sub[metric].get(m, np.nan)) for m in methods])
+        against = f"vs serial {nbname.get(nb, nb)}" if own else "vs serial all-pairs"
+        bars = ax.bar(x + (k - (nser - 1) / 2) * w, np.nan_to_num(vals), w, color=f"C{k}",
+                      label=f"ours, {nbname.get(nb, nb or '?')}, {int(t) if np.isfinite(t) else '?'} threads "
+                            f"({against})")
+        for b, v in zip(bars, vals):
+            if np.isfinite(v):
+                ax.text(b.get_x() + b.get_width() / 2, v, f"{v:.2f}", ha="center", va="bottom", fontsize=FONT - 1)
+                top = max(top, v)
+    pv = np.array([paper.get(m, np.nan) for m in methods])
+    bars = ax.bar(x + (nser - 1 - (nser - 1) / 2) * w, np.nan_to_num(pv), w, color="0.55",
+                  label=f"paper Table 1, n-by-n, {PAPER_THREADS} threads (vs serial n-by-n)"
+                        + ("" if paper else " (table missing)"))
+    for b, v in zip(bars, pv):
+        if np.isfinite(v):
+            ax.text(b.get_x() + b.get_width() / 2, v, f"{v:.2f}", ha="center", va="bottom", fontsize=FONT - 1)
+            top = max(top, v)
+    ax.axhline(1.0, color="k", ls="--", lw=0.8, label="ideal: speedup = threads")
+    ax.set_xticks(x)
+    ax.set_xticklabels(methods)
+    ax.set_ylim(0, 1.35 * top)
+    ax.set_xlabel("thread scheme of contact detection (neighbour estimate + contact resolution)")
+    ax.set_ylabel("efficiency = speedup / threads\n" + ("(vs serial, same neighbour method)" if own else
+                                                        "(vs serial all-pairs detection)"))
+    n = _first(s, "particles") if len(s) else None
+    shape = _first(s, "shape") if len(s) else None
+    ax.set_title(f"Contact-detection efficiency per thread scheme, ours vs paper Table 1\n"
+                 f"ours: {int(n) if n is not None else '?'} packed {shape or 'particle'}s; paper: 2.5k packed "
+                 f"ellipsoids, dual Xeon X5690", fontsize=9)
+    if not methods:
+        _empty(ax, "no threaded scheme in schemes.csv")
+    ax.grid(True, axis="y", lw=0.4, alpha=0.5)
+    ax.legend(fontsize=FONT, loc="upper left", ncol=2, framealpha=0.9)
+    path = os.path.join(directory, "paper_table1.png")
+    _finish(fig, [], path)
+    return _save(fig, path)
