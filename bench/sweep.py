@@ -300,6 +300,14 @@ def sweep(args):
                 p = int(r["cores"])
                 r.update(speedup=s, efficiency=s / p, edsf=(1 / s - 1 / p) / (1 - 1 / p) if p > 1 else math.nan)
         write_runs(runs_path, [rows[q.key] for q in points])
+    # the threading layer numba used, as the runs recorded it (a parallel region must have run)
+    layers = set()
+    for p in points:
+        f = os.path.join(out, p.key, "rep0", "run.json")
+        if os.path.exists(f):
+            layers.add(json.load(open(f)).get("threading_layer"))
+    info["numba_threading_layer"] = sorted(x for x in layers if x) or None
+    write_json(os.path.join(out, "manifest.json"), info)
     summary = amdahl(list(rows.values()))
     write_json(os.path.join(out, "summary.json"), summary)
     if summary.get("serial_fraction") is not None:

@@ -81,7 +81,7 @@ def read_runs(directory):
     for c in NUMERIC_COLUMNS:
         df[c] = pd.to_numeric(df[c], errors="coerce").astype(float)
     for c in TEXT_COLUMNS:
-        df[c] = df[c].map(lambda v: "" if v is None or (isinstance(v, float) and math.isnan(v)) else str(v))
+        df[c] = df[c].map(lambda v: "" if v is None or (isinstance(v, float) and math.isnan(v)) else str(v).strip())
     for i, m in df["mapping"].items():
         parts = m.strip().split("-")
         if len(parts) == 5 and all(p.isdigit() for p in parts):

@@ -42,8 +42,9 @@ def test_sweep_records_metrics_figures(tmp_path):
     assert (runs["err_max"] == 0).all() and (runs["err_rms"] == 0).all()  # bit-identical modes
     assert np.allclose(runs["compuT"], runs["totalT"] - runs["commuT"] - runs["migraT"])
     man = json.loads((out / "manifest.json").read_text())
-    for key in ("numpy", "numba", "mpi4py", "mpi_library", "cpu_count", "git_commit", "load"):
+    for key in ("numpy", "numba", "mpi4py", "mpi_library", "cpu_count", "cpu_model", "git_commit", "load"):
         assert key in man
+    assert man["numba_threading_layer"] == ["omp"] or man["numba_threading_layer"][0] in ("tbb", "workqueue")
     assert len(man["load"]) == 3
     for fig in ("speedup.png", "efficiency.png", "edsf.png", "modules.png", "error_vs_time.png"):
         assert (out / fig).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -108,13 +108,15 @@ def test_full_sweep_figures(tmp_path, capsys):
     non-zero errors): plot_sweep writes the five PNGs in DIR and returns their paths, and lists the
     timed-out point on stdout; runs.csv is left unchanged (plots only read records)."""
     d = write_runs(tmp_path, full_sweep())
-    before = open(os.path.join(d, "runs.csv")).read()
+    with open(os.path.join(d, "runs.csv")) as fh:
+        before = fh.read()
     paths = plot_sweep(d)
     assert_pngs(paths, SWEEP_PNGS)
     assert all(os.path.dirname(p) == d for p in paths)
     out = capsys.readouterr().out
     assert "4-4-1-1-2" in out and "timeout" in out
-    assert open(os.path.join(d, "runs.csv")).read() == before
+    with open(os.path.join(d, "runs.csv")) as fh:
+        assert fh.read() == before
 
 
 def test_paper_figures(tmp_path):
