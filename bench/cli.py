@@ -157,6 +157,17 @@ def _usage_errors():
     return (SceneError, ModeError)
 
 
+def _one_line(command):
+    """Let a command's bad-input errors (SceneError, ModeError) end as one usage line."""
+    def wrapped(args):
+        try:
+            return command(args)
+        except _usage_errors() as e:
+            raise UsageError(str(e)) from None
+    wrapped.__doc__ = command.__doc__
+    return wrapped
+
+
 def cmd_scenes(args):
     from dem.scene import builtin_scenes
     for name, desc in builtin_scenes().items():
@@ -164,26 +175,20 @@ def cmd_scenes(args):
     return 0
 
 
+@_one_line
 def cmd_contacts(args):
-    from dem.scene import load_scene, SceneError
+    from dem.scene import load_scene
     from bench.contacts import scene_contacts
-    try:
-        scene = load_scene(args.scene)
-    except SceneError as e:
-        raise UsageError(str(e)) from None
-    print(json.dumps(scene_contacts(scene), indent=1))
+    print(json.dumps(scene_contacts(load_scene(args.scene)), indent=1))
     return 0
 
 
+@_one_line
 def cmd_run(args):
     from bench.threads_env import configure_threads
     configure_threads(args.mapping, args.pin)  # before numba starts
     from bench.run import run
-    errors = _usage_errors()
-    try:
-        return run(args)
-    except errors as e:
-        raise UsageError(str(e)) from None
+    return run(args)
 
 
 SWEEP_FIELDS = {"mappings": str, "schemes": str, "scene": str, "particles": int, "shape": str, "steps": int,
@@ -218,6 +223,7 @@ def _sweep_file(args):
             setattr(args, key, value)
 
 
+@_one_line
 def cmd_sweep(args):
     if args.file:
         _sweep_file(args)
@@ -228,13 +234,9 @@ def cmd_sweep(args):
             args.launcher not in ("local", "slurm"):
         raise UsageError("bench sweep: neighbor must be allpairs|linkcell, halo 26|6, launcher local|slurm")
     from bench.sweep import sweep
-    errors = _usage_errors()
-    try:
-        from dem.scene import load_scene
-        load_scene(args.scene, particles=args.particles, shape=args.shape)  # a bad scene fails here, once
-        return sweep(args)
-    except errors as e:
-        raise UsageError(str(e)) from None
+    from dem.scene import load_scene
+    load_scene(args.scene, particles=args.particles, shape=args.shape)  # a bad scene fails here, once
+    return sweep(args)
 
 
 def cmd_plot(args):
@@ -247,24 +249,18 @@ def cmd_plot(args):
     return 0
 
 
+@_one_line
 def cmd_collect(args):
     from bench.slurm import collect
-    errors = _usage_errors()
-    try:
-        return collect(args)
-    except errors as e:
-        raise UsageError(str(e)) from None
+    return collect(args)
 
 
+@_one_line
 def cmd_schemes(args):
     from bench.threads_env import configure_threads
     configure_threads(f"1-1-1-1-{args.threads}")  # before numba starts
     from bench.schemes import schemes
-    errors = _usage_errors()
-    try:
-        return schemes(args)
-    except errors as e:
-        raise UsageError(str(e)) from None
+    return schemes(args)
 
 
 def cmd_perf(args):

@@ -161,6 +161,19 @@ def compact_pairs(threads, pi_t, pj_t, offsets, pi, pj):
             pj[o + k] = pj_t[t, k]
 
 
+@njit(cache=True)
+def _resolve_chunk(k0, k1, spheres, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid, n_owned,
+                   hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt, active, pair_res, depth_ratio):
+    """Resolve pairs k0..k1-1 with the sphere-only loop or the general one; returns solver calls."""
+    if spheres:
+        return resolve_sphere_pairs_range(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, gid, n_owned,
+                                          hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
+                                          active, pair_res, depth_ratio)
+    return resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid, n_owned,
+                               hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt, active, pair_res,
+                               depth_ratio)
+
+
 @njit(parallel=True, cache=True)
 def resolve_threads(code, threads, offsets, spheres, pi, pj, pos, vel, omega, rot, axes, shape, mass,
                     material, gid, n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta,
@@ -178,14 +191,9 @@ def resolve_threads(code, threads, offsets, spheres, pi, pj, pos, vel, omega, ro
             c0 = cycle_counter()
             k = b * STATIC_BLOCK
             k1 = min(m, k + STATIC_BLOCK)
-            if spheres:
-                resolve_sphere_pairs_range(k, k1, pi, pj, pos, vel, omega, axes, mass, material, gid, n_owned,
-                                           hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
-                                           active, pair_res, depth_ratio)
-            else:
-                ecalls[t] += resolve_pairs_range(k, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass,
-                                                 material, gid, n_owned, hist_start, hist_partner, hist_val,
-                                                 estar, gstar, mu, zeta, dt, active, pair_res, depth_ratio)
+            ecalls[t] += _resolve_chunk(k, k1, spheres, pi, pj, pos, vel, omega, rot, axes, shape, mass, material,
+                                        gid, n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta,
+                                        dt, active, pair_res, depth_ratio)
             busy[t] += cycle_counter() - c0
         return ecalls.sum()
     counter = np.zeros(1, dtype=np.int64)
@@ -199,14 +207,9 @@ def resolve_threads(code, threads, offsets, spheres, pi, pj, pos, vel, omega, ro
                 if k0 >= m:
                     break
                 k1 = min(m, k0 + DYNAMIC_PAIRS)
-            if spheres:
-                resolve_sphere_pairs_range(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, gid, n_owned,
-                                           hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
-                                           active, pair_res, depth_ratio)
-            else:
-                ecalls[t] += resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass,
-                                                 material, gid, n_owned, hist_start, hist_partner, hist_val,
-                                                 estar, gstar, mu, zeta, dt, active, pair_res, depth_ratio)
+            ecalls[t] += _resolve_chunk(k0, k1, spheres, pi, pj, pos, vel, omega, rot, axes, shape, mass, material,
+                                        gid, n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta,
+                                        dt, active, pair_res, depth_ratio)
             if code != DYNAMIC:
                 break
         busy[t] += cycle_counter() - c0
