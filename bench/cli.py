@@ -78,6 +78,8 @@ def build_parser():
                    help="write VTK + npz snapshots every K steps")
     r.add_argument("--plot", action="store_true", help="draw DIR/run.png (timings, contacts, energy)")
     r.add_argument("--out", default=None, help="output folder (default results/run-<scene>)")
+    r.add_argument("--guard-overlap", type=float, default=0.05, metavar="F",
+                   help="stop when a contact overlaps more than F of the smaller body's smallest semi-axis (default 0.05)")
     r.add_argument("--halo", choices=["26", "6"], default="26",
                    help="ghost exchange: 26 direct messages (default, the paper's) or 3 sweeps of 6")
     r.add_argument("--update-grid", type=_nonneg_int, default=0, metavar="K",

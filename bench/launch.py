@@ -67,13 +67,21 @@ def launch_mpi(args, mapping, scene, out):
         proc.wait()
         print(f"bench: error: {mapping.procs} MPI ranks did not finish within {args.timeout} s; killed", file=sys.stderr)
         return 3
+    if rc == 0:
+        import json
+        try:
+            with open(os.path.join(out, "run.json")) as fh:
+                if json.load(fh).get("stable") is False:
+                    return 1  # rank 0 printed the reason
+        except (OSError, ValueError):
+            pass
     return rc
 
 
 def _run_argv(args, out):
     """The bench-run options the ranks need (the same run, with the resolved output folder)."""
     argv = ["--scene", args.scene, "--mapping", args.mapping, "--neighbor", args.neighbor, "--out", out,
-            "--threaded", args.threaded, "--snapshot-every", str(args.snapshot_every), "--halo", args.halo,
+            "--threaded", args.threaded, "--snapshot-every", str(args.snapshot_every), "--halo", args.halo, "--guard-overlap", str(args.guard_overlap),
             "--update-grid", str(args.update_grid)]
     for name in ("particles", "shape", "seed", "steps", "dt", "scheme", "warmup"):
         v = getattr(args, name)

@@ -133,7 +133,9 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
     snap_dir = os.path.join(out, "snapshots")
     if args.snapshot_every and rank == 0:
         os.makedirs(snap_dir, exist_ok=True)
-    ke0 = total(kinetic_energy(mode.state))
+    from bench.guard import StabilityGuard
+    guard = StabilityGuard(mode, dt, dt_crit, scene.gravity, comm=comm, overlap=getattr(args, "guard_overlap", 0.05))
+    ke0 = guard.ke0
     series = {"step": [], "totalT": [], "n_contacts": [], "ke": []}
     t_wall = time.perf_counter()
     stable = True
@@ -142,18 +144,14 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
         for k in range(1, steps + 1):
             row = mode.step()
             writer.write(k, rank, row)
+            reason = guard.check(k, row)  # collective: every rank stops at the same step
             if args.plot:
                 series["step"].append(k)
                 series["totalT"].append(row["totalT"])
                 series["n_contacts"].append(total(row["n_contacts"]))
-                series["ke"].append(total(kinetic_energy(mode.state)))
-            finite = bool(np.isfinite(mode.state.pos[:mode.state.n_owned]).all())
-            if comm is not None:
-                from mpi4py import MPI
-                finite = bool(comm.allreduce(finite, op=MPI.LAND))
-            if not finite:
+                series["ke"].append(getattr(guard, "ke_last", 0.0))
+            if reason:
                 stable = False
-                reason = f"non-finite positions at step {k}"
                 break
             if args.snapshot_every and k % args.snapshot_every == 0:
                 _snapshot(mode, snap_dir, k, dt, rank)
@@ -162,7 +160,8 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
     wall = time.perf_counter() - t_wall
     snap = mode.snapshot()
     worst = mode.max_overlap_ratio if comm is None else comm.allreduce(mode.max_overlap_ratio, op=_max_op())
-    ke1 = total(kinetic_energy(mode.state))
+    energy = guard.balance()
+    ke1 = energy["kinetic_final"]
     if comm is not None:
         comm.Barrier()
     if rank != 0:
@@ -174,7 +173,8 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
                  "max_overlap_ratio": worst, "wall_s": wall,
                  "neighbor_rebuilds": mode.verlet.rebuilds if getattr(mode, "verlet", None) else steps,
                  "grid_updates": getattr(mode, "grid_updates", None),
-                 "kinetic_energy_initial": ke0, "kinetic_energy_final": ke1,
+                 "kinetic_energy_initial": ke0, "kinetic_energy_final": ke1, "energy_balance": energy,
+                 "guard": {"overlap_limit": guard.overlap, "energy_factor": guard.energy_factor},
                  "simulated_time": steps * dt})
     write_json(os.path.join(out, "run.json"), info)
     if args.plot:
@@ -185,7 +185,7 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
               f"{wall:.2f} s ({1e6 * wall / max(steps, 1) / max(n_total, 1):.3f} us/particle-step), "
               f"max overlap {worst:.2e}; records in {out}")
     if not stable:
-        print(f"bench: error: run unstable: {reason}", file=sys.stderr)
+        print(f"bench: error: {reason}", file=sys.stderr)
         return 1
     return 0
 

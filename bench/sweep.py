@@ -311,7 +311,8 @@ def sweep(args):
     summary = amdahl(list(rows.values()))
     write_json(os.path.join(out, "summary.json"), summary)
     if summary.get("serial_fraction") is not None:
-        print(f"Amdahl fit over {summary['points']} points: serial fraction {summary['serial_fraction']:.3f}")
+        print(f"Amdahl fit over {summary['points']} points: serial fraction {summary['serial_fraction']:.3f}"
+              + ("" if summary["valid"] else f" ({summary['note']})"))
     from bench.sweep_plots import plot_sweep
     figs = plot_sweep(out)
     print(f"records: {runs_path}; figures: {', '.join(os.path.basename(f) for f in figs)}")
@@ -328,8 +329,13 @@ def amdahl(rows):
         return {"serial_fraction": None, "points": 0}
     x = np.array([1 - 1 / p for _, p in pts])
     y = np.array([1 / s - 1 / p for s, p in pts])
-    return {"serial_fraction": float(np.dot(x, y) / np.dot(x, x)), "points": len(pts),
-            "model": "1/S = f (1 - 1/p) + 1/p, least squares over points with p > 1"}
+    f = float(np.dot(x, y) / np.dot(x, x))
+    out = {"serial_fraction": f, "points": len(pts), "valid": 0.0 <= f <= 1.0,
+           "model": "1/S = f (1 - 1/p) + 1/p, least squares over points with p > 1"}
+    if not out["valid"]:
+        out["note"] = ("f outside [0, 1]: the points are not Amdahl-limited (slower than serial, e.g. a "
+                       "loaded or oversubscribed machine, or superlinear); do not read f as a serial fraction")
+    return out
 
 
 def load(path):

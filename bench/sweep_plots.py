@@ -191,7 +191,8 @@ def _amdahl(directory):
         import json
         with open(os.path.join(directory, "summary.json")) as fh:
             f = json.load(fh).get("serial_fraction")
-        return float(f) if f is not None and math.isfinite(float(f)) else None
+        # a fit outside [0, 1] is no serial fraction (not Amdahl-limited points): draw no curve
+        return float(f) if f is not None and math.isfinite(float(f)) and 0.0 <= float(f) <= 1.0 else None
     except Exception:  # noqa: BLE001  (an absent or odd summary just means no fit line)
         return None
 

@@ -286,9 +286,11 @@ def wall_range(p0, p1, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape
     """Add planar-wall contacts of particles p0..p1-1 (walls in fixed order), updating each
     particle's per-wall history. Wall planes: m.x = d with m the unit normal into the domain.
     Body 1 is the particle, body 2 the (fixed) wall; the normal from particle into wall is -m.
-    Returns (number of wall contacts, largest depth ratio = depth over the smallest semi-axis)."""
+    Returns (number of wall contacts, largest depth ratio = depth over the smallest semi-axis,
+    local index of the particle with it or -1)."""
     out = np.zeros(OUT_LEN)
     worst = 0.0
+    worst_p = -1
     touching = 0
     for p in range(p0, p1):
         for w in range(wall_m.shape[0]):
@@ -329,6 +331,9 @@ def wall_range(p0, p1, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape
             wall_hist[p, w, H_FT + 1] = f[10]
             wall_hist[p, w, H_FT + 2] = f[11]
             wall_hist[p, w, H_A] = f[12]
-            worst = max(worst, depth / min(axes[p, 0], min(axes[p, 1], axes[p, 2])))
+            ratio = depth / min(axes[p, 0], min(axes[p, 1], axes[p, 2]))
+            if ratio > worst:
+                worst = ratio
+                worst_p = p
             touching += 1
-    return touching, worst
+    return touching, worst, worst_p

@@ -234,12 +234,15 @@ def wall_threads(threads, n, wall_m, wall_d, pos, vel, omega, rot, axes, rbound,
                  estar_w, gstar_w, zeta_w, mu_w, wall_hist, dt, force, torque):
     touching = np.zeros(threads, dtype=np.int64)
     worst = np.zeros(threads)
+    worst_p = np.zeros(threads, dtype=np.int64)
     for t in prange(threads):
-        c, w = wall_range((t * n) // threads, ((t + 1) * n) // threads, wall_m, wall_d, pos, vel, omega, rot, axes,
+        c, w, wp = wall_range((t * n) // threads, ((t + 1) * n) // threads, wall_m, wall_d, pos, vel, omega, rot, axes,
                           rbound, shape, mass, material, estar_w, gstar_w, zeta_w, mu_w, wall_hist, dt, force, torque)
         touching[t] = c
         worst[t] = w
-    return touching.sum(), worst.max()
+        worst_p[t] = wp
+    k = np.argmax(worst)
+    return touching.sum(), worst[k], worst_p[k]
 
 
 @njit(parallel=True, cache=True)

@@ -56,6 +56,7 @@ class SerialMode:
         self.rot = np.zeros((n, 3, 3))
         self.omega = np.zeros((n, 3))
         self.max_overlap_ratio = 0.0
+        self.worst_contact = None
         return self
 
     def warmup(self):
@@ -141,10 +142,19 @@ class SerialMode:
         new_val = np.empty((len(items), HIST_LEN))
         self.gather(pi, pj, start, items, new_val)
         s.hist_start, s.hist_partner, s.hist_val = start, keys, new_val
-        n_wall, wall_worst = self.walls() if self.has_walls else (0, 0.0)
-        self.integrate()
+        n_wall, wall_worst, wall_p = self.walls() if self.has_walls else (0, 0.0, -1)
         n_contacts = int(active.sum())
-        pair_worst = float(w.ratio[:len(pi)][active == 1].max()) if n_contacts else 0.0
+        # the deepest contact of the step, named by global ids for the stability guard
+        pair_worst = 0.0
+        self.worst_contact = None
+        if n_contacts:
+            ratios = np.where(active == 1, w.ratio[:len(pi)], -1.0)
+            k = int(np.argmax(ratios))
+            pair_worst = float(ratios[k])
+            self.worst_contact = (int(s.gid[pi[k]]), int(s.gid[pj[k]]))
+        if wall_worst > pair_worst:
+            self.worst_contact = (int(s.gid[wall_p]), "wall")
+        self.integrate()
         return n_contacts, n_wall, max(pair_worst, wall_worst)
 
     def step(self):

@@ -58,10 +58,10 @@ def test_patch162_bit_identical(scheme, threads, neighbor):
 @pytest.mark.parametrize("neighbor", ["allpairs", "linkcell"])
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_pluviation_bit_identical(scheme, neighbor):
-    """A falling pluviation (200 ellipsoids) past the first particle-particle contacts (step ~5450):
+    """A falling pluviation (200 ellipsoids) past the first particle-particle contacts (step ~8040):
     2 threads, every scheme, both neighbour methods, bit-identical to serial."""
-    ref, rows = reference("pluviation", 6500, 200, neighbor)
-    got, _ = run("pluviation", 6500, 200, threads=2, scheme=scheme, neighbor=neighbor)
+    ref, rows = reference("pluviation", 9000, 200, neighbor)
+    got, _ = run("pluviation", 9000, 200, threads=2, scheme=scheme, neighbor=neighbor)
     assert sum(r["n_contacts"] for r in rows) > 0
     assert_same(ref, got)
 
@@ -85,11 +85,11 @@ def test_packed_bit_identical(scheme, shape, monkeypatch):
 def test_skin_and_detection_only_bit_identical():
     """Threads with a Verlet skin (list rebuilt and particles re-sorted during the fall), and with
     only contact detection threaded (the paper's situation), still match serial exactly."""
-    ref, _ = reference("pluviation", 6500, 200, "linkcell")
-    got, rows = run("pluviation", 6500, 200, threads=2, scheme="dynamic", skin=0.2)
+    ref, _ = reference("pluviation", 9000, 200, "linkcell")
+    got, rows = run("pluviation", 9000, 200, threads=2, scheme="dynamic", skin=0.2)
     assert sum(r["neighbor_rebuilt"] for r in rows) > 3
     assert_same(ref, got)
-    got, _ = run("pluviation", 6500, 200, threads=3, scheme="headtail", threaded="detection")
+    got, _ = run("pluviation", 9000, 200, threads=3, scheme="headtail", threaded="detection")
     assert_same(ref, got)
 
 
