@@ -4,9 +4,7 @@ Every bad input ends with one line `bench: error: ...` on stderr and exit status
 """
 import argparse
 import json
-import os
 import sys
-import time
 
 EXIT_USAGE = 2
 

@@ -8,7 +8,6 @@ Per-step figures are medians over timed steps after a warm-up (JIT compile exclu
 import json
 import os
 import sys
-import time
 
 import numpy as np
 

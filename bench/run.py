@@ -69,7 +69,6 @@ def run(args):
     # progress of a scene build only on a terminal: logs and tests see one line per outcome
     log = None if args.quiet or not sys.stderr.isatty() else (lambda msg: print(msg, file=sys.stderr, flush=True))
     scene = load_scene(args.scene, particles=args.particles, shape=args.shape, seed=args.seed)
-    steps = scene.steps if args.steps is None else args.steps
     choose_dt(scene, args.dt)  # refuse a bad time step before any (expensive) build
     out = args.out or os.path.join("results", f"run-{scene.name}")
     prepare_output(out)

@@ -4,7 +4,6 @@ Fields: id, shape, axes (semi-axes, 3 components), quat (w, x, y, z), orientatio
 the three body axes in world coordinates (axis_x, axis_y, axis_z: vectors, scaled by the
 semi-axes, ready for ParaView's Tensor Glyph or Glyph filters), vel, omega.
 """
-import numpy as np
 
 from dem.quaternion import quat_to_matrices
 

@@ -236,7 +236,6 @@ def redistribute(cart, grid, state, coords):
         if n else np.zeros(0, dtype=np.int64)
     me = cart.Get_rank()
     fields = GHOST_GENERAL
-    nw = state.wall_hist.shape[1]
     counts = np.diff(state.hist_start)
     outgoing = []
     for r in range(cart.Get_size()):

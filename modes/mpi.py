@@ -82,7 +82,6 @@ class _Blocks:
         t1 = self.wtime()
         n_ghost = self.halo.exchange_ghosts(self.state, self.width, self.all_spheres)
         t2 = self.wtime()
-        before = self.halo.bytes_sent
         row = super().step()
         migra, commu = t1 - t0, t2 - t1
         row["migraT"] = migra

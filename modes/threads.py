@@ -9,9 +9,7 @@ gather, walls, integration and derived quantities in T contiguous blocks. The ad
 import numpy as np
 import numba
 
-from dem.forces import build_adjacency
 from dem.neighbor import CellGrid
-from dem.state import HIST_LEN
 from modes.base import ModeError, register
 from modes import parallel as par
 from modes.serial import SerialMode

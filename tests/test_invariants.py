@@ -1,6 +1,4 @@
 """Invariants of the serial step: determinism, conservation, paying only for what a scene uses."""
-import copy
-import math
 
 import numpy as np
 import pytest

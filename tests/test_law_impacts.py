@@ -91,7 +91,7 @@ def test_oblique_wall_impact_gross_sliding():
     m = serial(sc, tc / 400)
     touched = False
     for _ in range(4000):
-        row = m.step()
+        m.step()
         z = sc.state.pos[0, 2] + 1.0
         if z < r:
             touched = True
@@ -126,7 +126,7 @@ def test_sphere_on_incline(mu, expected):
     m = serial(sc, dt)
     for _ in range(3000):
         m.step()
-    v1, n1 = sc.state.vel[0, 0], 3000
+    v1 = sc.state.vel[0, 0]
     for _ in range(2000):
         m.step()
     v2 = sc.state.vel[0, 0]

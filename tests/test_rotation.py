@@ -1,5 +1,4 @@
 """Rotation integrator: torque-free tumbling (contact-mechanics.md §4.2, oracle T13)."""
-import math
 
 import numpy as np
 

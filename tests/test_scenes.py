@@ -1,5 +1,4 @@
 """Scene generation and the time-step rule."""
-import math
 
 import numpy as np
 import pytest
@@ -89,7 +88,7 @@ def test_packed_is_dense_and_static(tmp_path, monkeypatch):
     (contacts persist, kinetic energy stays tiny) over the following steps."""
     monkeypatch.setenv("DEM_BENCH_CACHE", str(tmp_path))
     from bench.prepare import load_prepared
-    from bench.run import choose_dt, kinetic_energy
+    from bench.run import choose_dt
     from modes.serial import SerialMode
     sc = load_prepared("packed", particles=400)
     assert sc.extras["built"]["jammed"]

@@ -2,8 +2,6 @@
 row assignment and work balance are what the schemes promise."""
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest

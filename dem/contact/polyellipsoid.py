@@ -45,9 +45,8 @@ import numpy as np
 from numba import njit
 
 from dem.contact.ellipsoid import (
-    OUT_DEPTH, OUT_NX, OUT_NY, OUT_NZ, OUT_P1X, OUT_P1Y, OUT_P1Z, OUT_P2X, OUT_P2Y, OUT_P2Z,
-    OUT_XCX, OUT_XCY, OUT_XCZ, OUT_RE, OUT_KRATIO, OUT_LAM, OUT_PW_ITERS, OUT_NEWTON_ITERS,
-    OUT_LEN, NEWTON_MAXIT, NEWTON_DEEP_MAXIT, NEWTON_TOL, TRUST_RADIUS,
+    OUT_NX, OUT_NY, OUT_NZ, OUT_LAM, OUT_PW_ITERS, OUT_NEWTON_ITERS,
+    OUT_LEN, NEWTON_DEEP_MAXIT, NEWTON_TOL, TRUST_RADIUS,
     ellipsoid_contact, _basis, _curv, _hertz_radius, _write_out, _hq)
 
 __all__ = ["mass_properties_poly", "poly_support", "polyellipsoid_contact",
