@@ -42,8 +42,8 @@ selection are @njit helpers)
 import numpy as np
 from numba import njit
 
-from dem.contact.ellipsoid import (PW_MAXIT, PW_TOL, _basis, _curv, _h, _hertz_radius,
-                                   _hq, _shape_matrix, _write_out, ellipsoid_contact)
+from dem.contact.ellipsoid import (_basis, _curv, _h, _hertz_radius,
+                                   _hq, _shape_matrix, _write_out, ellipsoid_contact, pw_maximise)
 
 # ---- sextic (Yan 2010 / ParaEllip3d parameter.cpp), scale-normalised ----
 MINOVERLAP = 1e-6        # delta / (2 max semi-axis) must exceed this (relative, as in the code)
@@ -53,87 +53,6 @@ SEXTIC_EPS_DET = 1e-12   # |det M(lam)| > EPS * |det A_1| : M invertible
 
 
 # ================================================================ Perram-Wertheim only
-@njit(cache=True)
-def _pw_max(q1, q2, rx, ry, rz, lam):
-    """Maximise F(lam) = lam (1 - lam) R^T G^-1 R, G = (1 - lam) Q1 + lam Q2, on [0, 1].
-
-    Same safeguarded Newton / bisection as ellipsoid.py (stop test on the raw step).
-    Returns (status, lam*, F, nu_x, nu_y, nu_z, iterations); status 0: separated (some
-    F(lam) > 1 or F >= 1), 1: overlap; nu = G(lam*)^-1 R.
-    """
-    d00 = q2[0] - q1[0]
-    d01 = q2[1] - q1[1]
-    d02 = q2[2] - q1[2]
-    d11 = q2[3] - q1[3]
-    d12 = q2[4] - q1[4]
-    d22 = q2[5] - q1[5]
-    lo = 0.0
-    hi = 1.0
-    it = 0
-    sx = 0.0
-    sy = 0.0
-    sz = 0.0
-    f = 0.0
-    lam_out = lam
-    while True:
-        it += 1
-        g00 = q1[0] + lam * d00
-        g01 = q1[1] + lam * d01
-        g02 = q1[2] + lam * d02
-        g11 = q1[3] + lam * d11
-        g12 = q1[4] + lam * d12
-        g22 = q1[5] + lam * d22
-        i0 = 1.0 / g00
-        l10 = g01 * i0
-        l20 = g02 * i0
-        i1 = 1.0 / (g11 - l10 * g01)
-        l21 = (g12 - l20 * g01) * i1
-        i2 = 1.0 / (g22 - l20 * g02 - l21 * (g12 - l20 * g01))
-        y0 = rx
-        y1 = ry - l10 * y0
-        y2 = rz - l20 * y0 - l21 * y1
-        q = y0 * y0 * i0 + y1 * y1 * i1 + y2 * y2 * i2
-        sz = y2 * i2
-        sy = y1 * i1 - l21 * sz
-        sx = y0 * i0 - l10 * sy - l20 * sz
-        wx = d00 * sx + d01 * sy + d02 * sz
-        wy = d01 * sx + d11 * sy + d12 * sz
-        wz = d02 * sx + d12 * sy + d22 * sz
-        qp = -(sx * wx + sy * wy + sz * wz)
-        y0 = wx
-        y1 = wy - l10 * y0
-        y2 = wz - l20 * y0 - l21 * y1
-        qpp = 2.0 * (y0 * y0 * i0 + y1 * y1 * i1 + y2 * y2 * i2)
-        l1 = lam * (1.0 - lam)
-        l2 = 1.0 - 2.0 * lam
-        f = l1 * q
-        if f > 1.0:
-            return 0, lam, f, sx, sy, sz, it
-        fp = l2 * q + l1 * qp
-        fpp = -2.0 * q + 2.0 * l2 * qp + l1 * qpp
-        if fp > 0.0:
-            lo = lam
-        else:
-            hi = lam
-        lam_out = lam
-        if fpp < 0.0:
-            step = -fp / fpp
-            if abs(step) < PW_TOL:
-                lam_out = lam + step
-                break
-            lnew = lam + step
-            if lnew <= lo or lnew >= hi:
-                lnew = 0.5 * (lo + hi)
-        else:
-            lnew = 0.5 * (lo + hi)
-        if it >= PW_MAXIT or hi - lo < PW_TOL:
-            break
-        lam = lnew
-    if not (f < 1.0):
-        return 0, lam_out, f, sx, sy, sz, it
-    return 1, lam_out, f, sx, sy, sz, it
-
-
 @njit(cache=True)
 def pw_contact(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out):
     """Perram-Wertheim-only contact; returns 1 and fills out [OUT_LEN] on overlap, else 0.
@@ -158,7 +77,7 @@ def pw_contact(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out):
         lam = hh1 / (hh1 + hh2)
     else:
         lam = 0.5
-    status, lam, f, sx, sy, sz, it = _pw_max(q1, q2, rx, ry, rz, lam)
+    status, lam, f, sx, sy, sz, it = pw_maximise(q1, q2, rx, ry, rz, lam)
     if status == 0:
         return 0
     ss = sx * sx + sy * sy + sz * sz
