@@ -25,15 +25,9 @@ class StabilityGuard:
         s = mode.state
         self.mass_total = self._sum(float(s.mass[:s.n_owned].sum()))
         self.v_floor = v_floor
-        self.ke0 = self._sum(self._ke())
+        self.ke0 = self._sum(self.mode.state.kinetic_energy())
         self.ke_max = self.ke0
         self.gravity_work = 0.0
-
-    def _ke(self):
-        s = self.mode.state
-        k = s.n_owned
-        om = s.omega()[:k]
-        return float(0.5 * np.sum(s.mass[:k, None] * s.vel[:k] ** 2) + 0.5 * np.sum(om * s.angmom[:k]))
 
     def _sum(self, x):
         return self.comm.allreduce(x) if self.comm is not None else x
@@ -55,7 +49,7 @@ class StabilityGuard:
                       f"(limit {self.overlap:g}); likely cause: time step {self.dt:.3g} s too large for the stiffest "
                       f"contact (critical {self.dt_critical:.3g} s) or a material too soft for its loads")
         # energy: one collective sum of (flag, kinetic energy, gravity work) per step
-        ke_local = self._ke() if np.isfinite(s.vel[:k]).all() else np.inf
+        ke_local = self.mode.state.kinetic_energy() if np.isfinite(s.vel[:k]).all() else np.inf
         wg_local = float(self.dt * np.sum(s.mass[:k] * (s.vel[:k] @ self.g))) if k else 0.0
         vals = np.array([1.0 if reason else 0.0, ke_local, wg_local])
         if self.comm is not None:
@@ -79,6 +73,6 @@ class StabilityGuard:
 
     def balance(self):
         """Energy balance for run.json [J]: what came in (initial KE + gravity work) and went out."""
-        ke_final = self._sum(self._ke())
+        ke_final = self._sum(self.mode.state.kinetic_energy())
         return {"kinetic_initial": self.ke0, "gravity_work": self.gravity_work, "kinetic_final": ke_final,
                 "dissipated_or_stored": self.ke0 + self.gravity_work - ke_final}

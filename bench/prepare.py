@@ -80,19 +80,18 @@ def _serial(scene):
 
 def settle(scene, max_steps, ke_tol, log=None):
     """Step serially until KE < ke_tol * sum(m) |g| d_mean (checked every 100 steps)."""
-    from bench.run import kinetic_energy
     mode, dt = _serial(scene)
     s = scene.state
     g = float(np.linalg.norm(scene.gravity)) or 1.0
     scale = float(s.mass.sum()) * g * 2.0 * float(s.rbound.mean())
     t0 = time.perf_counter()
     k = 0
-    ke = kinetic_energy(s)
+    ke = s.kinetic_energy()
     while k < max_steps:
         mode.step()
         k += 1
         if k % 100 == 0:
-            ke = kinetic_energy(s)
+            ke = s.kinetic_energy()
             if log and k % 2000 == 0:
                 log(f"settling {scene.name}: step {k}, KE/scale {ke / scale:.2e}")
             if k >= 500 and ke < ke_tol * scale:
@@ -106,7 +105,6 @@ def compress(scene, max_steps, rate, coordination, ke_tol, log=None, relax_steps
     particle-particle coordination Z overshoots `coordination` + 0.5, hold the walls for
     `relax_steps`, and resume (at half the rate) if the relaxed Z fell below `coordination`; finish with a relaxation until KE < ke_tol * sum(m) v_ref^2 (v_ref the
     first compression speed of the box faces). Returns build statistics."""
-    from bench.run import kinetic_energy
     g_saved = scene.gravity.copy()
     scene.gravity = np.zeros(3)
     mode, dt = _serial(scene)
@@ -141,7 +139,7 @@ def compress(scene, max_steps, rate, coordination, ke_tol, log=None, relax_steps
                 else:
                     jammed = True
         if k % 100 == 0 or (jammed and held >= relax_steps):
-            ke = kinetic_energy(s)
+            ke = s.kinetic_energy()
             if log and k % int(os.environ.get("DEM_BUILD_LOG_EVERY", 1000)) == 0:
                 log(f"building {scene.name}: step {k}, coordination {z:.2f}, KE ratio {ke / scale:.1e}")
             if jammed and ke < ke_tol * scale:

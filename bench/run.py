@@ -12,13 +12,6 @@ from dem.timestep import time_step_bounds
 from modes.base import ModeError, mode_for, parse_mapping
 
 
-def kinetic_energy(state):
-    """Translational + rotational kinetic energy of the owned particles [J]."""
-    k = state.n_owned
-    om = state.omega()[:k]
-    return float(0.5 * np.sum(state.mass[:k, None] * state.vel[:k] ** 2) + 0.5 * np.sum(om * state.angmom[:k]))
-
-
 def prepare_output(out):
     try:
         os.makedirs(out, exist_ok=True)

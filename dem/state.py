@@ -18,7 +18,6 @@ import numpy as np
 SPHERE = 0
 ELLIPSOID = 1
 SHAPE_CODES = {"sphere": SPHERE, "ellipsoid": ELLIPSOID}
-SHAPE_NAMES = {v: k for k, v in SHAPE_CODES.items()}
 
 # contact-history record (per pair, per particle): stored tangential spring [3], contact radius,
 # PW lambda and normal [3] (warm start of the ellipsoid solver)
@@ -116,6 +115,13 @@ class State:
         out = np.empty((self.n, 3))
         angular_velocity(self.quat, self.angmom, self.inertia, self.shape, out)
         return out
+
+    def kinetic_energy(self):
+        """Translational + rotational kinetic energy of the owned particles [J]:
+        sum m |v|^2 / 2 + omega . L / 2."""
+        k = self.n_owned
+        om = self.omega()[:k]
+        return float(0.5 * np.sum(self.mass[:k, None] * self.vel[:k] ** 2) + 0.5 * np.sum(om * self.angmom[:k]))
 
     def snapshot(self):
         """Owned particles sorted by global id: dict of id [n], pos [n,3], quat [n,4], vel, omega [n,3]."""
