@@ -56,7 +56,7 @@ def build_parser():
     r = sub.add_parser("run", help="run one scene with one mapping")
     r.add_argument("--scene", required=True, help="built-in scene name or a .toml file")
     r.add_argument("--particles", type=_positive_int, help="override the generated particle count")
-    r.add_argument("--shape", choices=["sphere", "ellipsoid"], help="override the generated shape")
+    r.add_argument("--shape", choices=["sphere", "ellipsoid", "polyellipsoid"], help="override the generated shape")
     r.add_argument("--seed", type=_nonneg_int, help="override the generator seed")
     r.add_argument("--steps", type=_nonneg_int, help="override the scene's step count")
     r.add_argument("--warmup", type=_nonneg_int, default=0, metavar="W",
@@ -69,6 +69,9 @@ def build_parser():
                    help="thread the whole step (default) or only contact detection (the paper's code)")
     r.add_argument("--pin", action="store_true", help="pin threads to cores (OMP_PROC_BIND/OMP_PLACES)")
     r.add_argument("--neighbor", choices=["allpairs", "linkcell"], default="linkcell")
+    r.add_argument("--contact-method", choices=["exact", "pw", "sextic"], default="exact",
+                   help="ellipsoid contact geometry: exact (PW + Newton, default), pw (Perram-Wertheim depth, "
+                        "error O(depth/size)), sextic (the paper's Yan 2010 method, a known error)")
     r.add_argument("--skin", type=_skin, default=0.0, metavar="F",
                    help="Verlet skin, fraction of the largest bounding diameter (default 0: "
                         "estimate neighbours every step)")
@@ -97,7 +100,7 @@ def build_parser():
     sw.add_argument("--schemes", help="comma-separated thread schemes for mappings with T > 1 (default dynamic)")
     sw.add_argument("--scene")
     sw.add_argument("--particles", type=_positive_int)
-    sw.add_argument("--shape", choices=["sphere", "ellipsoid"])
+    sw.add_argument("--shape", choices=["sphere", "ellipsoid", "polyellipsoid"])
     sw.add_argument("--steps", type=_positive_int)
     sw.add_argument("--warmup", type=_nonneg_int, default=0, help="untimed steps before the timed ones")
     sw.add_argument("--repeats", type=_positive_int, default=1, help="runs per point (medians recorded)")
@@ -109,6 +112,19 @@ def build_parser():
     sw.add_argument("--dry-run", action="store_true", help="print every command and environment, run nothing")
     sw.add_argument("--resume", action="store_true", help="skip the points already done in OUT/runs.csv")
     sw.add_argument("--out")
+
+    ac = sub.add_parser("accuracy", help="work-precision study: error against run time per contact method and dt")
+    ac.add_argument("--scene", required=True, help="built-in scene name or a .toml file")
+    ac.add_argument("--particles", type=_positive_int)
+    ac.add_argument("--shape", choices=["sphere", "ellipsoid", "polyellipsoid"])
+    ac.add_argument("--seed", type=_nonneg_int)
+    ac.add_argument("--steps", type=_positive_int, help="steps at dt_base (sets the simulated time; default the scene's)")
+    ac.add_argument("--dt", type=float, help="dt_base [s] (default: the scene's, usually auto)")
+    ac.add_argument("--dt-factors", default="1,0.5,0.25", help="comma-separated multiples of dt_base (default 1,0.5,0.25)")
+    ac.add_argument("--methods", default="exact,pw,sextic", help="comma-separated contact methods (default all)")
+    ac.add_argument("--ref-factor", type=float, default=None,
+                    help="dt of the exact reference run as a multiple of dt_base (default half the smallest factor)")
+    ac.add_argument("--out", required=True)
 
     pl = sub.add_parser("plot", help="draw a sweep's figures from its records")
     pl.add_argument("dir")
@@ -270,7 +286,13 @@ def cmd_perf(args):
     return perf(args)
 
 
-COMMANDS = {"run": cmd_run, "contacts": cmd_contacts, "scenes": cmd_scenes, "perf": cmd_perf,
+@_one_line
+def cmd_accuracy(args):
+    from bench.accuracy import accuracy
+    return accuracy(args)
+
+
+COMMANDS = {"accuracy": cmd_accuracy, "run": cmd_run, "contacts": cmd_contacts, "scenes": cmd_scenes, "perf": cmd_perf,
             "schemes": cmd_schemes, "sweep": cmd_sweep, "plot": cmd_plot, "collect": cmd_collect}
 
 

@@ -32,9 +32,10 @@ def warm_cache(scene, mapping, args, dt):
     if mapping.threads > 1:
         from modes.threads import ThreadsMode
         ThreadsMode().setup(twin, dt=dt, neighbor=args.neighbor, threads=mapping.threads,
-                            scheme=args.scheme or "dynamic", threaded=args.threaded).warmup()
+                            scheme=args.scheme or "dynamic", threaded=args.threaded,
+                            contact_method=args.contact_method).warmup()
     else:
-        SerialMode().setup(twin, dt=dt, neighbor=args.neighbor).warmup()
+        SerialMode().setup(twin, dt=dt, neighbor=args.neighbor, contact_method=args.contact_method).warmup()
 
 
 def launch_mpi(args, mapping, scene, out):
@@ -82,7 +83,7 @@ def _run_argv(args, out):
     """The bench-run options the ranks need (the same run, with the resolved output folder)."""
     argv = ["--scene", args.scene, "--mapping", args.mapping, "--neighbor", args.neighbor, "--out", out,
             "--threaded", args.threaded, "--snapshot-every", str(args.snapshot_every), "--halo", args.halo, "--guard-overlap", str(args.guard_overlap),
-            "--update-grid", str(args.update_grid)]
+            "--update-grid", str(args.update_grid), "--contact-method", args.contact_method]
     for name in ("particles", "shape", "seed", "steps", "dt", "scheme", "warmup"):
         v = getattr(args, name)
         if v is not None:

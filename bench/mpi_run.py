@@ -20,7 +20,7 @@ def main(argv):
     scheme = args.scheme or ("dynamic" if mapping.threads > 1 else None)
     mode = mode_for(mapping)().setup(scene, dt=dts[0], cart=cart, neighbor=args.neighbor, threads=mapping.threads,
                                      scheme=scheme, threaded=args.threaded, halo=args.halo,
-                                     update_grid=args.update_grid)
+                                     update_grid=args.update_grid, contact_method=args.contact_method)
     execute(args, scene, mapping, scheme, mode, args.out, dts, comm=cart)
     # an unstable run has written its records and its one line (rank 0): end normally, since a
     # non-zero exit makes `python -m mpi4py` abort every rank; the launcher reads run.json

@@ -26,7 +26,7 @@ def prepare_output(out):
 def choose_dt(scene, user_dt):
     s = scene.state
     dt_auto, dt_crit, info = time_step_bounds(s.axes, s.shape, s.mass, s.material, scene.materials,
-                                              scene.walls, scene.gravity, scene.box, s.vel)
+                                              scene.walls, scene.gravity, scene.box, s.vel, s.poly)
     dt = user_dt if user_dt is not None else scene.dt
     if dt == "auto":
         dt = dt_auto
@@ -71,6 +71,7 @@ def run(args):
         from bench.launch import launch_mpi
         return launch_mpi(args, mapping, scene, out)
     mode = mode_cls().setup(scene, dt=dt, neighbor=args.neighbor, skin=args.skin, threads=mapping.threads,
+                            contact_method=args.contact_method,
                             scheme=scheme, threaded=args.threaded)
     return execute(args, scene, mapping, scheme, mode, out, (dt, dt_auto, dt_crit, dt_info))
 
@@ -105,7 +106,7 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
             "threads": mapping.threads, "scheme": scheme,
             "threaded": args.threaded if mapping.threads > 1 else None, "pin": args.pin,
             "threading": _threading_info(),
-            "neighbor": args.neighbor, "skin": args.skin, "halo": args.halo if mapping.procs > 1 else None,
+            "neighbor": args.neighbor, "contact_method": getattr(args, "contact_method", "exact"), "skin": args.skin, "halo": args.halo if mapping.procs > 1 else None,
             "update_grid": args.update_grid if mapping.procs > 1 else None, "dt": dt, "dt_auto": dt_auto, "dt_critical": dt_crit,
             "dt_details": dt_info, "walls": scene.walls, "gravity": scene.gravity.tolist(),
             "materials": [m.__dict__ for m in scene.materials.materials],
@@ -113,9 +114,9 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
             "build": scene.extras.get("built"), "stable": None, "max_overlap_ratio": 0.0, "status": "running"}
     if comm is not None:
         from mpi4py import MPI
-        from modes.halo import GHOST_GENERAL, GHOST_SPHERE, WIDTH
+        from modes.halo import WIDTH, ghost_fields
         info["mpi_library"] = MPI.Get_library_version().strip().splitlines()[0]
-        fields = GHOST_SPHERE if mode.all_spheres else GHOST_GENERAL
+        fields = ghost_fields(mode.all_spheres, mode.state.has_poly)
         info["ghost_fields"] = list(fields)
         info["ghost_bytes_per_particle"] = 8 * sum(WIDTH[f] for f in fields)  # the paper: 624 per ellipsoid
     if rank == 0:

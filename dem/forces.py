@@ -15,8 +15,10 @@ from dem.contact.ellipsoid import (ellipsoid_contact, ellipsoid_wall_contact, OU
                                    OUT_KRATIO, OUT_LAM)
 from dem.contact.hertz_factor import hertz_factor
 from dem.contact.law import hertz_mindlin
+from dem.contact.methods import pw_contact, sextic_contact
+from dem.contact.polyellipsoid import polyellipsoid_contact, polyellipsoid_wall_contact
 from dem.contact.sphere import sphere_contact, sphere_wall_contact
-from dem.state import SPHERE, H_FT, H_A, H_LAM, H_N, HIST_LEN
+from dem.state import SPHERE, POLY, H_FT, H_A, H_LAM, H_N, HIST_LEN
 
 # per-pair result layout: pair_res [m, PR_LEN]
 PR_FX = 0      # force on j [3] (i gets the exact negation)
@@ -24,6 +26,19 @@ PR_TI = 3      # torque on i [3]
 PR_TJ = 6      # torque on j [3]
 PR_HIST = 9    # new history record [HIST_LEN]
 PR_LEN = 9 + HIST_LEN
+
+# ellipsoid contact methods (issue 7; dem/contact/methods.py): index = the `method` argument
+CONTACT_METHODS = ("exact", "pw", "sextic")
+EXACT, PW, SEXTIC = 0, 1, 2
+# scene kinds: which pair loop a scene needs (it pays only for the solvers its shapes use)
+SPHERES, ELLIPSOIDS, POLYS = 0, 1, 2
+
+
+def scene_kind(shape, has_poly):
+    """SPHERES when every particle is a sphere, POLYS when the scene has poly-ellipsoids, else ELLIPSOIDS."""
+    if has_poly:
+        return POLYS
+    return SPHERES if bool(np.all(shape == SPHERE)) else ELLIPSOIDS
 
 
 @njit(cache=True, inline="always")
@@ -155,14 +170,55 @@ def resolve_sphere_pairs_range(k0, k1, pi, pj, pos, vel, omega, axes, mass, mate
     return 0
 
 
+@njit(cache=True, inline="always")
+def _warm_start(hist_val, slot, n0):
+    """Stored PW lambda (or -1) of a pair's history row slot, its normal into n0 [3]."""
+    if slot < 0:
+        n0[0] = n0[1] = n0[2] = 0.0
+        return -1.0
+    # the stored normal points i -> j (canonical order) on both ends
+    n0[0] = hist_val[slot, H_N]
+    n0[1] = hist_val[slot, H_N + 1]
+    n0[2] = hist_val[slot, H_N + 2]
+    return hist_val[slot, H_LAM]
+
+
+@njit(cache=True, inline="always")
+def _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, gid, n_owned, hist_start,
+                    hist_partner, hist_val, estar, gstar, mu, zeta, dt, method, active, pair_res,
+                    depth_ratio, out, n0):
+    """Ellipsoid (or sphere-ellipsoid) pair k = (i, j) by CONTACT_METHODS[method], then the law."""
+    own = i if i < n_owned else j
+    slot = find_history(hist_start, hist_partner, own, gid[j] if own == i else gid[i])
+    lam0 = _warm_start(hist_val, slot, n0)
+    if method == EXACT:
+        hit = ellipsoid_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
+    elif method == PW:
+        hit = pw_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
+    else:
+        hit = sextic_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
+    if hit == 0:
+        active[k] = 0
+        return
+    depth = out[OUT_DEPTH]
+    active[k] = 1
+    pair_law(i, j, depth, out[OUT_NX], out[OUT_NY], out[OUT_NZ], out[OUT_XCX], out[OUT_XCY],
+             out[OUT_XCZ], out[OUT_RE], out[OUT_KRATIO], pos, vel, omega, mass, material,
+             estar, gstar, zeta, mu, hist_val, slot, dt, out[OUT_LAM], pair_res, k)
+    ai = min(axes[i, 0], min(axes[i, 1], axes[i, 2]))
+    aj = min(axes[j, 0], min(axes[j, 1], axes[j, 2]))
+    depth_ratio[k] = depth / min(ai, aj)
+
+
 @njit(cache=True)
 def resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid,
                         n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
-                        active, pair_res, depth_ratio):
-    """Resolve candidate pairs k0..k1-1: geometry (closed form for two spheres, PW + Newton
-    otherwise), then the contact law. Writes active [m] (1 = touching), pair_res [m, PR_LEN],
-    depth_ratio [m] (depth over the smaller minimum semi-axis).
-    Returns the number of ellipsoid-solver calls.
+                        method, active, pair_res, depth_ratio):
+    """Resolve candidate pairs k0..k1-1 of a scene of ellipsoids (and spheres): geometry (closed
+    form for two spheres; otherwise the ellipsoid method CONTACT_METHODS[method]: EXACT = PW +
+    Newton on S^2, PW = Perram-Wertheim depth only, SEXTIC = Yan 2010), then the contact law.
+    Writes active [m] (1 = touching), pair_res [m, PR_LEN], depth_ratio [m] (depth over the
+    smaller minimum semi-axis). Returns the number of ellipsoid-solver calls.
     History is read from the owned end of the pair (both ends hold identical copies)."""
     out = np.zeros(OUT_LEN)
     n0 = np.zeros(3)
@@ -174,18 +230,43 @@ def resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass,
             _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, gid, n_owned, hist_start,
                          hist_partner, hist_val, estar, gstar, mu, zeta, dt, active, pair_res, depth_ratio)
             continue
+        ecalls += 1
+        _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, gid, n_owned, hist_start,
+                        hist_partner, hist_val, estar, gstar, mu, zeta, dt, method, active, pair_res,
+                        depth_ratio, out, n0)
+    return ecalls
+
+
+@njit(cache=True)
+def resolve_poly_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid,
+                             n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
+                             method, active, pair_res, depth_ratio, oorg, orot, ax6):
+    """resolve_pairs_range for a scene with poly-ellipsoids: a pair with a poly-ellipsoid goes to
+    the octant active-set solver (polyellipsoid_contact; the other body as a poly-ellipsoid with
+    equal halves) on the octant geometry oorg [n,3], orot [n,3,3], ax6 [n,6]
+    (derive_geometry_range); lever arms and velocities refer to the mass centres pos. Other
+    pairs as in resolve_pairs_range. Returns the number of solver calls."""
+    out = np.zeros(OUT_LEN)
+    n0 = np.zeros(3)
+    ecalls = 0
+    for k in range(k0, k1):
+        i = pi[k]
+        j = pj[k]
+        if shape[i] != POLY and shape[j] != POLY:
+            if shape[i] == SPHERE and shape[j] == SPHERE:
+                _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, gid, n_owned, hist_start,
+                             hist_partner, hist_val, estar, gstar, mu, zeta, dt, active, pair_res, depth_ratio)
+            else:
+                ecalls += 1
+                _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, gid, n_owned,
+                                hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt, method,
+                                active, pair_res, depth_ratio, out, n0)
+            continue
+        ecalls += 1
         own = i if i < n_owned else j
         slot = find_history(hist_start, hist_partner, own, gid[j] if own == i else gid[i])
-        lam0 = -1.0
-        n0[0] = n0[1] = n0[2] = 0.0
-        if slot >= 0:
-            # the stored normal points i -> j (canonical order) on both ends
-            lam0 = hist_val[slot, H_LAM]
-            n0[0] = hist_val[slot, H_N]
-            n0[1] = hist_val[slot, H_N + 1]
-            n0[2] = hist_val[slot, H_N + 2]
-        ecalls += 1
-        if ellipsoid_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out) == 0:
+        _warm_start(hist_val, slot, n0)
+        if polyellipsoid_contact(oorg[i], orot[i], ax6[i], oorg[j], orot[j], ax6[j], n0, out) == 0:
             active[k] = 0
             continue
         depth = out[OUT_DEPTH]
@@ -193,8 +274,11 @@ def resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass,
         pair_law(i, j, depth, out[OUT_NX], out[OUT_NY], out[OUT_NZ], out[OUT_XCX], out[OUT_XCY],
                  out[OUT_XCZ], out[OUT_RE], out[OUT_KRATIO], pos, vel, omega, mass, material,
                  estar, gstar, zeta, mu, hist_val, slot, dt, out[OUT_LAM], pair_res, k)
-        ai = min(axes[i, 0], min(axes[i, 1], axes[i, 2]))
-        aj = min(axes[j, 0], min(axes[j, 1], axes[j, 2]))
+        ai = ax6[i, 0]
+        aj = ax6[j, 0]
+        for c in range(1, 6):
+            ai = min(ai, ax6[i, c])
+            aj = min(aj, ax6[j, c])
         depth_ratio[k] = depth / min(ai, aj)
     return ecalls
 
@@ -282,10 +366,12 @@ def gather_range(p0, p1, adj_start, adj_items, pi, pj, pair_res, force, torque, 
 
 @njit(cache=True)
 def wall_range(p0, p1, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape, mass, material,
-               estar_w, gstar_w, zeta_w, mu_w, wall_hist, dt, force, torque):
+               estar_w, gstar_w, zeta_w, mu_w, wall_hist, dt, force, torque, oorg, orot, ax6):
     """Add planar-wall contacts of particles p0..p1-1 (walls in fixed order), updating each
     particle's per-wall history. Wall planes: m.x = d with m the unit normal into the domain.
     Body 1 is the particle, body 2 the (fixed) wall; the normal from particle into wall is -m.
+    Poly-ellipsoids use their octant geometry oorg, orot, ax6 (derive_geometry_range; empty
+    arrays in a scene without them).
     Returns (number of wall contacts, largest depth ratio = depth over the smallest semi-axis,
     local index of the particle with it or -1)."""
     out = np.zeros(OUT_LEN)
@@ -303,6 +389,12 @@ def wall_range(p0, p1, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape
                 hit, depth, xcx, xcy, xcz, r_e = sphere_wall_contact(pos[p, 0], pos[p, 1], pos[p, 2], axes[p, 0],
                                                                      mx, my, mz, wall_d[w])
                 kratio = 1.0
+            elif shape[p] == POLY:
+                hit = polyellipsoid_wall_contact(oorg[p], orot[p], ax6[p], wall_m[w], wall_d[w], out) == 1
+                depth = out[OUT_DEPTH]
+                xcx, xcy, xcz = out[OUT_XCX], out[OUT_XCY], out[OUT_XCZ]
+                r_e = out[OUT_RE]
+                kratio = out[OUT_KRATIO]
             else:
                 hit = ellipsoid_wall_contact(pos[p], rot[p], axes[p], wall_m[w], wall_d[w], out) == 1
                 depth = out[OUT_DEPTH]
@@ -331,7 +423,11 @@ def wall_range(p0, p1, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape
             wall_hist[p, w, H_FT + 1] = f[10]
             wall_hist[p, w, H_FT + 2] = f[11]
             wall_hist[p, w, H_A] = f[12]
-            ratio = depth / min(axes[p, 0], min(axes[p, 1], axes[p, 2]))
+            amin = min(axes[p, 0], min(axes[p, 1], axes[p, 2]))
+            if shape[p] == POLY:
+                for c in range(6):
+                    amin = min(amin, ax6[p, c])
+            ratio = depth / amin
             if ratio > worst:
                 worst = ratio
                 worst_p = p

@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from dem.quaternion import quat_to_matrix, quat_normalize
-from dem.state import SPHERE
+from dem.state import SPHERE, POLY, P_AX, P_OFF, P_ROT
 
 
 @njit(cache=True, inline="always")
@@ -132,8 +132,13 @@ def integrate_range(lo, hi, pos, vel, quat, angmom, mass, inertia, shape, force,
 
 @njit(cache=True, inline="always")
 def derive_particle(p, quat, angmom, inertia, shape, rot, omega):
-    """Rotation matrix rot[p] [3,3] (non-spheres) and world angular velocity omega[p] [3]."""
+    """Rotation matrix rot[p] [3,3] and world angular velocity omega[p] [3]. A sphere's rot is the
+    identity (its orientation does not shape it; a sphere-ellipsoid pair reads it, and a fixed value
+    keeps that pair's rounding the same in every mode)."""
     if shape[p] == SPHERE:
+        for a in range(3):
+            for b in range(3):
+                rot[p, a, b] = 1.0 if a == b else 0.0
         i0 = inertia[p, 0]
         omega[p, 0] = angmom[p, 0] / i0
         omega[p, 1] = angmom[p, 1] / i0
@@ -160,3 +165,29 @@ def angular_velocity(quat, angmom, inertia, shape, out):
     """World-frame angular velocity out [n, 3] of all particles."""
     rot = np.empty((quat.shape[0], 3, 3))
     derive_range(0, quat.shape[0], quat, angmom, inertia, shape, rot, out)
+
+
+@njit(cache=True)
+def derive_geometry_range(lo, hi, pos, rot, axes, shape, poly, orot, oorg, ax6):
+    """Contact geometry of particles lo..hi-1 in a scene with poly-ellipsoids: every particle as a
+    poly-ellipsoid (Peters et al. 2009): octant frame orot [n,3,3], octant origin oorg [n,3] [m],
+    six semi-axes ax6 [n,6] [m]. A poly-ellipsoid's come from its record (R_oct = R W,
+    o = x + R off); an ellipsoid is its own octant frame with a+ = a-, ...; a sphere has the
+    identity frame and six equal radii. rot [n,3,3] must be derived first (derive_range)."""
+    for p in range(lo, hi):
+        if shape[p] == POLY:
+            for a in range(3):
+                for b in range(3):
+                    orot[p, a, b] = (rot[p, a, 0] * poly[p, P_ROT + b] + rot[p, a, 1] * poly[p, P_ROT + 3 + b]
+                                     + rot[p, a, 2] * poly[p, P_ROT + 6 + b])
+                oorg[p, a] = pos[p, a] + (rot[p, a, 0] * poly[p, P_OFF] + rot[p, a, 1] * poly[p, P_OFF + 1]
+                                          + rot[p, a, 2] * poly[p, P_OFF + 2])
+            for k in range(6):
+                ax6[p, k] = poly[p, P_AX + k]
+            continue
+        for a in range(3):
+            for b in range(3):
+                orot[p, a, b] = (1.0 if a == b else 0.0) if shape[p] == SPHERE else rot[p, a, b]
+            oorg[p, a] = pos[p, a]
+            ax6[p, 2 * a] = axes[p, a]
+            ax6[p, 2 * a + 1] = axes[p, a]

@@ -5,10 +5,13 @@ Format (DESIGN.md): [domain] box, walls, gravity; [materials.NAME]; [time] dt, s
 
     [[generate]]
     count = 500                     # number of particles
-    shape = "ellipsoid"             # sphere | ellipsoid
+    shape = "ellipsoid"             # sphere | ellipsoid | polyellipsoid
     gradation = [[1.0e-3, 0.0], [2.0e-3, 1.0]]  # [largest diameter 2a [m], fraction passing by number]
     aspect_b = [0.6, 0.9]           # b/a drawn uniformly in this range (ellipsoids)
     aspect_c = [0.4, 0.7]           # c/a drawn uniformly in this range (ellipsoids)
+    asymmetry = [0.6, 1.0]          # poly-ellipsoids: each a-/a+, b-/b+, c-/c+ drawn uniformly
+                                    # in this range; the extents a+ + a-, b+ + b-, c+ + c- follow
+                                    # the gradation and aspects (largest extent = the diameter)
     placement = "lattice"           # lattice | random
     spacing = 1.2                   # lattice pitch over the largest bounding diameter
     columns = [9, 9]                # lattice sites along x and y (default: square-ish)
@@ -30,7 +33,8 @@ import numpy as np
 
 from dem.materials import Material, MaterialTable
 from dem.quaternion import quat_to_matrices, random_quaternions
-from dem.state import State, SHAPE_CODES, SPHERE, mass_properties
+from dem.state import (POLY, POLY_LEN, SHAPE_CODES, SPHERE, State, mass_properties, octant_pose,
+                       poly_from_octant)
 
 WALL_FACES = {"x-": (0, +1), "x+": (0, -1), "y-": (1, +1), "y+": (1, -1), "z-": (2, +1), "z+": (2, -1)}
 BUILTIN_DIR = os.path.join(os.path.dirname(__file__), "scenes")
@@ -219,18 +223,26 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
     n = len(rows)
     gid = np.arange(n, dtype=np.int64)
     shape_arr = np.array([r["shape"] for r in rows], dtype=np.int8)
-    axes = np.array([r["axes"] for r in rows])
     mat = np.array([r["material"] for r in rows], dtype=np.int32)
+    axes = np.empty((n, 3))
     mass = np.empty(n)
     inertia = np.empty((n, 3))
-    for k, r in enumerate(rows):
-        mass[k], inertia[k] = mass_properties(r["shape"], r["axes"], table.materials[r["material"]].density)
     pos = np.array([r["pos"] for r in rows])
     quat = np.array([r["quat"] for r in rows])
     vel = np.array([r["vel"] for r in rows])
     omega = np.array([r["omega"] for r in rows])
+    poly = np.zeros((n, POLY_LEN)) if np.any(shape_arr == POLY) else None
+    for k, r in enumerate(rows):
+        rho = table.materials[r["material"]].density
+        if r["shape"] == POLY:
+            # internally the rigid body at its mass centre, in its principal frame
+            axes[k], mass[k], inertia[k], pos[k], quat[k], poly[k] = poly_from_octant(r["axes"], rho, r["pos"],
+                                                                                      r["quat"])
+        else:
+            axes[k] = r["axes"]
+            mass[k], inertia[k] = mass_properties(r["shape"], r["axes"], rho)
     state = State(gid, shape_arr, axes, mass, inertia, mat, pos, vel, quat, np.zeros((n, 3)),
-                  n_walls=len(walls))
+                  n_walls=len(walls), poly=poly)
     # L = R I R^T omega (world frame)
     rots = quat_to_matrices(quat)
     for k in range(n):
@@ -263,7 +275,7 @@ def _explicit_particle(p, k, table):
     _check_keys(p, {"shape", "axes", "pos", "quat", "vel", "omega", "material"}, what)
     shape = p.get("shape", "sphere")
     if shape not in SHAPE_CODES:
-        raise SceneError(f"{what}: unknown shape {shape!r} (sphere, ellipsoid)")
+        raise SceneError(f"{what}: unknown shape {shape!r} ({', '.join(SHAPE_CODES)})")
     code = SHAPE_CODES[shape]
     if "axes" not in p or "pos" not in p:
         raise SceneError(f"{what} needs 'axes' and 'pos'")
@@ -275,6 +287,12 @@ def _explicit_particle(p, k, table):
         if r <= 0:
             raise SceneError(f"{what}: axes must be positive, got {ax!r}")
         axes = np.array([r, r, r])
+    elif code == POLY:
+        if not isinstance(ax, list) or len(ax) != 6:
+            raise SceneError(f"{what}: a polyellipsoid's axes must be [a+, a-, b+, b-, c+, c-], got {ax!r}")
+        axes = _vec(ax, 6, f"{what}.axes")
+        if np.any(axes <= 0):
+            raise SceneError(f"{what}: axes must be positive, got {ax!r}")
     else:
         axes = _vec(ax, 3, f"{what}.axes")
         if np.any(axes <= 0):
@@ -312,14 +330,14 @@ def _generate(g, table, box, particles, shape_override, seed_override, first_ind
     what = "[[generate]]"
     if not isinstance(g, dict):
         raise SceneError(f"{what} must be a table")
-    _check_keys(g, {"count", "shape", "gradation", "aspect_b", "aspect_c", "placement", "spacing",
+    _check_keys(g, {"count", "shape", "gradation", "aspect_b", "aspect_c", "asymmetry", "placement", "spacing",
                     "columns", "region", "orientation", "speed", "material", "seed"}, what)
     count = particles if particles is not None else g.get("count")
     if isinstance(count, bool) or not isinstance(count, int) or count <= 0:
         raise SceneError(f"particle count must be a positive integer, got {count!r}")
     shape = shape_override or g.get("shape", "sphere")
     if shape not in SHAPE_CODES:
-        raise SceneError(f"unknown shape {shape!r} (sphere, ellipsoid)")
+        raise SceneError(f"unknown shape {shape!r} ({', '.join(SHAPE_CODES)})")
     code = SHAPE_CODES[shape]
     seed = seed_override if seed_override is not None else g.get("seed", 1)
     rng = np.random.default_rng(seed)
@@ -334,6 +352,19 @@ def _generate(g, table, box, particles, shape_override, seed_override, first_ind
                 raise SceneError(f"{what}.{key} must satisfy 0 < lo <= hi <= 1, got {[lo, hi]}")
             return rng.uniform(lo, hi, count)
         axes = np.stack([a, a * rng_range("aspect_b"), a * rng_range("aspect_c")], axis=1)
+    rb = axes.max(axis=1)
+    cen = np.zeros((count, 3))
+    if code == POLY:
+        # extents 2a, 2b, 2c split into plus and minus halves with minus/plus ~ U(asymmetry)
+        lo, hi = _vec(g.get("asymmetry", [0.6, 1.0]), 2, f"{what}.asymmetry")
+        if not (0 < lo <= hi <= 1):
+            raise SceneError(f"{what}.asymmetry must satisfy 0 < lo <= hi <= 1, got {[lo, hi]}")
+        ratio = rng.uniform(lo, hi, (count, 3))
+        plus = 2.0 * axes / (1.0 + ratio)
+        axes = np.stack([plus[:, 0], ratio[:, 0] * plus[:, 0], plus[:, 1], ratio[:, 1] * plus[:, 1],
+                         plus[:, 2], ratio[:, 2] * plus[:, 2]], axis=1)
+        cen = 0.375 * (axes[:, 0::2] - axes[:, 1::2])        # centroid from the octant origin
+        rb = axes.max(axis=1) + np.linalg.norm(cen, axis=1)
     orient = g.get("orientation", "random")
     if orient == "random":
         quat = random_quaternions(count, rng) if code != SPHERE else np.tile([1.0, 0, 0, 0], (count, 1))
@@ -345,7 +376,7 @@ def _generate(g, table, box, particles, shape_override, seed_override, first_ind
     if mname not in table.index:
         raise SceneError(f"{what}: unknown material {mname!r} (defined: {', '.join(table.index)})")
     placement = g.get("placement", "lattice")
-    dmax = 2.0 * float(axes.max())
+    dmax = 2.0 * float(rb.max())
     region = None
     if "region" in g:
         rg = g["region"]
@@ -387,7 +418,7 @@ def _generate(g, table, box, particles, shape_override, seed_override, first_ind
         if region is None:
             raise SceneError(f"{what}: random placement needs a box or region")
         gbox = None
-        pos = _random_placement(region, axes.max(axis=1), rng, what)
+        pos = _random_placement(region, rb, rng, what)
     else:
         raise SceneError(f"{what}.placement must be 'lattice' or 'random', got {placement!r}")
     speed = _num(g.get("speed", 0.0), f"{what}.speed")
@@ -395,6 +426,8 @@ def _generate(g, table, box, particles, shape_override, seed_override, first_ind
     if speed > 0:
         d = rng.standard_normal((count, 3))
         vel = speed * d / np.linalg.norm(d, axis=1)[:, None]
+    if code == POLY:  # the mass centre sits on the site; a row gives the octant origin (DESIGN.md)
+        pos = pos - np.einsum("kab,kb->ka", quat_to_matrices(quat), cen)
     rows = [{"shape": code, "axes": axes[k], "pos": pos[k], "quat": quat[k], "vel": vel[k],
              "omega": np.zeros(3), "material": table.index[mname]} for k in range(count)]
     return rows, gbox
@@ -451,9 +484,19 @@ def _validate_positions(state, box, wall_m, wall_d):
         if len(wall_m):
             r = rots[k]
             q = r @ np.diag(state.axes[k] ** 2) @ r.T
+            if state.shape[k] == POLY:
+                o, qo = octant_pose(c, state.quat[k], state.poly[k])
+                ro = quat_to_matrices(qo)[0]
+                a6 = state.poly[k, :6]
             for w in range(len(wall_m)):
                 m = wall_m[w]
-                h = math.sqrt(m @ q @ m)
+                if state.shape[k] == POLY:
+                    # poly support along -m from the octant origin (contact-mechanics.md §2.2)
+                    nb = ro.T @ (-m)
+                    alpha = np.where(nb >= 0, a6[0::2], a6[1::2])
+                    h = float(np.linalg.norm(alpha * nb)) + m @ (c - o)
+                else:
+                    h = math.sqrt(m @ q @ m)
                 if m @ c - wall_d[w] < h * (1.0 - 1e-9):  # touching (to round-off) is fine
                     raise SceneError(f"particle {k} overlaps a wall (centre {c.tolist()}, "
                                      f"reach {h:.3g} m, distance {m @ c - wall_d[w]:.3g} m)")

@@ -16,20 +16,21 @@ import numpy as np
 from dem.contact.hertz_factor import hertz_factor
 
 
-def time_step_bounds(axes, shape, mass, material, materials, walls, gravity, box, vel):
-    """Return (dt_auto, dt_critical, details dict) for the given particles and scene."""
+def time_step_bounds(axes, shape, mass, material, materials, walls, gravity, box, vel, poly=None):
+    """Return (dt_auto, dt_critical, details dict) for the given particles and scene
+    (poly [n, POLY_LEN]: poly-ellipsoid records, whose smallest of six semi-axes counts)."""
     from dem.materials import rayleigh_time, hertz_contact_time
-    from dem.state import SPHERE
+    from dem.state import SPHERE, smallest_semi_axes
+    cmin = smallest_semi_axes(axes, shape, np.zeros((len(axes), 0)) if poly is None else poly)
     dt_r = np.inf
     for k, mat in enumerate(materials.materials):
         sel = material == k
         if np.any(sel):
-            dt_r = min(dt_r, rayleigh_time(float(axes[sel].min()), mat))
+            dt_r = min(dt_r, rayleigh_time(float(cmin[sel].min()), mat))
     spheres = bool(np.all(shape == SPHERE))
     f = 2.0 / 7.0 if spheres else 1.0 / 6.0
     m_eff = f * float(mass.min()) / 2.0
     amax = axes.max(axis=1)
-    cmin = axes.min(axis=1)
     r_e = float(np.max(amax * amax / cmin))
     kmax = float(np.max((amax / cmin) ** 2))
     f_h = hertz_factor(kmax) if kmax > 1.0 else 1.0

@@ -6,8 +6,9 @@ or in three sweeps of two messages that forward what earlier sweeps brought (--h
 larger messages; the same ghosts). The
 message carries only what the contact kernels read: for a scene of spheres 14 doubles
 (gid, material, mass, radius, moment of inertia, position, velocity, angular momentum: 112
-bytes); otherwise 23 (plus shape, three semi-axes, three moments, quaternion: 184 bytes). The
-paper sends 624 bytes per ellipsoid. Ghosts are exact binary copies, so each rank derives the
+bytes); otherwise 23 (plus shape, three semi-axes, three moments, quaternion: 184 bytes); in a
+scene with poly-ellipsoids also the poly record (six semi-axes, octant-origin offset, principal ->
+octant rotation: 18 doubles, 328 bytes in all). The paper sends 624 bytes per ellipsoid. Ghosts are exact binary copies, so each rank derives the
 same rotation matrix and angular velocity from them as the owner does.
 
 Migration (migraT): particles whose centre left the block move to the neighbour that owns it
@@ -19,13 +20,24 @@ row counts, then the rows, all with Irecv/Isend and one Waitall per round.
 """
 import numpy as np
 
-from dem.state import HIST_LEN, SPHERE, csr_rows
+from dem.state import HIST_LEN, POLY_LEN, SPHERE, bounding_radii, csr_rows
 from modes.decomposition import DIRECTIONS, OPPOSITE, direction_of, send_masks
 
 GHOST_SPHERE = ("gid", "material", "mass", "axes0", "inertia0", "pos", "vel", "angmom")
 GHOST_GENERAL = ("gid", "shape", "material", "mass", "axes", "inertia", "pos", "vel", "angmom", "quat")
+GHOST_POLY = GHOST_GENERAL + ("poly",)
 WIDTH = {"gid": 1, "shape": 1, "material": 1, "mass": 1, "axes0": 1, "inertia0": 1, "axes": 3, "inertia": 3,
-         "pos": 3, "vel": 3, "angmom": 3, "quat": 4}
+         "pos": 3, "vel": 3, "angmom": 3, "quat": 4, "poly": POLY_LEN}
+
+
+def ghost_fields(all_spheres, has_poly):
+    """The fields a ghost carries: only what the scene's kernels read."""
+    return GHOST_POLY if has_poly else GHOST_SPHERE if all_spheres else GHOST_GENERAL
+
+
+def _owner_fields(state):
+    """The fields of a migrating particle (with its histories besides)."""
+    return GHOST_POLY if state.has_poly else GHOST_GENERAL
 
 
 def _columns(state, fields, idx):
@@ -128,15 +140,12 @@ class Halo:
         return incoming
 
     # --- ghosts -----------------------------------------------------------------------------
-    def ghost_fields(self, all_spheres):
-        return GHOST_SPHERE if all_spheres else GHOST_GENERAL
-
     def exchange_ghosts(self, state, width, all_spheres):
         """Drop old ghosts, send border particles to the neighbours that need them and append
         the received ones after the owned particles. Returns the number of ghosts."""
         drop_ghosts(state)
         n = state.n_owned
-        fields = self.ghost_fields(all_spheres)
+        fields = ghost_fields(all_spheres, state.has_poly)
         ncol = sum(WIDTH[f] for f in fields)
         if self.halo == "26":
             # direct: each border particle goes straight to every neighbour that needs it
@@ -191,7 +200,7 @@ class Halo:
             raise RuntimeError(f"particle {state.gid[p]} jumped more than a block in one step "
                                f"(time step far too large)")
         nw = state.wall_hist.shape[1]
-        fields = GHOST_GENERAL
+        fields = _owner_fields(state)
         base = sum(WIDTH[f] for f in fields)
         ncol = base + nw * HIST_LEN + 1
         counts = np.diff(state.hist_start)
@@ -235,7 +244,7 @@ def redistribute(cart, grid, state, coords):
     dest = np.array([cart.Get_cart_rank([int(c) for c in t]) for t in target], dtype=np.int64) \
         if n else np.zeros(0, dtype=np.int64)
     me = cart.Get_rank()
-    fields = GHOST_GENERAL
+    fields = _owner_fields(state)
     counts = np.diff(state.hist_start)
     outgoing = []
     for r in range(cart.Get_size()):
@@ -254,7 +263,7 @@ def redistribute(cart, grid, state, coords):
 
 
 PER_PARTICLE = ("gid", "shape", "axes", "rbound", "mass", "inertia", "material", "pos", "vel", "quat",
-                "angmom", "force", "torque")
+                "angmom", "force", "torque", "poly")
 
 
 def drop_ghosts(state):
@@ -267,10 +276,13 @@ def drop_ghosts(state):
 
 
 def append_ghosts(state, g):
-    """Append ghost rows (dict of gid, shape, material, mass, axes, inertia, pos, vel, angmom, quat)."""
+    """Append ghost rows (dict of gid, shape, material, mass, axes, inertia, pos, vel, angmom, quat
+    and, in a scene with poly-ellipsoids, poly)."""
     m = len(g["gid"])
-    new = {"gid": g["gid"].astype(np.int64), "shape": g["shape"].astype(np.int8), "axes": g["axes"],
-           "rbound": g["axes"].max(axis=1), "mass": g["mass"], "inertia": g["inertia"],
+    shape = g["shape"].astype(np.int8)
+    poly = g.get("poly", np.zeros((m, state.poly.shape[1])))
+    new = {"gid": g["gid"].astype(np.int64), "shape": shape, "axes": g["axes"], "poly": poly,
+           "rbound": bounding_radii(g["axes"], shape, poly), "mass": g["mass"], "inertia": g["inertia"],
            "material": g["material"].astype(np.int32), "pos": g["pos"], "vel": g["vel"], "quat": g["quat"],
            "angmom": g["angmom"], "force": np.zeros((m, 3)), "torque": np.zeros((m, 3))}
     for f in PER_PARTICLE:

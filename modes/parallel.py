@@ -28,8 +28,9 @@ from numba import get_thread_id, njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from dem.forces import gather_range, resolve_pairs_range, resolve_sphere_pairs_range, wall_range
-from dem.integrate import derive_range, integrate_range
+from dem.forces import (SPHERES, POLYS, gather_range, resolve_pairs_range, resolve_poly_pairs_range,
+                        resolve_sphere_pairs_range, wall_range)
+from dem.integrate import derive_geometry_range, derive_range, integrate_range
 from dem.neighbor import HALF_SHELL, scan_rows
 
 SCHEMES = ("partition", "frogleap", "headtail", "static", "dynamic")
@@ -162,22 +163,28 @@ def compact_pairs(threads, pi_t, pj_t, offsets, pi, pj):
 
 
 @njit(cache=True)
-def _resolve_chunk(k0, k1, spheres, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid, n_owned,
-                   hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt, active, pair_res, depth_ratio):
-    """Resolve pairs k0..k1-1 with the sphere-only loop or the general one; returns solver calls."""
-    if spheres:
+def _resolve_chunk(k0, k1, kind, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid, n_owned,
+                   hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt, method, active, pair_res,
+                   depth_ratio, oorg, orot, ax6):
+    """Resolve pairs k0..k1-1 with the loop of the scene kind (dem.forces: SPHERES, ELLIPSOIDS,
+    POLYS); returns solver calls."""
+    if kind == POLYS:
+        return resolve_poly_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid,
+                                        n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
+                                        method, active, pair_res, depth_ratio, oorg, orot, ax6)
+    if kind == SPHERES:
         return resolve_sphere_pairs_range(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, gid, n_owned,
                                           hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
                                           active, pair_res, depth_ratio)
     return resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid, n_owned,
-                               hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt, active, pair_res,
-                               depth_ratio)
+                               hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt, method, active,
+                               pair_res, depth_ratio)
 
 
 @njit(parallel=True, cache=True)
-def resolve_threads(code, threads, offsets, spheres, pi, pj, pos, vel, omega, rot, axes, shape, mass,
+def resolve_threads(code, threads, offsets, kind, pi, pj, pos, vel, omega, rot, axes, shape, mass,
                     material, gid, n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta,
-                    dt, active, pair_res, depth_ratio, busy):
+                    dt, method, active, pair_res, depth_ratio, oorg, orot, ax6, busy):
     """Contact resolution of the candidate pairs under a scheme; returns ellipsoid-solver calls.
 
     Explicit schemes: thread t resolves the pairs it found, offsets[t]..offsets[t+1]; static:
@@ -191,9 +198,9 @@ def resolve_threads(code, threads, offsets, spheres, pi, pj, pos, vel, omega, ro
             c0 = cycle_counter()
             k = b * STATIC_BLOCK
             k1 = min(m, k + STATIC_BLOCK)
-            ecalls[t] += _resolve_chunk(k, k1, spheres, pi, pj, pos, vel, omega, rot, axes, shape, mass, material,
+            ecalls[t] += _resolve_chunk(k, k1, kind, pi, pj, pos, vel, omega, rot, axes, shape, mass, material,
                                         gid, n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta,
-                                        dt, active, pair_res, depth_ratio)
+                                        dt, method, active, pair_res, depth_ratio, oorg, orot, ax6)
             busy[t] += cycle_counter() - c0
         return ecalls.sum()
     counter = np.zeros(1, dtype=np.int64)
@@ -207,9 +214,9 @@ def resolve_threads(code, threads, offsets, spheres, pi, pj, pos, vel, omega, ro
                 if k0 >= m:
                     break
                 k1 = min(m, k0 + DYNAMIC_PAIRS)
-            ecalls[t] += _resolve_chunk(k0, k1, spheres, pi, pj, pos, vel, omega, rot, axes, shape, mass, material,
+            ecalls[t] += _resolve_chunk(k0, k1, kind, pi, pj, pos, vel, omega, rot, axes, shape, mass, material,
                                         gid, n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta,
-                                        dt, active, pair_res, depth_ratio)
+                                        dt, method, active, pair_res, depth_ratio, oorg, orot, ax6)
             if code != DYNAMIC:
                 break
         busy[t] += cycle_counter() - c0
@@ -217,9 +224,14 @@ def resolve_threads(code, threads, offsets, spheres, pi, pj, pos, vel, omega, ro
 
 
 @njit(parallel=True, cache=True)
-def derive_threads(threads, n, quat, angmom, inertia, shape, rot, omega):
+def derive_threads(threads, n, quat, angmom, inertia, shape, rot, omega, poly_scene, pos, axes, poly, orot, oorg,
+                   ax6):
     for t in prange(threads):
-        derive_range((t * n) // threads, ((t + 1) * n) // threads, quat, angmom, inertia, shape, rot, omega)
+        lo = (t * n) // threads
+        hi = ((t + 1) * n) // threads
+        derive_range(lo, hi, quat, angmom, inertia, shape, rot, omega)
+        if poly_scene:
+            derive_geometry_range(lo, hi, pos, rot, axes, shape, poly, orot, oorg, ax6)
 
 
 @njit(parallel=True, cache=True)
@@ -231,13 +243,14 @@ def gather_threads(threads, n, adj_start, adj_items, pi, pj, pair_res, force, to
 
 @njit(parallel=True, cache=True)
 def wall_threads(threads, n, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape, mass, material,
-                 estar_w, gstar_w, zeta_w, mu_w, wall_hist, dt, force, torque):
+                 estar_w, gstar_w, zeta_w, mu_w, wall_hist, dt, force, torque, oorg, orot, ax6):
     touching = np.zeros(threads, dtype=np.int64)
     worst = np.zeros(threads)
     worst_p = np.zeros(threads, dtype=np.int64)
     for t in prange(threads):
         c, w, wp = wall_range((t * n) // threads, ((t + 1) * n) // threads, wall_m, wall_d, pos, vel, omega, rot, axes,
-                          rbound, shape, mass, material, estar_w, gstar_w, zeta_w, mu_w, wall_hist, dt, force, torque)
+                          rbound, shape, mass, material, estar_w, gstar_w, zeta_w, mu_w, wall_hist, dt, force, torque,
+                          oorg, orot, ax6)
         touching[t] = c
         worst[t] = w
         worst_p[t] = wp

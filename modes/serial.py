@@ -9,12 +9,13 @@ import time
 
 import numpy as np
 
-from dem.forces import (PR_LEN, build_adjacency, gather_range, resolve_pairs_range,
-                        resolve_sphere_pairs_range, wall_range)
-from dem.integrate import derive_range, integrate_range
+from dem.forces import (CONTACT_METHODS, PR_LEN, POLYS, SPHERES, build_adjacency, gather_range,
+                        resolve_pairs_range, resolve_poly_pairs_range, resolve_sphere_pairs_range,
+                        scene_kind, wall_range)
+from dem.integrate import derive_geometry_range, derive_range, integrate_range
 from dem.state import HIST_LEN
 from dem.neighbor import PairBuffer, VerletList, candidate_pairs, cell_order
-from modes.base import register
+from modes.base import ModeError, register
 
 
 class PairArrays:
@@ -36,9 +37,14 @@ class PairArrays:
 @register("serial")
 class SerialMode:
     """Reference step driver. options: neighbor ('allpairs' | 'linkcell'); skin: Verlet skin as a
-    fraction of the largest bounding diameter (0: estimate neighbours every step, the paper's way)."""
+    fraction of the largest bounding diameter (0: estimate neighbours every step, the paper's way);
+    contact_method: ellipsoid contact geometry, one of dem.forces.CONTACT_METHODS."""
 
-    def setup(self, scene, dt, neighbor="linkcell", skin=0.0, **_):
+    def setup(self, scene, dt, neighbor="linkcell", skin=0.0, contact_method="exact", **_):
+        if contact_method not in CONTACT_METHODS:
+            raise ModeError(f"unknown contact method {contact_method!r} ({', '.join(CONTACT_METHODS)})")
+        self.contact_method = contact_method
+        self.method = CONTACT_METHODS.index(contact_method)
         self.scene = scene
         self.state = scene.state
         self.dt = float(dt)
@@ -47,14 +53,14 @@ class SerialMode:
         self.has_gravity = bool(np.any(self.g != 0.0))
         self.has_walls = len(scene.walls) > 0
         self.all_spheres = self.state.all_spheres
+        self.kind = scene_kind(self.state.shape, self.state.has_poly)
         self.pairs = PairBuffer(max(1024, 8 * self.state.n))
         self.skin = float(skin)
         self.verlet = VerletList(self.skin * 2.0 * float(self.state.rbound.max())) if skin > 0 else None
         self.rebuilt = True
         self.work = PairArrays()
-        n = self.state.n
-        self.rot = np.zeros((n, 3, 3))
-        self.omega = np.zeros((n, 3))
+        self.rot = np.zeros((0, 3, 3))
+        self.ensure_derived()
         self.max_overlap_ratio = 0.0
         self.worst_contact = None
         return self
@@ -67,8 +73,8 @@ class SerialMode:
         if self.verlet is not None:
             twin.verlet = VerletList(self.verlet.skin)
         twin.work = PairArrays()
-        twin.rot = self.rot.copy()
-        twin.omega = self.omega.copy()
+        twin.rot = np.zeros((0, 3, 3))
+        twin.ensure_derived()
         twin.step()
 
     # --- phases -------------------------------------------------------------------------------
@@ -92,23 +98,35 @@ class SerialMode:
 
     def ensure_derived(self):
         """Per-step rotation matrices [n,3,3] and angular velocities [n,3] sized to the current n
-        (MPI changes n every step: ghosts and migrants)."""
+        (MPI changes n every step: ghosts and migrants); in a scene with poly-ellipsoids also the
+        octant geometry oorg [n,3], orot [n,3,3], ax6 [n,6] (empty otherwise)."""
         n = self.state.n
         if self.rot.shape[0] != n:
             self.rot = np.zeros((n, 3, 3))
             self.omega = np.zeros((n, 3))
+            g = n if self.kind == POLYS else 0
+            self.oorg = np.zeros((g, 3))
+            self.orot = np.zeros((g, 3, 3))
+            self.ax6 = np.zeros((g, 6))
 
     def derive(self):
         s = self.state
         self.ensure_derived()
         derive_range(0, s.n, s.quat, s.angmom, s.inertia, s.shape, self.rot, self.omega)
+        if self.kind == POLYS:
+            derive_geometry_range(0, s.n, s.pos, self.rot, s.axes, s.shape, s.poly, self.orot, self.oorg, self.ax6)
 
     def resolve_phase(self, pi, pj):
         s, m = self.state, self.scene.materials
         self.derive()
         self.work.ensure(len(pi))
         w = self.work
-        if self.all_spheres:
+        if self.kind == POLYS:
+            return resolve_poly_pairs_range(0, len(pi), pi, pj, s.pos, s.vel, self.omega, self.rot, s.axes,
+                                            s.shape, s.mass, s.material, s.gid, s.n_owned, s.hist_start,
+                                            s.hist_partner, s.hist_val, m.estar, m.gstar, m.mu, m.zeta, self.dt,
+                                            self.method, w.active, w.res, w.ratio, self.oorg, self.orot, self.ax6)
+        if self.kind == SPHERES:
             return resolve_sphere_pairs_range(0, len(pi), pi, pj, s.pos, s.vel, self.omega, s.axes, s.mass,
                                               s.material, s.gid, s.n_owned, s.hist_start, s.hist_partner,
                                               s.hist_val, m.estar, m.gstar, m.mu, m.zeta, self.dt,
@@ -116,7 +134,7 @@ class SerialMode:
         return resolve_pairs_range(0, len(pi), pi, pj, s.pos, s.vel, self.omega, self.rot, s.axes,
                                    s.shape, s.mass, s.material, s.gid, s.n_owned, s.hist_start,
                                    s.hist_partner, s.hist_val, m.estar, m.gstar, m.mu, m.zeta, self.dt,
-                                   w.active, w.res, w.ratio)
+                                   self.method, w.active, w.res, w.ratio)
 
     def gather(self, pi, pj, start, items, new_val):
         s = self.state
@@ -126,7 +144,7 @@ class SerialMode:
         s, m, sc = self.state, self.scene.materials, self.scene
         return wall_range(0, s.n_owned, sc.wall_m, sc.wall_d, s.pos, s.vel, self.omega, self.rot, s.axes,
                           s.rbound, s.shape, s.mass, s.material, m.estar_w, m.gstar_w, m.zeta_w, m.mu_w,
-                          s.wall_hist, self.dt, s.force, s.torque)
+                          s.wall_hist, self.dt, s.force, s.torque, self.oorg, self.orot, self.ax6)
 
     def integrate(self):
         s, g = self.state, self.g

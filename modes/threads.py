@@ -9,6 +9,7 @@ gather, walls, integration and derived quantities in T contiguous blocks. The ad
 import numpy as np
 import numba
 
+from dem.forces import POLYS
 from dem.neighbor import CellGrid
 from modes.base import ModeError, register
 from modes import parallel as par
@@ -93,17 +94,19 @@ class ThreadsMode(SerialMode):
         self.work.ensure(len(pi))
         w = self.work
         self.busy[:] = 0
-        return par.resolve_threads(self.code, self.threads, self.offsets, self.all_spheres, pi, pj, s.pos, s.vel,
+        return par.resolve_threads(self.code, self.threads, self.offsets, self.kind, pi, pj, s.pos, s.vel,
                                    self.omega, self.rot, s.axes, s.shape, s.mass, s.material, s.gid, s.n_owned,
                                    s.hist_start, s.hist_partner, s.hist_val, m.estar, m.gstar, m.mu, m.zeta,
-                                   self.dt, w.active, w.res, w.ratio, self.busy)
+                                   self.dt, self.method, w.active, w.res, w.ratio, self.oorg, self.orot, self.ax6,
+                                   self.busy)
 
     # --- the rest of the step --------------------------------------------------------------------
     def derive(self):
         s = self.state
         self.ensure_derived()
         if self.threaded == "step":
-            par.derive_threads(self.threads, s.n, s.quat, s.angmom, s.inertia, s.shape, self.rot, self.omega)
+            par.derive_threads(self.threads, s.n, s.quat, s.angmom, s.inertia, s.shape, self.rot, self.omega,
+                               self.kind == POLYS, s.pos, s.axes, s.poly, self.orot, self.oorg, self.ax6)
         else:
             super().derive()
 
@@ -119,7 +122,8 @@ class ThreadsMode(SerialMode):
         if self.threaded == "step":
             return par.wall_threads(self.threads, s.n_owned, sc.wall_m, sc.wall_d, s.pos, s.vel, self.omega,
                                     self.rot, s.axes, s.rbound, s.shape, s.mass, s.material, m.estar_w, m.gstar_w,
-                                    m.zeta_w, m.mu_w, s.wall_hist, self.dt, s.force, s.torque)
+                                    m.zeta_w, m.mu_w, s.wall_hist, self.dt, s.force, s.torque, self.oorg, self.orot,
+                                    self.ax6)
         return super().walls()
 
     def integrate(self):

@@ -36,7 +36,7 @@ quat = [1.0, 0.0, 0.0, 0.0]
 [[particles]]
 shape = "sphere"
 axes = [8e-4]
-pos = [0.0115, 0.01, 0.0011]
+pos = [0.01179, 0.01, 0.0011]
 """
 
 
@@ -126,7 +126,7 @@ def test_scenes_lists_builtins():
 BAD_SCENES = [
     ("[domain\nbox=1", "malformed TOML"),
     (GOOD.replace('shape = "sphere"', 'shape = "cube"'), "unknown shape 'cube'"),
-    (GOOD.replace('pos = [0.0115, 0.01, 0.0011]', 'pos = [0.0115, 0.01, 0.0011]\nmaterial = "steel"'),
+    (GOOD.replace('pos = [0.01179, 0.01, 0.0011]', 'pos = [0.01179, 0.01, 0.0011]\nmaterial = "steel"'),
      "unknown material 'steel'"),
     (GOOD.replace("axes = [8e-4]", "axes = [-8e-4]"), "axes must be positive"),
     (GOOD.replace("axes = [1e-3, 8e-4, 6e-4]", "axes = [1e-3, 0.0, 6e-4]"), "axes must be positive"),

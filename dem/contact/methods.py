@@ -13,16 +13,17 @@ pw_contact (@njit, allocation free)
     K1 + K2 at +-n as in ellipsoid.py.  Known error (reference §1.3, "Measured"): relative depth
     error <= ~2 delta/a_min, normal error <= ~4 delta/a_min rad, i.e. O(delta/a).
 
-sextic_contact (plain Python: numpy companion-matrix eigenvalues; numba's np.linalg needs SciPy's
-LAPACK at run time, which the project does not depend on; the polynomial build and the root
-selection are @njit helpers)
+sextic_contact (@njit, callable from other kernels; allocates small temporaries.  The sextic's roots
+come from dem.contact.roots.poly_roots, a numba port of NR balanc + hqr: numba's np.linalg would
+need SciPy's LAPACK at run time, which the project does not depend on)
     Yan, Regueiro & Sture (2010), Eng. Comput. 27(4):519, as coded in ParaEllip3d (root6.cpp /
     zrhqr).  Each body is the quadric f_i(x) = x^T A_i x + b_i^T x + c_i (10 coefficients,
     x^2 coefficient normalised to 1, f_i < 0 inside).  The point of body 2 "deepest in body 1"
     minimises f_1 on f_2 = 0: x(lam) = -1/2 adj M (b_1 + lam b_2) / det M, M = A_1 + lam A_2, and
     lam is a root of the sextic p(lam) = N^T A_2 N + (b_2^T N) det M + c_2 det M^2,
-    N = -1/2 adj M (b_1 + lam b_2).  Roots: eigenvalues of the 6x6 companion matrix (LAPACK
-    geev: balancing + Hessenberg QR, i.e. NR balanc/hqr/zrhqr).  Selection (root6): real roots
+    N = -1/2 adj M (b_1 + lam b_2).  Roots: eigenvalues of the 6x6 companion matrix by balancing
+    + Hessenberg QR (NR balanc/hqr/zrhqr, as ParaEllip3d; dem.contact.roots); a QR failure
+    (30 iterations without deflation) counts as no contact.  Selection (root6): real roots
     (|Im lam| < EPS), det M != 0, |f_2(x)| < EPS_F, the most negative f_1(x).  Both directions
     give point2 (of 2, deepest in 1) and point1 (of 1, deepest in 2); delta = |point1 - point2|,
     n = (point1 - point2) / delta (from body 1 to body 2), x_c the midpoint.  Accepted only if
@@ -44,6 +45,7 @@ from numba import njit
 
 from dem.contact.ellipsoid import (_basis, _curv, _h, _hertz_radius,
                                    _hq, _shape_matrix, _write_out, ellipsoid_contact, pw_maximise)
+from dem.contact.roots import poly_roots
 
 # ---- sextic (Yan 2010 / ParaEllip3d parameter.cpp), scale-normalised ----
 MINOVERLAP = 1e-6        # delta / (2 max semi-axis) must exceed this (relative, as in the code)
@@ -256,27 +258,21 @@ def _select(re, im, A1, b1, c1, A2, b2, c2):
     return ok, bx0, bx1, bx2, best, blam
 
 
-def _roots(p):
-    """Roots of sum p[k] lam^k: eigenvalues of the companion (upper Hessenberg) matrix of the
-    monic polynomial (numpy/LAPACK geev balances, then Francis QR = NR balanc + hqr)."""
-    p = np.asarray(p)
-    n = p.shape[0] - 1
-    while n > 0 and p[n] == 0.0:     # leading coefficient vanishes exactly: lower degree (np.roots)
-        n -= 1
-    if n < 1:
-        return np.zeros(0, dtype=np.complex128)
-    comp = np.zeros((n, n))
-    comp[0, :] = -p[n - 1::-1][:n] / p[n]
-    comp[np.arange(1, n), np.arange(n - 1)] = 1.0
-    return np.linalg.eigvals(comp)
-
-
+@njit(cache=True)
 def _deepest(Aa, ba, ca, Ab, bb, cb):
-    """Point of body b deepest in body a: min f_a on f_b = 0.  (ok, x [3], f_a(x), lam)."""
-    r = _roots(_sextic_coeffs(Aa, ba, Ab, bb, cb))
-    ok, x0, x1, x2, fa, lam = _select(np.ascontiguousarray(r.real), np.ascontiguousarray(r.imag),
-                                      Aa, ba, ca, Ab, bb, cb)
-    return ok, np.array((x0, x1, x2)), fa, lam
+    """Point of body b deepest in body a: min f_a on f_b = 0.  (ok, x [3], f_a(x), lam).
+
+    Roots of the sextic by dem.contact.roots.poly_roots (companion matrix, NR balanc + hqr as in
+    ParaEllip3d zrhqr); a QR failure counts as no root (ok = 0)."""
+    re, im, rok = poly_roots(_sextic_coeffs(Aa, ba, Ab, bb, cb))
+    if rok == 0:
+        return 0, np.zeros(3), np.inf, 0.0
+    ok, x0, x1, x2, fa, lam = _select(re, im, Aa, ba, ca, Ab, bb, cb)
+    x = np.empty(3)
+    x[0] = x0
+    x[1] = x1
+    x[2] = x2
+    return ok, x, fa, lam
 
 
 @njit(cache=True)
@@ -302,45 +298,50 @@ def _mean_curv_radius(c, rot, ax, p):
     return 2.0 / (k[0] + k[2])
 
 
+@njit(cache=True)
 def sextic_contact(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out, minoverlap=MINOVERLAP):
     """Yan (2010) sextic contact; returns 1 and fills out [OUT_LEN] on a valid contact, else 0.
 
-    Same arguments as ellipsoid_contact (lam0, n0 ignored: the method has no warm start).
+    Same arguments as ellipsoid_contact (float64 arrays c [3], rot [3, 3], ax [3], n0 [3],
+    out [OUT_LEN]; lam0, n0 ignored: the method has no warm start).  @njit, callable from other
+    kernels (9 positional arguments: minoverlap = MINOVERLAP); allocates small temporaries.
     OUT_LAM holds the lambda of the point-2 solve; OUT_PW_ITERS = OUT_NEWTON_ITERS = 0;
-    OUT_RE = r1 r2 / (r1 + r2) with mean-curvature radii; OUT_KRATIO = 1.  Plain Python.
-    minoverlap (keyword, default MINOVERLAP = 1e-6 as in ParaEllip3d): a contact needs
+    OUT_RE = r1 r2 / (r1 + r2) with mean-curvature radii; OUT_KRATIO = 1.
+    minoverlap (default MINOVERLAP = 1e-6 as in ParaEllip3d): a contact needs
     delta / (2 max semi-axis) > minoverlap; 0 keeps every geometric overlap (for measuring
     the method's geometry below the paper's cut-off).
     """
-    c1 = np.asarray(c1, dtype=np.float64)
-    c2 = np.asarray(c2, dtype=np.float64)
-    ax1 = np.asarray(ax1, dtype=np.float64)
-    ax2 = np.asarray(ax2, dtype=np.float64)
-    rot1 = np.ascontiguousarray(rot1, dtype=np.float64)
-    rot2 = np.ascontiguousarray(rot2, dtype=np.float64)
-    o = 0.5 * (c1 + c2)
+    o = np.empty(3)
+    for i in range(3):
+        o[i] = 0.5 * (c1[i] + c2[i])
     L = max(ax1.max(), ax2.max())
     A1, b1, f1c = _quadric(c1, rot1, ax1, o, L)
     A2, b2, f2c = _quadric(c2, rot2, ax2, o, L)
     ok2, x2, f1_at_2, lam2 = _deepest(A1, b1, f1c, A2, b2, f2c)     # of body 2, deepest in 1
-    if not ok2 or not (f1_at_2 < 0.0):
+    if ok2 == 0 or not (f1_at_2 < 0.0):
         return 0
     ok1, x1, f2_at_1, _ = _deepest(A2, b2, f2c, A1, b1, f1c)         # of body 1, deepest in 2
-    if not ok1 or not (f2_at_1 < 0.0):
+    if ok1 == 0 or not (f2_at_1 < 0.0):
         return 0
     p1 = o + L * x1
     p2 = o + L * x2
-    d = p1 - p2
-    depth = float(np.sqrt(d @ d))
+    d0 = p1[0] - p2[0]
+    d1 = p1[1] - p2[1]
+    d2 = p1[2] - p2[2]
+    depth = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
     if not (depth / (2.0 * L) > minoverlap):
         return 0
-    n = d / depth
-    if n @ (c2 - c1) < 0.0:     # orient from body 1 to body 2 (never triggered for shallow overlaps)
-        n = -n
+    nx = d0 / depth
+    ny = d1 / depth
+    nz = d2 / depth
+    if nx * (c2[0] - c1[0]) + ny * (c2[1] - c1[1]) + nz * (c2[2] - c1[2]) < 0.0:
+        nx = -nx                # orient from body 1 to body 2 (never triggered for shallow overlaps)
+        ny = -ny
+        nz = -nz
     r1 = _mean_curv_radius(c1, rot1, ax1, p1)
     r2 = _mean_curv_radius(c2, rot2, ax2, p2)
     re = r1 * r2 / (r1 + r2)
-    _write_out(out, depth, n[0], n[1], n[2], p1[0], p1[1], p1[2], p2[0], p2[1], p2[2],
+    _write_out(out, depth, nx, ny, nz, p1[0], p1[1], p1[2], p2[0], p2[1], p2[2],
                re, 1.0, lam2, 0.0, 0.0)
     return 1
 
