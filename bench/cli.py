@@ -150,6 +150,14 @@ def build_parser():
     pf.add_argument("--skin", type=_skin, default=0.1, metavar="F",
                     help="Verlet skin for the second set of packed figures (default 0.1)")
     pf.add_argument("--out", default=None, help="write perf.json here")
+
+    sh = sub.add_parser("shapes", help="per-contact / per-step cost and NSF of spheres, ellipsoids, poly-ellipsoids")
+    sh.add_argument("--particles", type=_positive_int, default=2000, help="packed scene size (default 2000)")
+    sh.add_argument("--steps", type=_positive_int, default=20, help="timed steps per round (default 20)")
+    sh.add_argument("--repeats", type=_positive_int, default=5, help="round-robin rounds, medians (default 5)")
+    sh.add_argument("--pairs", type=_positive_int, default=20000,
+                    help="constructed overlapping pairs per shape for the kernel timing (default 20000)")
+    sh.add_argument("--out", default="results/shapes", help="folder for shapes.csv, shapes.json, shapes.png")
     return p
 
 
@@ -287,13 +295,22 @@ def cmd_perf(args):
 
 
 @_one_line
+def cmd_shapes(args):
+    from bench.threads_env import configure_threads
+    configure_threads("1-1-1-1-1")  # before numba starts: serial figures
+    from bench.shapes import shapes
+    return shapes(args)
+
+
+@_one_line
 def cmd_accuracy(args):
     from bench.accuracy import accuracy
     return accuracy(args)
 
 
 COMMANDS = {"accuracy": cmd_accuracy, "run": cmd_run, "contacts": cmd_contacts, "scenes": cmd_scenes, "perf": cmd_perf,
-            "schemes": cmd_schemes, "sweep": cmd_sweep, "plot": cmd_plot, "collect": cmd_collect}
+            "schemes": cmd_schemes, "sweep": cmd_sweep, "plot": cmd_plot, "collect": cmd_collect,
+            "shapes": cmd_shapes}
 
 
 if __name__ == "__main__":
