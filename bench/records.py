@@ -76,3 +76,14 @@ def write_state(path, snap):
     tmp = path + ".tmp.npz"
     np.savez(tmp, **snap)
     os.replace(tmp, path)
+
+
+def write_rows_csv(path, rows, columns):
+    """Write dict rows as CSV with the given columns (floats to 6 significant digits), atomically."""
+    tmp = path + ".tmp"
+    with open(tmp, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+    os.replace(tmp, path)

@@ -356,13 +356,8 @@ def ratios(kernel, rows):
 # ------------------------------------------------------------------ records
 
 def write_csv(path, rows):
-    tmp = path + ".tmp"
-    with open(tmp, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=COLUMNS, extrasaction="ignore")
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-    os.replace(tmp, path)
+    from bench.records import write_rows_csv
+    write_rows_csv(path, rows, COLUMNS)
 
 
 def read_csv(path):

@@ -184,6 +184,22 @@ def _warm_start(hist_val, slot, n0):
 
 
 @njit(cache=True, inline="always")
+def _solved_pair(hit, k, i, j, out, amin_i, amin_j, pos, vel, omega, mass, material, estar, gstar, zeta, mu,
+                 hist_val, slot, dt, active, pair_res, depth_ratio):
+    """After a solver filled out [OUT_LEN] (hit = 1) or found no contact: mark pair k, apply the law,
+    and record the depth over the smaller of the smallest semi-axes amin_i, amin_j [m]."""
+    if hit == 0:
+        active[k] = 0
+        return
+    depth = out[OUT_DEPTH]
+    active[k] = 1
+    pair_law(i, j, depth, out[OUT_NX], out[OUT_NY], out[OUT_NZ], out[OUT_XCX], out[OUT_XCY],
+             out[OUT_XCZ], out[OUT_RE], out[OUT_KRATIO], pos, vel, omega, mass, material,
+             estar, gstar, zeta, mu, hist_val, slot, dt, out[OUT_LAM], pair_res, k)
+    depth_ratio[k] = depth / min(amin_i, amin_j)
+
+
+@njit(cache=True, inline="always")
 def _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, gid, n_owned, hist_start,
                     hist_partner, hist_val, estar, gstar, mu, zeta, dt, method, active, pair_res,
                     depth_ratio, out, n0):
@@ -197,17 +213,10 @@ def _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, gid, n_
         hit = pw_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
     else:
         hit = sextic_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
-    if hit == 0:
-        active[k] = 0
-        return
-    depth = out[OUT_DEPTH]
-    active[k] = 1
-    pair_law(i, j, depth, out[OUT_NX], out[OUT_NY], out[OUT_NZ], out[OUT_XCX], out[OUT_XCY],
-             out[OUT_XCZ], out[OUT_RE], out[OUT_KRATIO], pos, vel, omega, mass, material,
-             estar, gstar, zeta, mu, hist_val, slot, dt, out[OUT_LAM], pair_res, k)
     ai = min(axes[i, 0], min(axes[i, 1], axes[i, 2]))
     aj = min(axes[j, 0], min(axes[j, 1], axes[j, 2]))
-    depth_ratio[k] = depth / min(ai, aj)
+    _solved_pair(hit, k, i, j, out, ai, aj, pos, vel, omega, mass, material, estar, gstar, zeta, mu, hist_val,
+                 slot, dt, active, pair_res, depth_ratio)
 
 
 @njit(cache=True)
@@ -266,20 +275,14 @@ def resolve_poly_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, 
         own = i if i < n_owned else j
         slot = find_history(hist_start, hist_partner, own, gid[j] if own == i else gid[i])
         _warm_start(hist_val, slot, n0)
-        if polyellipsoid_contact(oorg[i], orot[i], ax6[i], oorg[j], orot[j], ax6[j], n0, out) == 0:
-            active[k] = 0
-            continue
-        depth = out[OUT_DEPTH]
-        active[k] = 1
-        pair_law(i, j, depth, out[OUT_NX], out[OUT_NY], out[OUT_NZ], out[OUT_XCX], out[OUT_XCY],
-                 out[OUT_XCZ], out[OUT_RE], out[OUT_KRATIO], pos, vel, omega, mass, material,
-                 estar, gstar, zeta, mu, hist_val, slot, dt, out[OUT_LAM], pair_res, k)
+        hit = polyellipsoid_contact(oorg[i], orot[i], ax6[i], oorg[j], orot[j], ax6[j], n0, out)
         ai = ax6[i, 0]
         aj = ax6[j, 0]
         for c in range(1, 6):
             ai = min(ai, ax6[i, c])
             aj = min(aj, ax6[j, c])
-        depth_ratio[k] = depth / min(ai, aj)
+        _solved_pair(hit, k, i, j, out, ai, aj, pos, vel, omega, mass, material, estar, gstar, zeta, mu,
+                     hist_val, slot, dt, active, pair_res, depth_ratio)
     return ecalls
 
 
