@@ -219,6 +219,22 @@ def _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, gid, n_
                  slot, dt, active, pair_res, depth_ratio)
 
 
+@njit(cache=True, inline="always")
+def _ellipsoid_or_sphere_pair(k, i, j, pos, vel, omega, rot, axes, shape, mass, material, gid, n_owned,
+                              hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt, method, active,
+                              pair_res, depth_ratio, out, n0):
+    """Pair k = (i, j) without a poly-ellipsoid: closed form for two spheres, else the ellipsoid
+    method. Returns the solver calls it made (0 or 1)."""
+    if shape[i] == SPHERE and shape[j] == SPHERE:
+        _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, gid, n_owned, hist_start,
+                     hist_partner, hist_val, estar, gstar, mu, zeta, dt, active, pair_res, depth_ratio)
+        return 0
+    _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, gid, n_owned, hist_start,
+                    hist_partner, hist_val, estar, gstar, mu, zeta, dt, method, active, pair_res,
+                    depth_ratio, out, n0)
+    return 1
+
+
 @njit(cache=True)
 def resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid,
                         n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
@@ -233,16 +249,9 @@ def resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass,
     n0 = np.zeros(3)
     ecalls = 0
     for k in range(k0, k1):
-        i = pi[k]
-        j = pj[k]
-        if shape[i] == SPHERE and shape[j] == SPHERE:
-            _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, gid, n_owned, hist_start,
-                         hist_partner, hist_val, estar, gstar, mu, zeta, dt, active, pair_res, depth_ratio)
-            continue
-        ecalls += 1
-        _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, gid, n_owned, hist_start,
-                        hist_partner, hist_val, estar, gstar, mu, zeta, dt, method, active, pair_res,
-                        depth_ratio, out, n0)
+        ecalls += _ellipsoid_or_sphere_pair(k, pi[k], pj[k], pos, vel, omega, rot, axes, shape, mass, material, gid,
+                                            n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta,
+                                            dt, method, active, pair_res, depth_ratio, out, n0)
     return ecalls
 
 
@@ -262,14 +271,9 @@ def resolve_poly_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, 
         i = pi[k]
         j = pj[k]
         if shape[i] != POLY and shape[j] != POLY:
-            if shape[i] == SPHERE and shape[j] == SPHERE:
-                _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, gid, n_owned, hist_start,
-                             hist_partner, hist_val, estar, gstar, mu, zeta, dt, active, pair_res, depth_ratio)
-            else:
-                ecalls += 1
-                _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, gid, n_owned,
-                                hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt, method,
-                                active, pair_res, depth_ratio, out, n0)
+            ecalls += _ellipsoid_or_sphere_pair(k, i, j, pos, vel, omega, rot, axes, shape, mass, material, gid,
+                                                n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu,
+                                                zeta, dt, method, active, pair_res, depth_ratio, out, n0)
             continue
         ecalls += 1
         own = i if i < n_owned else j
