@@ -105,6 +105,8 @@ def build_parser():
     sw.add_argument("--warmup", type=_nonneg_int, default=0, help="untimed steps before the timed ones")
     sw.add_argument("--repeats", type=_positive_int, default=1, help="runs per point (medians recorded)")
     sw.add_argument("--neighbor", choices=["allpairs", "linkcell"], default="linkcell")
+    sw.add_argument("--contact-method", choices=["exact", "pw", "sextic"], default="exact",
+                    help="ellipsoid contact geometry of every point (default exact)")
     sw.add_argument("--halo", choices=["26", "6"], default="26")
     sw.add_argument("--pin", action="store_true")
     sw.add_argument("--timeout", type=_positive_int, default=1800, help="seconds per point run")
@@ -216,7 +218,8 @@ def cmd_run(args):
 
 
 SWEEP_FIELDS = {"mappings": str, "schemes": str, "scene": str, "particles": int, "shape": str, "steps": int,
-                "warmup": int, "repeats": int, "neighbor": str, "halo": str, "pin": bool, "timeout": int,
+                "warmup": int, "repeats": int, "neighbor": str, "contact_method": str, "halo": str, "pin": bool,
+                "timeout": int,
                 "launcher": str, "out": str}
 
 
@@ -255,8 +258,9 @@ def cmd_sweep(args):
         if not getattr(args, need):
             raise UsageError(f"bench sweep: --{need} is required (or set it in the sweep file)")
     if args.neighbor not in ("allpairs", "linkcell") or args.halo not in ("26", "6") or \
-            args.launcher not in ("local", "slurm"):
-        raise UsageError("bench sweep: neighbor must be allpairs|linkcell, halo 26|6, launcher local|slurm")
+            args.launcher not in ("local", "slurm") or args.contact_method not in ("exact", "pw", "sextic"):
+        raise UsageError("bench sweep: neighbor must be allpairs|linkcell, halo 26|6, launcher local|slurm, "
+                         "contact_method exact|pw|sextic")
     from bench.sweep import sweep
     from dem.scene import load_scene
     load_scene(args.scene, particles=args.particles, shape=args.shape)  # a bad scene fails here, once

@@ -23,10 +23,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores", "scheme", "neighbor", "scene",
-               "particles", "steps", "repeats", "status", "reason", "totalT", "commuT", "migraT", "compuT",
-               "neighborT", "resolveT", "overhead_pct", "speedup", "efficiency", "edsf", "rss_mb", "err_max",
-               "err_rms", "stable", "wall_s", "load_before", "load_after"]
+from bench.sweep_plots import RUN_COLUMNS  # noqa: E402  (one list: the records' contract)
 SERIAL = "1-1-1-1-1"
 
 
@@ -43,6 +40,7 @@ class Point:
     shape: str
     pin: bool
     halo: str
+    contact_method: str = "exact"
 
     @property
     def key(self):
@@ -59,12 +57,15 @@ class Point:
                 args += [flag, str(v)]
         if self.pin:
             args.append("--pin")
+        if self.contact_method != "exact":
+            args += ["--contact-method", self.contact_method]
         if self.mapping.split("-")[0] != "1":
             args += ["--halo", self.halo]
         return args
 
 
-def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, shape, pin, halo):
+def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, shape, pin, halo,
+                contact_method="exact"):
     """Points of a sweep: the serial reference first, then each mapping (x each scheme when it has
     more than one thread), without duplicates, in the order given."""
     from modes.base import parse_mapping
@@ -79,7 +80,8 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
     points = []
     for m in parsed:
         for s in (schemes if m.threads > 1 else [""]):
-            p = Point(str(m), s, scene, particles or 0, steps or 0, warmup, neighbor, shape or "", pin, halo)
+            p = Point(str(m), s, scene, particles or 0, steps or 0, warmup, neighbor, shape or "", pin, halo,
+                      contact_method)
             if p not in points:
                 points.append(p)
     points.sort(key=lambda p: p.mapping != SERIAL)  # the reference runs first
@@ -117,6 +119,7 @@ def summarise(point, rep_dirs, ref_state, t1):
     row = {c: math.nan for c in RUN_COLUMNS}
     row.update(point=point.key, mapping=point.mapping, procs=m.procs, px=m.px, py=m.py, pz=m.pz, threads=m.threads,
                cores=m.procs * m.threads, scheme=point.scheme, neighbor=point.neighbor, scene=point.scene,
+               contact_method=point.contact_method,
                repeats=len(rep_dirs), status="done", reason="")
     times, walls = [], []
     state = None
@@ -239,7 +242,7 @@ def sweep(args):
     mappings = [m.strip() for m in args.mappings.split(",") if m.strip()]
     schemes = [s.strip() for s in (args.schemes or "dynamic").split(",") if s.strip()]
     points = make_points(mappings, schemes, args.scene, args.particles, args.steps, args.warmup,
-                         args.neighbor, args.shape, args.pin, args.halo)
+                         args.neighbor, args.shape, args.pin, args.halo, getattr(args, "contact_method", "exact"))
     out = args.out
     prepare_output(out)
     runs_path = os.path.join(out, "runs.csv")

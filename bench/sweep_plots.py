@@ -40,8 +40,8 @@ from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullForma
 RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores", "scheme", "neighbor", "scene",
                "particles", "steps", "repeats", "status", "reason", "totalT", "commuT", "migraT", "compuT",
                "neighborT", "resolveT", "overhead_pct", "speedup", "efficiency", "edsf", "rss_mb", "err_max",
-               "err_rms", "stable", "wall_s", "load_before", "load_after"]
-TEXT_COLUMNS = ("point", "mapping", "scheme", "neighbor", "scene", "status", "reason", "stable")
+               "err_rms", "stable", "wall_s", "load_before", "load_after", "contact_method"]
+TEXT_COLUMNS = ("point", "mapping", "scheme", "neighbor", "scene", "status", "reason", "stable", "contact_method")
 NUMERIC_COLUMNS = [c for c in RUN_COLUMNS if c not in TEXT_COLUMNS]
 FAMILY_STYLE = {"serial": ("k", "*"), "threads": ("C0", "o"), "MPI": ("C3", "s"), "hybrid": ("C2", "^")}
 FAMILY_ORDER = ("serial", "threads", "MPI", "hybrid")

@@ -171,3 +171,15 @@ def test_unwritable_sweep_folder(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("x")
     one_line_error(bench("sweep", *SMALL, "--mappings", "1-1-1-1-1", "--out", str(blocker / "sub")), "not writable")
+
+
+def test_contact_method_reaches_every_point(tmp_path):
+    """`bench sweep --contact-method sextic` (the paper's method under every mapping): each point's
+    command carries it (dry run), and a bad name is one line, exit 2."""
+    res = bench("sweep", *SMALL, "--mappings", "1-1-1-1-2,2-2-1-1-1", "--contact-method", "sextic", "--dry-run",
+                "--out", str(tmp_path / "dry"))
+    assert res.returncode == 0, res.stderr
+    runs = [line for line in res.stdout.splitlines() if "--mapping" in line]
+    assert len(runs) == 3 and all("--contact-method sextic" in line for line in runs), res.stdout
+    one_line_error(bench("sweep", *SMALL, "--mappings", "1-1-1-1-2", "--contact-method", "cubic", "--out",
+                         str(tmp_path / "bad")), "contact-method")
