@@ -7,7 +7,7 @@ ref_factor x dt_base (default half the smallest listed factor, so that every lis
 measurable error). Errors of the final state, particles matched by global id:
 
   err_max, err_rms      max / rms over particles of |x - x_ref| / r_mean   [-]
-                        r_mean = mean volume-equivalent radius (a b c)^(1/3)
+                        r_mean = mean volume-equivalent radius (dem.state.equivalent_radii)
   err_vel_max, _rms     max / rms of |v - v_ref| / v_ref,rms               [-]
   err_energy            |KE - KE_ref| / max(KE_ref, KE_0, M (0.01 m/s)^2)   [-]
 
@@ -114,7 +114,9 @@ def accuracy(args, log=print):
     steps = args.steps if args.steps is not None else scene.steps
     t_end = steps * dt_base
     s = scene.state
-    r_mean = float(np.mean(np.cbrt(np.prod(s.axes[:s.n_owned], axis=1))))
+    from dem.state import equivalent_radii
+    k = s.n_owned
+    r_mean = float(np.mean(equivalent_radii(s.axes[:k], s.shape[:k], s.poly[:k])))
     ke_floor = max(s.kinetic_energy(), float(s.mass.sum()) * 0.01 ** 2)
     n_ref = int(round(t_end / (ref_factor * dt_base)))
     log(f"accuracy: {scene.name}, {s.n} particles, T = {t_end:.3g} s; reference: exact, dt = {ref_factor:g} x "

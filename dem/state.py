@@ -97,6 +97,17 @@ def bounding_radii(axes, shape, poly):
     return rb
 
 
+def equivalent_radii(axes, shape, poly):
+    """Volume-equivalent radius [n] [m]: (a b c)^(1/3); a poly-ellipsoid's volume is that of the
+    ellipsoid with semi-axes (a+ + a-)/2, (b+ + b-)/2, (c+ + c-)/2 (contact-mechanics.md §2.2)."""
+    r = np.cbrt(np.prod(axes, axis=1))
+    if poly.shape[1]:
+        sel = shape == POLY
+        a6 = poly[sel, P_AX:P_AX + 6]
+        r[sel] = np.cbrt(np.prod(0.5 * (a6[:, 0::2] + a6[:, 1::2]), axis=1))
+    return r
+
+
 def smallest_semi_axes(axes, shape, poly):
     """Smallest semi-axis [n] of each particle (of six for a poly-ellipsoid) [m]."""
     amin = axes.min(axis=1).copy()
