@@ -59,7 +59,7 @@ class SerialMode:
         self.verlet = VerletList(self.skin * 2.0 * float(self.state.rbound.max())) if skin > 0 else None
         self.rebuilt = True
         self.work = PairArrays()
-        self.rot = np.zeros((0, 3, 3))
+        self.rot = None
         self.ensure_derived()
         self.max_overlap_ratio = 0.0
         self.worst_contact = None
@@ -73,7 +73,7 @@ class SerialMode:
         if self.verlet is not None:
             twin.verlet = VerletList(self.verlet.skin)
         twin.work = PairArrays()
-        twin.rot = np.zeros((0, 3, 3))
+        twin.rot = None
         twin.ensure_derived()
         twin.step()
 
@@ -101,7 +101,7 @@ class SerialMode:
         (MPI changes n every step: ghosts and migrants); in a scene with poly-ellipsoids also the
         octant geometry oorg [n,3], orot [n,3,3], ax6 [n,6] (empty otherwise)."""
         n = self.state.n
-        if self.rot.shape[0] != n:
+        if self.rot is None or self.rot.shape[0] != n:
             self.rot = np.zeros((n, 3, 3))
             self.omega = np.zeros((n, 3))
             g = n if self.kind == POLYS else 0
