@@ -452,11 +452,10 @@ def test_mixed_shapes_bit_identical(tmp_path):
 def test_builtin_scenes_polyellipsoid(tmp_path, scene, particles, steps):
     """--shape polyellipsoid builds (patch162: settle, packed: compress, both cached in
     $DEM_BENCH_CACHE) and runs stably: run.json stable, max overlap under the 5 % guard (measured
-    1.7 % pluviation, 0.7 % patch162, 2.4 % packed), finite state, axes [n, 6] with each minus/plus
-    ratio in the default asymmetry range [0.6, 1.0]; pair and wall contacts occur (pluviation: 48
-    particles fall ~0.3-1 mm, first wall contact at step 7228, first pair contact 12868). Packed at
-    N = 500: at N = 300 the compression build leaves overlaps above the 5 % guard (a known
-    limitation, also for ellipsoids)."""
+    1.7 % pluviation, 0.7 % patch162, 1.0 % packed with the pressure-servoed build), finite state,
+    axes [n, 6] with each minus/plus ratio in the default asymmetry range [0.6, 1.0]; pair and wall
+    contacts occur (pluviation: 48 particles fall ~0.3-1 mm, first wall contact at step 7228, first
+    pair contact 12868)."""
     st, steps_csv, info = _run(tmp_path / scene, scene, steps, "--shape", "polyellipsoid",
                                "--particles", str(particles))
     assert info["stable"] is True and info["status"] == "done"

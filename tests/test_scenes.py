@@ -85,7 +85,8 @@ def test_auto_time_step_rule():
 
 def test_packed_is_dense_and_static(tmp_path, monkeypatch):
     """packed: mean particle-particle coordination >= 4 after its build, and it stays static
-    (contacts persist, kinetic energy stays tiny) over the following steps."""
+    (contacts persist, kinetic energy stays tiny) over the following steps, with every overlap
+    under half the guard's 5 % (measured at N = 400: Z 5.67, max overlap ratio 1.5 %)."""
     monkeypatch.setenv("DEM_BENCH_CACHE", str(tmp_path))
     from bench.prepare import load_prepared
     from bench.run import choose_dt
@@ -96,6 +97,7 @@ def test_packed_is_dense_and_static(tmp_path, monkeypatch):
     rows = [m.step() for _ in range(50)]
     z = [2 * r["n_contacts"] / sc.n for r in rows]
     assert min(z) >= 4.0
+    assert max(r["max_overlap_ratio"] for r in rows) < 0.025
     again = load_prepared("packed", particles=400)  # from the cache: same assembly at once
     assert again.extras["built"]["from_cache"]
     assert np.array_equal(again.state.pos, load_prepared("packed", particles=400).state.pos)
