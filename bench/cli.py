@@ -72,9 +72,9 @@ def build_parser():
     r.add_argument("--contact-method", choices=["exact", "pw", "sextic"], default="exact",
                    help="ellipsoid contact geometry: exact (PW + Newton, default), pw (Perram-Wertheim depth, "
                         "error O(depth/size)), sextic (the paper's Yan 2010 method, a known error)")
-    r.add_argument("--skin", type=_skin, default=0.0, metavar="F",
-                   help="Verlet skin, fraction of the largest bounding diameter (default 0: "
-                        "estimate neighbours every step)")
+    r.add_argument("--skin", type=_skin, default=None, metavar="F",
+                   help="neighbour-list skin, fraction of the largest bounding diameter (default 0.1; "
+                        "0: estimate neighbours every step, the paper's way)")
     r.add_argument("--snapshot-every", type=_nonneg_int, default=0, metavar="K",
                    help="write VTK + npz snapshots every K steps")
     r.add_argument("--plot", action="store_true", help="draw DIR/run.png (timings, contacts, energy)")
@@ -143,10 +143,18 @@ def build_parser():
                     help="timed repetitions, median reported (default 41: single runs are noisy on shared machines)")
     sc.add_argument("--out", default="results/schemes", help="folder for schemes.csv and schemes.png")
 
-    pf = sub.add_parser("perf", help="serial speed figures (per pair, per particle-step)")
+    pf = sub.add_parser("perf", help="speed figures (per pair, per particle-step; --what comm: MPI ping-pong)")
     pf.add_argument("--particles", type=_positive_int, default=10000)
     pf.add_argument("--steps", type=_positive_int, default=20)
-    pf.add_argument("--what", default="all", choices=["all", "pairs", "ellipsoids", "spheres"])
+    pf.add_argument("--what", default="all", choices=["all", "pairs", "ellipsoids", "spheres", "comm"],
+                    help="comm: OSU-style ping-pong between neighbour ranks (latency, bandwidth, fitted "
+                         "alpha/beta; not part of all)")
+    pf.add_argument("--procs", type=_positive_int, default=None,
+                    help="--what comm: ranks, on the most cubic grid (default: the mapping's)")
+    pf.add_argument("--mapping", default=None,
+                    help="--what comm: P-px-py-pz-T block grid of the ranks (default 2-2-1-1-1; T ignored)")
+    pf.add_argument("--timeout", type=_positive_int, default=120,
+                    help="--what comm: seconds before the ranks are killed (default 120)")
     pf.add_argument("--threads", type=_positive_int, default=1,
                     help="also time each thread scheme at T threads (packed ellipsoids)")
     pf.add_argument("--skin", type=_skin, default=0.1, metavar="F",
@@ -292,6 +300,9 @@ def cmd_schemes(args):
 
 
 def cmd_perf(args):
+    if args.what == "comm":
+        from bench.perf_comm import perf_comm
+        return _one_line(perf_comm)(args)
     from bench.threads_env import configure_threads
     configure_threads(f"1-1-1-1-{args.threads}")  # before numba starts
     from bench.perf import perf

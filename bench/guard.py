@@ -27,19 +27,21 @@ class StabilityGuard:
         self.v_floor = v_floor
         self.ke0 = self._sum(self.mode.state.kinetic_energy())
         self.ke_max = self.ke0
+        self.ke_last = self.ke0
         self.gravity_work = 0.0
+        mode.guard_overlap = overlap  # the mode flags the step with the same limit
 
     def _sum(self, x):
         return self.comm.allreduce(x) if self.comm is not None else x
 
     def check(self, step, row):
-        """None when the step is sound, else the one-line reason (the same on every rank)."""
-        s = self.mode.state
-        k = s.n_owned
+        """None when the step is sound, else the one-line reason (the same on every rank). Reads
+        the step's own sums (modes: kinetic_energy, gravity_work, n_bad, first_bad,
+        max_overlap_ratio, all computed by the kernels as they pass over the particles), so a
+        check costs a few comparisons and, under MPI, one allreduce."""
         reason = None
-        bad = ~(np.isfinite(s.pos[:k]).all(axis=1) & np.isfinite(s.vel[:k]).all(axis=1))
-        if bad.any():
-            reason = (f"non-finite position or velocity of particle {int(s.gid[np.argmax(bad)])}; likely cause: "
+        if row["n_bad"]:
+            reason = (f"non-finite position or velocity of particle {row['first_bad']}; likely cause: "
                       f"time step {self.dt:.3g} s too large (critical {self.dt_critical:.3g} s)")
         elif row["max_overlap_ratio"] > self.overlap:
             who = self.mode.worst_contact
@@ -48,14 +50,11 @@ class StabilityGuard:
             reason = (f"overlap {row['max_overlap_ratio']:.3g} of the smallest semi-axis between {where} "
                       f"(limit {self.overlap:g}); likely cause: time step {self.dt:.3g} s too large for the stiffest "
                       f"contact (critical {self.dt_critical:.3g} s) or a material too soft for its loads")
-        # energy: one collective sum of (flag, kinetic energy, gravity work) per step
-        ke_local = self.mode.state.kinetic_energy() if np.isfinite(s.vel[:k]).all() else np.inf
-        wg_local = float(self.dt * np.sum(s.mass[:k] * (s.vel[:k] @ self.g))) if k else 0.0
-        vals = np.array([1.0 if reason else 0.0, ke_local, wg_local])
-        if self.comm is not None:
-            from mpi4py import MPI
-            self.comm.Allreduce(MPI.IN_PLACE, vals, op=MPI.SUM)
-        flagged, ke, wg = vals
+        # the mode's step ended with the run's sums (one allreduce under MPI, with its rebuild
+        # decision): flagged ranks, kinetic energy, gravity work
+        flagged, ke, wg = self.mode.sums
+        if ke != ke:
+            ke = np.inf  # NaN (a non-finite state) counts as infinite
         self.gravity_work += wg
         if flagged:
             if self.comm is not None:

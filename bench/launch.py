@@ -16,7 +16,7 @@ import sys
 
 from bench.threads_env import usable_cpus
 from modes.base import ModeError
-from modes.decomposition import BlockGrid, DecompositionError, border_width
+from modes.decomposition import BlockGrid, DecompositionError, border_width, fit_skin
 
 
 def mpiexec_path():
@@ -36,13 +36,17 @@ def warm_cache(scene, mapping, args, dt):
                             contact_method=args.contact_method).warmup()
     else:
         SerialMode().setup(twin, dt=dt, neighbor=args.neighbor, contact_method=args.contact_method).warmup()
+    from modes.halo import compile_kernels
+    compile_kernels()
 
 
 def launch_mpi(args, mapping, scene, out):
-    if args.skin:
-        raise ModeError("--skin works with one process only for now (the MPI modes rebuild neighbours every step)")
     try:
-        BlockGrid(scene.box, (mapping.px, mapping.py, mapping.pz)).check_width(border_width(float(scene.state.rbound.max())))
+        grid = BlockGrid(scene.box, (mapping.px, mapping.py, mapping.pz))
+        width = border_width(float(scene.state.rbound.max()))
+        grid.check_width(width)
+        if args.skin is not None:
+            fit_skin(grid, width, args.skin * 2.0 * float(scene.state.rbound.max()), explicit=True)
     except DecompositionError as e:
         raise ModeError(str(e)) from None
     exe = mpiexec_path()
@@ -82,9 +86,10 @@ def launch_mpi(args, mapping, scene, out):
 def _run_argv(args, out):
     """The bench-run options the ranks need (the same run, with the resolved output folder)."""
     argv = ["--scene", args.scene, "--mapping", args.mapping, "--neighbor", args.neighbor, "--out", out,
-            "--threaded", args.threaded, "--snapshot-every", str(args.snapshot_every), "--halo", args.halo, "--guard-overlap", str(args.guard_overlap),
-            "--update-grid", str(args.update_grid), "--contact-method", args.contact_method]
-    for name in ("particles", "shape", "seed", "steps", "dt", "scheme", "warmup"):
+            "--threaded", args.threaded, "--snapshot-every", str(args.snapshot_every), "--halo", args.halo,
+            "--guard-overlap", str(args.guard_overlap), "--update-grid", str(args.update_grid),
+            "--contact-method", args.contact_method]
+    for name in ("particles", "shape", "seed", "steps", "dt", "scheme", "warmup", "skin"):
         v = getattr(args, name)
         if v is not None:
             argv += [f"--{name}", str(v)]

@@ -6,7 +6,7 @@ def main(argv):
     from mpi4py import MPI
     from bench.cli import build_parser
     from bench.prepare import load_prepared
-    from bench.run import choose_dt, execute
+    from bench.run import choose_dt, execute, mode_options
     from modes.base import mode_for, parse_mapping
 
     args = build_parser().parse_args(["run"] + argv)
@@ -18,9 +18,7 @@ def main(argv):
     scene = load_prepared(args.scene, particles=args.particles, shape=args.shape, seed=args.seed)  # cached
     dts = choose_dt(scene, args.dt)
     scheme = args.scheme or ("dynamic" if mapping.threads > 1 else None)
-    mode = mode_for(mapping)().setup(scene, dt=dts[0], cart=cart, neighbor=args.neighbor, threads=mapping.threads,
-                                     scheme=scheme, threaded=args.threaded, halo=args.halo,
-                                     update_grid=args.update_grid, contact_method=args.contact_method)
+    mode = mode_for(mapping)().setup(scene, dt=dts[0], cart=cart, **mode_options(mapping, args, scheme))
     execute(args, scene, mapping, scheme, mode, args.out, dts, comm=cart)
     # an unstable run has written its records and its one line (rank 0): end normally, since a
     # non-zero exit makes `python -m mpi4py` abort every rank; the launcher reads run.json

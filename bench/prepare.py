@@ -44,7 +44,7 @@ import numpy as np
 
 from dem.scene import load_scene, wall_planes
 
-CACHE_VERSION = "4"
+CACHE_VERSION = "5"
 # compress: target mean overlap ratio of the touching pairs at the [build] coordination, and the
 # friction cap while compressing (see compress)
 OVERLAP_TARGET = 4e-3
@@ -84,6 +84,7 @@ def prepare(scene, log=None):
     else:
         info = compress(scene, build.get("max_steps", 5000), float(build.get("rate", 2e-4)),
                         float(build.get("coordination", 4.5)), float(build.get("ke_tol", 1e-4)), log=log)
+    s.permute(np.argsort(s.gid, kind="stable"))  # the build may re-sort in space: back to file order
     os.makedirs(cache_dir(), exist_ok=True)
     tmp = path + f".{os.getpid()}.tmp.npz"
     np.savez(tmp, box=scene.box, **{f: getattr(s, f) for f in SAVED}, **{f"info_{k}": v for k, v in info.items()})
@@ -97,11 +98,11 @@ def _set_box(scene, box):
     scene.wall_m, scene.wall_d = wall_planes(scene.walls, scene.box)
 
 
-def _serial(scene):
+def _serial(scene, skin=None):
     from bench.run import choose_dt
     from modes.serial import SerialMode
     dt = choose_dt(scene, None)[0]
-    return SerialMode().setup(scene, dt=dt), dt
+    return SerialMode().setup(scene, dt=dt, skin=skin), dt
 
 
 def settle(scene, max_steps, ke_tol, log=None):
@@ -122,6 +123,7 @@ def settle(scene, max_steps, ke_tol, log=None):
                 log(f"settling {scene.name}: step {k}, KE/scale {ke / scale:.2e}")
             if k >= 500 and ke < ke_tol * scale:
                 break
+    mode.sync_history()  # the contact history the cache saves
     return {"method": "settle", "steps": k, "ke_ratio": ke / scale, "seconds": time.perf_counter() - t0}
 
 
@@ -146,7 +148,7 @@ def compress(scene, max_steps, rate, coordination, ke_tol, log=None, overlap=OVE
     mat.mu[:] = np.minimum(mu_saved[0], friction)
     mat.mu_w[:] = np.minimum(mu_saved[1], friction)
     try:
-        mode, dt = _serial(scene)
+        mode, dt = _serial(scene, skin=0.0)  # positions are scaled between steps: neighbours every step
         s = scene.state
         n = s.n_owned
         centre = 0.5 * (scene.box[0] + scene.box[1])
@@ -175,9 +177,7 @@ def compress(scene, max_steps, rate, coordination, ke_tol, log=None, overlap=OVE
                 held += 1
             row = mode.step()
             z = 2.0 * row["n_contacts"] / n
-            nc = row["n_candidates"]
-            touching = mode.work.active[:nc] == 1
-            mo = float(mode.work.ratio[:nc][touching].mean()) if touching.any() else 0.0
+            mo = row["pair_overlap_ratio_sum"] / row["n_contacts"] if row["n_contacts"] else 0.0
             p = z * mo if k == 1 else (1.0 - smoothing) * p + smoothing * z * mo
             if held >= hold_steps and not rough:
                 rough = k
@@ -192,6 +192,7 @@ def compress(scene, max_steps, rate, coordination, ke_tol, log=None, overlap=OVE
             if jammed:
                 break
         ke = s.kinetic_energy()
+        mode.sync_history()  # the contact history the cache saves
     finally:
         mat.mu[:], mat.mu_w[:] = mu_saved
         scene.gravity = g_saved

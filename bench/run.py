@@ -70,10 +70,18 @@ def run(args):
     if mapping.procs > 1:
         from bench.launch import launch_mpi
         return launch_mpi(args, mapping, scene, out)
-    mode = mode_cls().setup(scene, dt=dt, neighbor=args.neighbor, skin=args.skin, threads=mapping.threads,
-                            contact_method=args.contact_method,
-                            scheme=scheme, threaded=args.threaded)
+    mode = mode_cls().setup(scene, dt=dt, **mode_options(mapping, args, scheme))
     return execute(args, scene, mapping, scheme, mode, out, (dt, dt_auto, dt_crit, dt_info))
+
+
+def mode_options(mapping, args, scheme):
+    """The setup options of the mode that runs `mapping` (each mode refuses options it lacks)."""
+    opts = {"neighbor": args.neighbor, "skin": args.skin, "contact_method": args.contact_method}
+    if mapping.threads > 1:
+        opts.update(threads=mapping.threads, scheme=scheme, threaded=args.threaded)
+    if mapping.procs > 1:
+        opts.update(halo=args.halo, update_grid=args.update_grid)
+    return opts
 
 
 def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
@@ -106,7 +114,9 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
             "threads": mapping.threads, "scheme": scheme,
             "threaded": args.threaded if mapping.threads > 1 else None, "pin": args.pin,
             "threading": _threading_info(),
-            "neighbor": args.neighbor, "contact_method": getattr(args, "contact_method", "exact"), "skin": args.skin, "halo": args.halo if mapping.procs > 1 else None,
+            "neighbor": args.neighbor, "contact_method": getattr(args, "contact_method", "exact"),
+            "skin": mode.skin_fraction, "skin_m": mode.skin, "skin_requested": args.skin,
+            "halo": args.halo if mapping.procs > 1 else None,
             "update_grid": args.update_grid if mapping.procs > 1 else None, "dt": dt, "dt_auto": dt_auto, "dt_critical": dt_crit,
             "dt_details": dt_info, "walls": scene.walls, "gravity": scene.gravity.tolist(),
             "materials": [m.__dict__ for m in scene.materials.materials],
@@ -114,11 +124,14 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
             "build": scene.extras.get("built"), "stable": None, "max_overlap_ratio": 0.0, "status": "running"}
     if comm is not None:
         from mpi4py import MPI
-        from modes.halo import WIDTH, ghost_fields
+        from modes.halo import WIDTH, ghost_fields, moving_fields
         info["mpi_library"] = MPI.Get_library_version().strip().splitlines()[0]
         fields = ghost_fields(mode.all_spheres, mode.state.has_poly)
         info["ghost_fields"] = list(fields)
         info["ghost_bytes_per_particle"] = 8 * sum(WIDTH[f] for f in fields)  # the paper: 624 per ellipsoid
+        info["forward_bytes_per_ghost"] = 8 * sum(WIDTH[f] for f in moving_fields(mode.all_spheres))
+        wires = comm.gather(mode.wire.as_dict() if mode.wire is not None else None, root=0)
+        info["wire"] = {str(r): w for r, w in enumerate(wires)} if rank == 0 else None
     if rank == 0:
         write_json(os.path.join(out, "run.json"), info)
     step_file = os.path.join(out, "steps.csv" if comm is None else f"steps.rank{rank}.csv")
@@ -164,7 +177,7 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
     write_state(os.path.join(out, "state.npz"), snap)
     info.update({"stable": stable, "stability_reason": reason, "status": "done" if stable else "unstable",
                  "max_overlap_ratio": worst, "wall_s": wall,
-                 "neighbor_rebuilds": mode.verlet.rebuilds if getattr(mode, "verlet", None) else steps,
+                 "neighbor_rebuilds": mode.pairs.rebuilds,
                  "grid_updates": getattr(mode, "grid_updates", None),
                  "kinetic_energy_initial": ke0, "kinetic_energy_final": ke1, "energy_balance": energy,
                  "guard": {"overlap_limit": guard.overlap, "energy_factor": guard.energy_factor},

@@ -97,10 +97,10 @@ def configurations():
 def _setup(scene, dt, method, neighbor, threads):
     if method == "serial":
         from modes.serial import SerialMode
-        mode = SerialMode().setup(scene, dt=dt, neighbor=neighbor)
+        mode = SerialMode().setup(scene, dt=dt, neighbor=neighbor, skin=0.0)
     else:
         from modes.threads import ThreadsMode
-        mode = ThreadsMode().setup(scene, dt=dt, neighbor=neighbor, threads=threads, scheme=method)
+        mode = ThreadsMode().setup(scene, dt=dt, neighbor=neighbor, threads=threads, scheme=method, skin=0.0)
     mode.warmup()
     pi, pj = mode.neighbour_phase()  # untimed: buffers reach their final size
     mode.resolve_phase(pi, pj)

@@ -306,7 +306,7 @@ def measure_insitu(particles, steps, repeats, log=None):
         for nb in NEIGHBORS:
             if log:
                 log(f"warming up {shape} {nb}")
-            mode = SerialMode().setup(copy.deepcopy(scene), dt=dt, neighbor=nb)
+            mode = SerialMode().setup(copy.deepcopy(scene), dt=dt, neighbor=nb, skin=0.0)
             mode.warmup()
             for _ in range(WARM_STEPS):
                 mode.step()

@@ -9,7 +9,9 @@ point DIR/runs.csv is rewritten atomically, so an interrupted sweep leaves a con
 hangs past its timeout or goes unstable is recorded with its status and reason, and the sweep
 goes on. Module times per point (DESIGN.md): totalT = mean over steps of the max over ranks,
 commuT and migraT = mean over steps of the per-rank mean, compuT = totalT - commuT - migraT;
-with --repeats R the median over the R runs.
+wireT = mean over steps of the per-rank mean of wire_s (the modelled wire time of what a rank
+sent, modes/wire.py), above_wireT = commuT + migraT - wireT (the software above the wire; both
+NaN without MPI or when steps.csv has no wire_s); with --repeats R the median over the R runs.
 """
 import hashlib
 import json
@@ -90,13 +92,23 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
 
 # --- records ---------------------------------------------------------------------------------------
 def module_times(steps):
-    """Per-step module times of one run (DESIGN.md): dict of totalT, commuT, migraT, compuT, ..."""
+    """Per-step module times of one run (DESIGN.md): dict of totalT, commuT, migraT, compuT,
+    wireT (mean over steps of the per-rank mean of wire_s [s]; NaN without a wire_s column),
+    above_wireT = commuT + migraT - wireT, neighborT, resolveT, rss_mb."""
     g = steps.groupby("step")
     total = g["totalT"].max()
     commu = g["commuT"].mean()
     migra = g["migraT"].mean()
     out = {"totalT": float(total.mean()), "commuT": float(commu.mean()), "migraT": float(migra.mean())}
     out["compuT"] = out["totalT"] - out["commuT"] - out["migraT"]
+    # the wire under commuT + migraT (issue 11): absent from older steps.csv files
+    import pandas as pd
+    wire = pd.to_numeric(steps["wire_s"], errors="coerce") if "wire_s" in steps else None
+    if wire is not None and wire.notna().any():
+        out["wireT"] = float(wire.groupby(steps["step"]).mean().mean())
+    else:
+        out["wireT"] = math.nan
+    out["above_wireT"] = out["commuT"] + out["migraT"] - out["wireT"]
     out["neighborT"] = float(g["neighborT"].max().mean())
     out["resolveT"] = float(g["resolveT"].max().mean())
     out["rss_mb"] = float(steps["rss_mb"].max()) if "rss_mb" in steps else math.nan
@@ -135,6 +147,8 @@ def summarise(point, rep_dirs, ref_state, t1):
         state = dict(np.load(os.path.join(d, "state.npz")))
     for k in times[0]:
         row[k] = float(np.median([t[k] for t in times]))
+    if m.procs == 1:  # no MPI, no wire (a serial steps.csv may carry wire_s = 0)
+        row["wireT"] = row["above_wireT"] = math.nan
     row["wall_s"] = float(np.median(walls))
     row["overhead_pct"] = 100.0 * (row["commuT"] + row["migraT"]) / row["totalT"] if row["totalT"] > 0 else math.nan
     if t1:

@@ -10,7 +10,10 @@ plot_sweep(DIR) writes, in DIR:
   line at 0 and the Amdahl fit when present;
 - modules.png: per mapping (x axis ordered by cores, then procs; grouped by core count) stacked
   bars of compuT, commuT, migraT in ms/step (top) and as % of totalT (bottom), the paper's
-  Figs. 19-21 in kind;
+  Figs. 19-21 in kind; where runs.csv has wireT (MPI points whose steps.csv has wire_s), a second
+  bar beside it stacks compuT, wireT (the modelled wire time of the bytes sent, modes/wire.py)
+  and above_wireT = commuT + migraT - wireT (the software above the wire); modules_figure(DIR)
+  returns that Figure unsaved;
 - error_vs_time.png: err_max (final-position error against the serial run over the mean
   particle radius) against totalT [ms/step], log-log; zero errors (bit-identical modes) are
   drawn hollow on a dashed floor line a decade below the smallest non-zero error.
@@ -39,7 +42,7 @@ from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullForma
 
 RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores", "scheme", "neighbor", "scene",
                "particles", "steps", "repeats", "status", "reason", "totalT", "commuT", "migraT", "compuT",
-               "neighborT", "resolveT", "overhead_pct", "speedup", "efficiency", "edsf", "rss_mb", "err_max",
+               "wireT", "above_wireT", "neighborT", "resolveT", "overhead_pct", "speedup", "efficiency", "edsf", "rss_mb", "err_max",
                "err_rms", "stable", "wall_s", "load_before", "load_after", "contact_method"]
 TEXT_COLUMNS = ("point", "mapping", "scheme", "neighbor", "scene", "status", "reason", "stable", "contact_method")
 NUMERIC_COLUMNS = [c for c in RUN_COLUMNS if c not in TEXT_COLUMNS]
@@ -47,6 +50,10 @@ FAMILY_STYLE = {"serial": ("k", "*"), "threads": ("C0", "o"), "MPI": ("C3", "s")
 FAMILY_ORDER = ("serial", "threads", "MPI", "hybrid")
 MODULES = (("compuT", "compuT (computation)", "C0"), ("commuT", "commuT (communication)", "C1"),
            ("migraT", "migraT (migration)", "C2"))
+# the overhead commuT + migraT split at the wire (issue 11): the second bar of an MPI point
+WIRE_SPLIT = (("compuT", "compuT (computation)", "C0", None),
+              ("wireT", "wireT: wire time of the bytes sent (ping-pong alpha + n / beta)", "0.35", None),
+              ("above_wireT", "above_wireT: software above the wire = commuT + migraT - wireT", "C3", "////"))
 SCHEME_ORDER = ("partition", "frogleap", "headtail", "static", "dynamic")
 PAPER_MAP = {"partitioning": "partition", "frog-leap": "frogleap", "head-tail": "headtail",
              "static": "static", "dynamic": "dynamic"}
@@ -383,11 +390,31 @@ def _plot_metric(done, skipped, ctx, fit, metric, path):
     return _save(fig, path)
 
 
+def modules_figure(directory):
+    """The modules.png Figure of DIR/runs.csv, not saved (for inspection: its bar containers are
+    labelled by column, see _modules_figure). The caller closes it."""
+    df = read_runs(directory)
+    return _modules_figure(_done(df), _skipped(df), _context(df))
+
+
 def _plot_modules(done, skipped, ctx, path):
-    """Stacked module times per mapping, grouped by core count (paper Figs. 19-21 in kind)."""
+    """modules.png: stacked module times per mapping (paper Figs. 19-21 in kind)."""
+    return _save(_modules_figure(done, skipped, ctx), path)
+
+
+def _modules_figure(done, skipped, ctx):
+    """Stacked module times per mapping, grouped by core count (paper Figs. 19-21 in kind).
+    Each point has one bar compuT + commuT + migraT; a point with a finite wireT has a second one
+    beside it, compuT + wireT + above_wireT (the same overhead split at the wire; above_wireT < 0,
+    better than the one-after-another model, is drawn as 0 and marked '<0'). Bar containers are
+    labelled by the runs.csv column they draw: 'compuT', 'commuT', 'migraT' (first bars), 'split
+    compuT', 'wireT', 'above_wireT' (second bars), in ms on the top axes and % of totalT below."""
     d = done[np.isfinite(done["cores"])].sort_values(["cores", "procs", "threads", "scheme", "neighbor"])
     n = len(d)
-    width = max(6.4, 0.62 * n + 2.0)
+    wire = d["wireT"].to_numpy(dtype=float)
+    has = np.isfinite(wire)
+    nw = int(has.sum())
+    width = max(6.4, 0.62 * n + 0.3 * nw + 2.0)
     fig, (ax, ax2) = plt.subplots(2, 1, figsize=(width, 6.4), sharex=True, gridspec_kw=dict(height_ratios=(3, 2)))
     split_scheme = len(set(d.loc[d["threads"] > 1, "scheme"])) > 1
     split_nb = len(set(d["neighbor"])) > 1
@@ -398,26 +425,52 @@ def _plot_modules(done, skipped, ctx, path):
     compu = d["compuT"].to_numpy()
     compu = np.where(np.isfinite(compu), compu, total - commu - migra)
     vals = {"compuT": np.clip(compu, 0, None), "commuT": np.clip(commu, 0, None), "migraT": np.clip(migra, 0, None)}
+    half = 0.36
+    xs = np.where(has, x - half / 2 - 0.01, x)  # a point with a wire split: first bar left of centre
+    ws = np.where(has, half, 0.7)
+    pct = lambda v: np.where(total > 0, 100.0 * v / total, 0.0)  # noqa: E731
     bottom = np.zeros(n)
     bottom2 = np.zeros(n)
     for key, label, color in MODULES:
         v = vals[key]
-        ax.bar(x, 1e3 * v, 0.7, bottom=1e3 * bottom, color=color, label=label)
-        frac = np.where(total > 0, 100.0 * v / total, 0.0)
-        ax2.bar(x, frac, 0.7, bottom=bottom2, color=color)
+        ax.bar(xs, 1e3 * v, ws, bottom=1e3 * bottom, color=color, label=key)
+        ax2.bar(xs, pct(v), ws, bottom=bottom2, color=color, label=key)
         bottom += v
-        bottom2 += frac
+        bottom2 += pct(v)
+    if nw:
+        above = (commu + migra - wire)[has]
+        split = {"compuT": vals["compuT"][has], "wireT": np.clip(wire[has], 0, None), "above_wireT": np.clip(above, 0, None)}
+        xw = x[has] + half / 2 + 0.01
+        tot = np.where(np.isfinite(total[has]), total[has], 0.0)
+        pw = lambda v: np.where(tot > 0, 100.0 * v / np.where(tot > 0, tot, 1.0), 0.0)  # noqa: E731
+        bottom = np.zeros(nw)
+        bottom2 = np.zeros(nw)
+        for key, _, color, hatch in WIRE_SPLIT:
+            v = split[key]
+            name = "split compuT" if key == "compuT" else key
+            kw = dict(color=color, hatch=hatch, edgecolor="white" if hatch else None, lw=0.0)
+            ax.bar(xw, 1e3 * v, half, bottom=1e3 * bottom, label=name, **kw)
+            ax2.bar(xw, pw(v), half, bottom=bottom2, label=name, **kw)
+            bottom += v
+            bottom2 += pw(v)
+        for xi, a, b in zip(xw, above, 1e3 * bottom):
+            if a < 0:
+                ax.text(xi, b, "<0", ha="center", va="bottom", fontsize=FONT - 1.5, color="C3")
     top = max([1e3 * t for t in total if np.isfinite(t)] + [1e-9])
+    if nw:
+        top = max(top, 1e3 * float(np.nanmax(vals["compuT"][has] + np.clip(wire[has], 0, None))))
     for xi, t in zip(x, total):
         ax.text(xi, 1e3 * t + 0.01 * top, f"{1e3 * t:.3g}" if t < 1 else f"{1e3 * t:.0f}", ha="center", va="bottom", fontsize=FONT - 1)
-    # communication + migration share printed on the lower panel
+    # communication + migration share printed on the lower panel (and the wire's part of it)
     recorded = np.isfinite(d["commuT"].to_numpy()) | np.isfinite(d["migraT"].to_numpy())
-    for xi, c, m, t, rec in zip(x, commu, migra, total, recorded):
+    for xi, c, m, t, rec, w in zip(x, commu, migra, total, recorded, wire):
         if t > 0:
-            ax2.text(xi, 101, f"{100 * (c + m) / t:.1f}%" if rec else "n/a", ha="center", va="bottom",
-                     fontsize=FONT - 1, color="C1")
+            text = f"{100 * (c + m) / t:.1f}%" if rec else "n/a"
+            if np.isfinite(w):
+                text += f"\nwire {100 * w / t:.1f}%"
+            ax2.text(xi, 101, text, ha="center", va="bottom", fontsize=FONT - 1, color="C1")
     ax.set_ylim(0, 1.14 * top)
-    ax2.set_ylim(0, 112)
+    ax2.set_ylim(0, 124 if nw else 112)
     # core-count groups: separators and labels
     cores = d["cores"].to_numpy()
     starts = ([0] if n else []) + [i for i in range(1, n) if cores[i] != cores[i - 1]]
@@ -439,10 +492,14 @@ def _plot_modules(done, skipped, ctx, path):
     ax2.set_xticklabels(ticks, rotation=45 if n > 6 else 0, ha="right" if n > 6 else "center", fontsize=FONT)
     ax2.set_xlabel("mapping P-px-py-pz-T (ordered by cores, then processes)")
     ax.set_ylabel("time per step [ms]\n(totalT printed on top)")
-    ax2.set_ylabel("share of totalT [%]\n(commuT + migraT printed)")
+    ax2.set_ylabel("share of totalT [%]\n(commuT + migraT" + (" and wireT printed)" if nw else " printed)"))
     ax.set_title(f"Module times per mapping (paper Figs. 19-21 in kind)\n{ctx}", fontsize=9)
-    ax.legend(handles=[Patch(color=c, label=lab) for _, lab, c in MODULES], fontsize=FONT, loc="upper left",
-              bbox_to_anchor=(1.005, 1.0), borderaxespad=0.0)
+    handles = [Patch(color=c, label=lab) for _, lab, c in MODULES]
+    if nw:
+        handles.append(Patch(color="none", label="second bar of an MPI point: the same commuT + migraT split into"))
+        handles += [Patch(facecolor=c, hatch=h, edgecolor="white" if h else None, label=lab)
+                    for key, lab, c, h in WIRE_SPLIT if key != "compuT"]
+    ax.legend(handles=handles, fontsize=FONT, loc="upper left", bbox_to_anchor=(1.005, 1.0), borderaxespad=0.0)
     if n == 0:
         ax.set_xlim(-0.5, 0.5)
         ax.set_ylim(0, 1)
@@ -451,8 +508,8 @@ def _plot_modules(done, skipped, ctx, path):
         ax.set_xlim(-0.6, n - 0.4)
     for a in (ax, ax2):
         a.grid(True, axis="y", lw=0.4, alpha=0.5)
-    _finish(fig, _note_lines(skipped, width), path)
-    return _save(fig, path)
+    _finish(fig, _note_lines(skipped, width), None)
+    return fig
 
 
 def _plot_error(done, skipped, ctx, path):

@@ -1,30 +1,36 @@
-"""Contact forces: per-pair resolution, deterministic per-particle gather, walls.
+"""Contact forces: per-pair resolution into the pair list, deterministic per-particle finish.
 
-Determinism (DESIGN.md): each candidate pair (i, j), gid[i] < gid[j], is resolved once into
-per-pair results (force on j, torques on i and j, new history); particle p then sums its pair
-contributions in ascending partner gid, then its wall contributions in wall order. The result
-is independent of how pairs were found or which thread computed them, so every mode can be
-bit-identical to serial.
+The pair list (built by dem.neighbor, kept between rebuilds) holds each candidate pair (i, j),
+gid[i] < gid[j], once, with its record res [m, PR_LEN]: the force on j and the torques of the
+last resolution, and the pair's contact history (tangential spring, contact radius, PW warm
+start). on [m] (int8) says whether the pair touched at its last resolution, i.e. whether its
+history is valid. Resolution reads a pair's history and overwrites it in place: a pair is
+resolved by exactly one thread, and nothing else reads its record during resolution.
+
+Determinism (DESIGN.md): particle p then sums its pair contributions in ascending partner gid
+(the pair adjacency of dem.history, sorted once per rebuild), then its wall contributions in
+wall order. The result is independent of how pairs were found, of the memory order and of
+which thread computed them, so every mode is bit-identical to serial.
 """
 import math
 import numpy as np
 from numba import njit
 
-from dem.contact.ellipsoid import (ellipsoid_contact, ellipsoid_wall_contact, OUT_LEN, OUT_DEPTH,
-                                   OUT_NX, OUT_NY, OUT_NZ, OUT_XCX, OUT_XCY, OUT_XCZ, OUT_RE,
-                                   OUT_KRATIO, OUT_LAM)
+from dem.contact.ellipsoid import (ellipsoid_contact, ellipsoid_wall_contact, OUT_DEPTH, OUT_NX, OUT_NY,
+                                   OUT_NZ, OUT_XCX, OUT_XCY, OUT_XCZ, OUT_RE, OUT_KRATIO, OUT_LAM)
 from dem.contact.hertz_factor import hertz_factor
 from dem.contact.law import hertz_mindlin
 from dem.contact.methods import pw_contact, sextic_contact
 from dem.contact.polyellipsoid import polyellipsoid_contact, polyellipsoid_wall_contact
 from dem.contact.sphere import sphere_contact, sphere_wall_contact
+from dem.integrate import derive_particle, derive_poly_geometry, integrate_particle
 from dem.state import SPHERE, POLY, H_FT, H_A, H_LAM, H_N, HIST_LEN
 
-# per-pair result layout: pair_res [m, PR_LEN]
+# per-pair record layout: res [m, PR_LEN]
 PR_FX = 0      # force on j [3] (i gets the exact negation)
 PR_TI = 3      # torque on i [3]
 PR_TJ = 6      # torque on j [3]
-PR_HIST = 9    # new history record [HIST_LEN]
+PR_HIST = 9    # the pair's contact history [HIST_LEN] (dem.state H_*)
 PR_LEN = 9 + HIST_LEN
 
 # ellipsoid contact methods (issue 7; dem/contact/methods.py): index = the `method` argument
@@ -33,24 +39,18 @@ EXACT, PW, SEXTIC = 0, 1, 2
 # scene kinds: which pair loop a scene needs (it pays only for the solvers its shapes use)
 SPHERES, ELLIPSOIDS, POLYS = 0, 1, 2
 
+# what resolve_range returns, in this order
+RESOLVED = ("n_contacts", "ellipsoid_calls", "worst_ratio", "worst_pair", "ratio_sum")
+# what finish_range returns, in this order
+FINISHED = ("n_wall_contacts", "wall_worst_ratio", "wall_worst_particle", "kinetic_energy", "gravity_work",
+            "n_bad", "first_bad", "max_disp2")
+
 
 def scene_kind(shape, has_poly):
     """SPHERES when every particle is a sphere, POLYS when the scene has poly-ellipsoids, else ELLIPSOIDS."""
     if has_poly:
         return POLYS
     return SPHERES if bool(np.all(shape == SPHERE)) else ELLIPSOIDS
-
-
-@njit(cache=True, inline="always")
-def find_history(hist_start, hist_partner, p, partner):
-    """Row of partner gid in owned particle p's contact history (CSR, ascending), or -1."""
-    for r in range(hist_start[p], hist_start[p + 1]):
-        g = hist_partner[r]
-        if g == partner:
-            return r
-        if g > partner:
-            break
-    return -1
 
 
 @njit(cache=True, inline="always")
@@ -119,8 +119,9 @@ def _store(res, k, f, nx, ny, nz, lam):
 
 @njit(cache=True, inline="always")
 def pair_law(i, j, depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio, pos, vel, omega, mass, material,
-             estar, gstar, zeta, mu, hist_val, slot, dt, lam, res, k):
-    """contact_force for particles i -> j, inputs read by index, result stored in res[k]."""
+             estar, gstar, zeta, mu, res, k, has_hist, dt, lam):
+    """contact_force for particles i -> j, inputs read by index; the old history is read from and the
+    result written to pair record res[k]."""
     r1x, r1y, r1z = xcx - pos[i, 0], xcy - pos[i, 1], xcz - pos[i, 2]
     r2x, r2y, r2z = xcx - pos[j, 0], xcy - pos[j, 1], xcz - pos[j, 2]
     vrx = (vel[j, 0] + (omega[j, 1] * r2z - omega[j, 2] * r2y)
@@ -133,80 +134,74 @@ def pair_law(i, j, depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio, pos, vel, omeg
     mj = mass[j]
     a = material[i]
     b = material[j]
-    s = max(slot, 0)
+    h = PR_HIST
     f = contact_force(depth, nx, ny, nz, r_e, kratio, r1x, r1y, r1z, r2x, r2y, r2z, vrx, vry, vrz,
                       mi * mj / (mi + mj), estar[a, b], gstar[a, b], zeta[a, b], mu[a, b],
-                      hist_val[s, H_FT], hist_val[s, H_FT + 1], hist_val[s, H_FT + 2], hist_val[s, H_A],
-                      slot >= 0, dt)
+                      res[k, h + H_FT], res[k, h + H_FT + 1], res[k, h + H_FT + 2], res[k, h + H_A],
+                      has_hist, dt)
     _store(res, k, f, nx, ny, nz, lam)
 
 
 @njit(cache=True, inline="always")
-def _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, gid, n_owned, hist_start, hist_partner,
-                 hist_val, estar, gstar, mu, zeta, dt, active, pair_res, depth_ratio):
-    """Closed-form sphere-sphere contact and law for candidate pair k = (i, j)."""
-    hit, depth, nx, ny, nz, xcx, xcy, xcz, r_e = sphere_contact(
-        pos[i, 0], pos[i, 1], pos[i, 2], axes[i, 0], pos[j, 0], pos[j, 1], pos[j, 2], axes[j, 0])
-    if not hit:
-        active[k] = 0
-        return
-    own = i if i < n_owned else j
-    slot = find_history(hist_start, hist_partner, own, gid[j] if own == i else gid[i])
-    active[k] = 1
-    pair_law(i, j, depth, nx, ny, nz, xcx, xcy, xcz, r_e, 1.0, pos, vel, omega, mass, material,
-             estar, gstar, zeta, mu, hist_val, slot, dt, 0.0, pair_res, k)
-    depth_ratio[k] = depth / min(axes[i, 0], axes[j, 0])
-
-
-@njit(cache=True)
-def resolve_sphere_pairs_range(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, gid, n_owned,
-                               hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
-                               active, pair_res, depth_ratio):
-    """resolve_pairs_range for a scene of spheres only: the loop holds no ellipsoid solver, so
-    a sphere scene neither runs nor carries it (its loop body stays small). Returns 0 solver calls."""
-    for k in range(k0, k1):
-        _sphere_pair(k, pi[k], pj[k], pos, vel, omega, axes, mass, material, gid, n_owned, hist_start,
-                     hist_partner, hist_val, estar, gstar, mu, zeta, dt, active, pair_res, depth_ratio)
-    return 0
-
-
-@njit(cache=True, inline="always")
-def _warm_start(hist_val, slot, n0):
-    """Stored PW lambda (or -1) of a pair's history row slot, its normal into n0 [3]."""
-    if slot < 0:
+def _warm_start(res, k, has_hist, n0):
+    """Stored PW lambda (or -1) of pair k's history, its normal into n0 [3]."""
+    if not has_hist:
         n0[0] = n0[1] = n0[2] = 0.0
         return -1.0
     # the stored normal points i -> j (canonical order) on both ends
-    n0[0] = hist_val[slot, H_N]
-    n0[1] = hist_val[slot, H_N + 1]
-    n0[2] = hist_val[slot, H_N + 2]
-    return hist_val[slot, H_LAM]
+    n0[0] = res[k, PR_HIST + H_N]
+    n0[1] = res[k, PR_HIST + H_N + 1]
+    n0[2] = res[k, PR_HIST + H_N + 2]
+    return res[k, PR_HIST + H_LAM]
+
+
+@njit(cache=True, inline="always")
+def _apart(i, j, pos, rbound):
+    """True when the bounding spheres of i and j do not overlap: the candidate search's own test
+    (dem.neighbor.scan_rows), so a pair kept only by the skin never reaches a solver."""
+    dx = pos[j, 0] - pos[i, 0]
+    dy = pos[j, 1] - pos[i, 1]
+    dz = pos[j, 2] - pos[i, 2]
+    rr = rbound[i] + rbound[j]
+    return not (dx * dx + dy * dy + dz * dz < rr * rr)
+
+
+@njit(cache=True, inline="always")
+def _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt, res, on):
+    """Closed-form sphere-sphere contact and law for pair k = (i, j); returns the depth ratio (depth
+    over the smaller radius) or -1 when apart."""
+    hit, depth, nx, ny, nz, xcx, xcy, xcz, r_e = sphere_contact(
+        pos[i, 0], pos[i, 1], pos[i, 2], axes[i, 0], pos[j, 0], pos[j, 1], pos[j, 2], axes[j, 0])
+    if not hit:
+        on[k] = 0
+        return -1.0
+    pair_law(i, j, depth, nx, ny, nz, xcx, xcy, xcz, r_e, 1.0, pos, vel, omega, mass, material,
+             estar, gstar, zeta, mu, res, k, on[k] == 1, dt, 0.0)
+    on[k] = 1
+    return depth / min(axes[i, 0], axes[j, 0])
 
 
 @njit(cache=True, inline="always")
 def _solved_pair(hit, k, i, j, out, amin_i, amin_j, pos, vel, omega, mass, material, estar, gstar, zeta, mu,
-                 hist_val, slot, dt, active, pair_res, depth_ratio):
-    """After a solver filled out [OUT_LEN] (hit = 1) or found no contact: mark pair k, apply the law,
-    and record the depth over the smaller of the smallest semi-axes amin_i, amin_j [m]."""
+                 res, on, dt):
+    """After a solver filled out [OUT_LEN] (hit = 1) or found no contact: apply the law to pair k and
+    return the depth over the smaller of the smallest semi-axes amin_i, amin_j [m] (-1 when apart)."""
     if hit == 0:
-        active[k] = 0
-        return
+        on[k] = 0
+        return -1.0
     depth = out[OUT_DEPTH]
-    active[k] = 1
     pair_law(i, j, depth, out[OUT_NX], out[OUT_NY], out[OUT_NZ], out[OUT_XCX], out[OUT_XCY],
              out[OUT_XCZ], out[OUT_RE], out[OUT_KRATIO], pos, vel, omega, mass, material,
-             estar, gstar, zeta, mu, hist_val, slot, dt, out[OUT_LAM], pair_res, k)
-    depth_ratio[k] = depth / min(amin_i, amin_j)
+             estar, gstar, zeta, mu, res, k, on[k] == 1, dt, out[OUT_LAM])
+    on[k] = 1
+    return depth / min(amin_i, amin_j)
 
 
 @njit(cache=True, inline="always")
-def _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, gid, n_owned, hist_start,
-                    hist_partner, hist_val, estar, gstar, mu, zeta, dt, method, active, pair_res,
-                    depth_ratio, out, n0):
+def _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, estar, gstar, mu, zeta, dt, method,
+                    res, on, out, n0):
     """Ellipsoid (or sphere-ellipsoid) pair k = (i, j) by CONTACT_METHODS[method], then the law."""
-    own = i if i < n_owned else j
-    slot = find_history(hist_start, hist_partner, own, gid[j] if own == i else gid[i])
-    lam0 = _warm_start(hist_val, slot, n0)
+    lam0 = _warm_start(res, k, on[k] == 1, n0)
     if method == EXACT:
         hit = ellipsoid_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
     elif method == PW:
@@ -215,228 +210,235 @@ def _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, gid, n_
         hit = sextic_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
     ai = min(axes[i, 0], min(axes[i, 1], axes[i, 2]))
     aj = min(axes[j, 0], min(axes[j, 1], axes[j, 2]))
-    _solved_pair(hit, k, i, j, out, ai, aj, pos, vel, omega, mass, material, estar, gstar, zeta, mu, hist_val,
-                 slot, dt, active, pair_res, depth_ratio)
+    return _solved_pair(hit, k, i, j, out, ai, aj, pos, vel, omega, mass, material, estar, gstar, zeta, mu,
+                        res, on, dt)
 
 
 @njit(cache=True, inline="always")
-def _ellipsoid_or_sphere_pair(k, i, j, pos, vel, omega, rot, axes, shape, mass, material, gid, n_owned,
-                              hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt, method, active,
-                              pair_res, depth_ratio, out, n0):
-    """Pair k = (i, j) without a poly-ellipsoid: closed form for two spheres, else the ellipsoid
-    method. Returns the solver calls it made (0 or 1)."""
-    if shape[i] == SPHERE and shape[j] == SPHERE:
-        _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, gid, n_owned, hist_start,
-                     hist_partner, hist_val, estar, gstar, mu, zeta, dt, active, pair_res, depth_ratio)
-        return 0
-    _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, gid, n_owned, hist_start,
-                    hist_partner, hist_val, estar, gstar, mu, zeta, dt, method, active, pair_res,
-                    depth_ratio, out, n0)
-    return 1
+def _poly_pair(k, i, j, pos, vel, omega, mass, material, estar, gstar, mu, zeta, dt, res, on, oorg, orot, ax6,
+               out, n0):
+    """Pair k = (i, j) with a poly-ellipsoid: the octant active-set solver (the other body as a
+    poly-ellipsoid with equal halves) on the octant geometry; lever arms refer to the mass centres."""
+    _warm_start(res, k, on[k] == 1, n0)
+    hit = polyellipsoid_contact(oorg[i], orot[i], ax6[i], oorg[j], orot[j], ax6[j], n0, out)
+    ai = ax6[i, 0]
+    aj = ax6[j, 0]
+    for c in range(1, 6):
+        ai = min(ai, ax6[i, c])
+        aj = min(aj, ax6[j, c])
+    return _solved_pair(hit, k, i, j, out, ai, aj, pos, vel, omega, mass, material, estar, gstar, zeta, mu,
+                        res, on, dt)
 
 
 @njit(cache=True)
-def resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid,
-                        n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
-                        method, active, pair_res, depth_ratio):
-    """Resolve candidate pairs k0..k1-1 of a scene of ellipsoids (and spheres): geometry (closed
-    form for two spheres; otherwise the ellipsoid method CONTACT_METHODS[method]: EXACT = PW +
-    Newton on S^2, PW = Perram-Wertheim depth only, SEXTIC = Yan 2010), then the contact law.
-    Writes active [m] (1 = touching), pair_res [m, PR_LEN], depth_ratio [m] (depth over the
-    smaller minimum semi-axis). Returns the number of ellipsoid-solver calls.
-    History is read from the owned end of the pair (both ends hold identical copies)."""
-    out = np.zeros(OUT_LEN)
-    n0 = np.zeros(3)
-    ecalls = 0
+def _resolve_spheres(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt, res, on):
+    """The sphere loop: no solver in it, so a sphere scene neither runs nor carries one."""
+    nc = 0
+    worst = 0.0
+    worst_k = -1
+    rsum = 0.0
     for k in range(k0, k1):
-        ecalls += _ellipsoid_or_sphere_pair(k, pi[k], pj[k], pos, vel, omega, rot, axes, shape, mass, material, gid,
-                                            n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta,
-                                            dt, method, active, pair_res, depth_ratio, out, n0)
-    return ecalls
+        r = _sphere_pair(k, pi[k], pj[k], pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt,
+                         res, on)
+        if r >= 0.0:
+            nc += 1
+            rsum += r
+            if r > worst:
+                worst = r
+                worst_k = k
+    return nc, 0, worst, worst_k, rsum
 
 
 @njit(cache=True)
-def resolve_poly_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid,
-                             n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
-                             method, active, pair_res, depth_ratio, oorg, orot, ax6):
-    """resolve_pairs_range for a scene with poly-ellipsoids: a pair with a poly-ellipsoid goes to
-    the octant active-set solver (polyellipsoid_contact; the other body as a poly-ellipsoid with
-    equal halves) on the octant geometry oorg [n,3], orot [n,3,3], ax6 [n,6]
-    (derive_geometry_range); lever arms and velocities refer to the mass centres pos. Other
-    pairs as in resolve_pairs_range. Returns the number of solver calls."""
-    out = np.zeros(OUT_LEN)
-    n0 = np.zeros(3)
-    ecalls = 0
+def _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar, gstar,
+                        mu, zeta, dt, method, res, on, oorg, orot, ax6, poly_scene, out, n0):
+    """The loop of a scene with ellipsoids (and poly-ellipsoids when poly_scene): closed form for
+    two spheres, the bounding-sphere test, then the solver of the pair's shapes."""
+    nc = 0
+    calls = 0
+    worst = 0.0
+    worst_k = -1
+    rsum = 0.0
     for k in range(k0, k1):
         i = pi[k]
         j = pj[k]
-        if shape[i] != POLY and shape[j] != POLY:
-            ecalls += _ellipsoid_or_sphere_pair(k, i, j, pos, vel, omega, rot, axes, shape, mass, material, gid,
-                                                n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu,
-                                                zeta, dt, method, active, pair_res, depth_ratio, out, n0)
+        if shape[i] == SPHERE and shape[j] == SPHERE:
+            r = _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt, res, on)
+        elif _apart(i, j, pos, rbound):
+            on[k] = 0
+            r = -1.0
+        elif poly_scene and (shape[i] == POLY or shape[j] == POLY):
+            calls += 1
+            r = _poly_pair(k, i, j, pos, vel, omega, mass, material, estar, gstar, mu, zeta, dt, res, on,
+                           oorg, orot, ax6, out, n0)
+        else:
+            calls += 1
+            r = _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, estar, gstar, mu, zeta, dt,
+                                method, res, on, out, n0)
+        if r >= 0.0:
+            nc += 1
+            rsum += r
+            if r > worst:
+                worst = r
+                worst_k = k
+    return nc, calls, worst, worst_k, rsum
+
+
+@njit(cache=True)
+def resolve_range(kind, method, k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass, material,
+                  estar, gstar, mu, zeta, dt, res, on, oorg, orot, ax6, out, n0):
+    """Resolve pairs k0..k1-1 of the pair list: geometry (closed form for two spheres; otherwise the
+    ellipsoid method CONTACT_METHODS[method]: EXACT = PW + Newton on S^2, PW = Perram-Wertheim depth
+    only, SEXTIC = Yan 2010; poly-ellipsoids by the octant active set), then the contact law.
+    Updates res [m, PR_LEN] and on [m] in place (on[k] = 1: touching; its history is valid).
+    kind (SPHERES, ELLIPSOIDS, POLYS) picks the loop, so a scene pays only for the solvers its
+    shapes use. out [OUT_LEN], n0 [3] are scratch; oorg [n,3], orot [n,3,3], ax6 [n,6] the octant
+    geometry (empty outside POLYS). Returns RESOLVED: (contacts, solver calls, largest depth ratio
+    = depth over the smaller minimum semi-axis, its pair or -1, sum of the depth ratios)."""
+    if kind == SPHERES:
+        return _resolve_spheres(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt,
+                                res, on)
+    return _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar,
+                               gstar, mu, zeta, dt, method, res, on, oorg, orot, ax6, kind == POLYS, out, n0)
+
+
+@njit(cache=True, inline="always")
+def _wall_particle(p, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar_w, gstar_w,
+                   zeta_w, mu_w, wall_hist, dt, oorg, orot, ax6, out, fx, fy, fz, tx, ty, tz):
+    """Planar-wall contacts of particle p (walls in fixed order) added to its force (fx, fy, fz) and
+    torque (tx, ty, tz); updates its per-wall history. Wall planes: m.x = d with m the unit normal
+    into the domain; body 1 is the particle, body 2 the fixed wall, the normal from particle into
+    wall is -m. Poly-ellipsoids use their octant geometry. Returns (force [3], torque [3], wall
+    contacts, largest depth ratio = depth over the smallest semi-axis)."""
+    worst = 0.0
+    touching = 0
+    for w in range(wall_m.shape[0]):
+        mx, my, mz = wall_m[w, 0], wall_m[w, 1], wall_m[w, 2]
+        dist = mx * pos[p, 0] + my * pos[p, 1] + mz * pos[p, 2] - wall_d[w]
+        if dist >= rbound[p]:
+            wall_hist[p, w, H_A] = 0.0
             continue
-        ecalls += 1
-        own = i if i < n_owned else j
-        slot = find_history(hist_start, hist_partner, own, gid[j] if own == i else gid[i])
-        _warm_start(hist_val, slot, n0)
-        hit = polyellipsoid_contact(oorg[i], orot[i], ax6[i], oorg[j], orot[j], ax6[j], n0, out)
-        ai = ax6[i, 0]
-        aj = ax6[j, 0]
-        for c in range(1, 6):
-            ai = min(ai, ax6[i, c])
-            aj = min(aj, ax6[j, c])
-        _solved_pair(hit, k, i, j, out, ai, aj, pos, vel, omega, mass, material, estar, gstar, zeta, mu,
-                     hist_val, slot, dt, active, pair_res, depth_ratio)
-    return ecalls
+        if shape[p] == SPHERE:
+            hit, depth, xcx, xcy, xcz, r_e = sphere_wall_contact(pos[p, 0], pos[p, 1], pos[p, 2], axes[p, 0],
+                                                                 mx, my, mz, wall_d[w])
+            kratio = 1.0
+        else:
+            if shape[p] == POLY:
+                hit = polyellipsoid_wall_contact(oorg[p], orot[p], ax6[p], wall_m[w], wall_d[w], out) == 1
+            else:
+                hit = ellipsoid_wall_contact(pos[p], rot[p], axes[p], wall_m[w], wall_d[w], out) == 1
+            depth = out[OUT_DEPTH]
+            xcx, xcy, xcz = out[OUT_XCX], out[OUT_XCY], out[OUT_XCZ]
+            r_e = out[OUT_RE]
+            kratio = out[OUT_KRATIO]
+        if not hit:
+            wall_hist[p, w, H_A] = 0.0
+            continue
+        r1x, r1y, r1z = xcx - pos[p, 0], xcy - pos[p, 1], xcz - pos[p, 2]
+        vrx = -vel[p, 0] - (omega[p, 1] * r1z - omega[p, 2] * r1y)
+        vry = -vel[p, 1] - (omega[p, 2] * r1x - omega[p, 0] * r1z)
+        vrz = -vel[p, 2] - (omega[p, 0] * r1y - omega[p, 1] * r1x)
+        a = material[p]
+        f = contact_force(depth, -mx, -my, -mz, r_e, kratio, r1x, r1y, r1z, 0.0, 0.0, 0.0, vrx, vry, vrz,
+                          mass[p], estar_w[a], gstar_w[a], zeta_w[a], mu_w[a],
+                          wall_hist[p, w, H_FT], wall_hist[p, w, H_FT + 1], wall_hist[p, w, H_FT + 2],
+                          wall_hist[p, w, H_A], wall_hist[p, w, H_A] > 0.0, dt)
+        fx -= f[0]
+        fy -= f[1]
+        fz -= f[2]
+        tx += f[3]
+        ty += f[4]
+        tz += f[5]
+        wall_hist[p, w, H_FT] = f[9]
+        wall_hist[p, w, H_FT + 1] = f[10]
+        wall_hist[p, w, H_FT + 2] = f[11]
+        wall_hist[p, w, H_A] = f[12]
+        amin = min(axes[p, 0], min(axes[p, 1], axes[p, 2]))
+        if shape[p] == POLY:
+            for c in range(6):
+                amin = min(amin, ax6[p, c])
+        worst = max(worst, depth / amin)
+        touching += 1
+    return fx, fy, fz, tx, ty, tz, touching, worst
 
 
 @njit(cache=True)
-def build_adjacency(pi, pj, active, gid, n_owned):
-    """CSR of each owned particle's touching pairs, sorted by ascending partner gid.
-
-    Returns (start [n_owned+1], items [nnz] pair index, keys [nnz] partner gid). Rows are filled
-    in pair order and then
-    insertion-sorted by partner gid (rows are short), so the order never depends on how the
-    pair list was produced.
-    """
-    start = np.zeros(n_owned + 1, dtype=np.int64)
-    m = pi.shape[0]
-    for k in range(m):
-        if active[k]:
-            if pi[k] < n_owned:
-                start[pi[k] + 1] += 1
-            if pj[k] < n_owned:
-                start[pj[k] + 1] += 1
-    for p in range(n_owned):
-        start[p + 1] += start[p]
-    fill = start[:-1].copy()
-    items = np.empty(start[n_owned], dtype=np.int64)
-    keys = np.empty(start[n_owned], dtype=np.int64)
-    for k in range(m):
-        if active[k]:
-            i = pi[k]
-            j = pj[k]
-            if i < n_owned:
-                items[fill[i]] = k
-                keys[fill[i]] = gid[j]
-                fill[i] += 1
-            if j < n_owned:
-                items[fill[j]] = k
-                keys[fill[j]] = gid[i]
-                fill[j] += 1
-    for p in range(n_owned):
-        for u in range(start[p] + 1, start[p + 1]):
-            kk = keys[u]
-            it = items[u]
-            v = u - 1
-            while v >= start[p] and keys[v] > kk:
-                keys[v + 1] = keys[v]
-                items[v + 1] = items[v]
-                v -= 1
-            keys[v + 1] = kk
-            items[v + 1] = it
-    return start, items, keys
-
-
-@njit(cache=True)
-def gather_range(p0, p1, adj_start, adj_items, pi, pj, pair_res, force, torque, new_hist_val):
-    """Sum the pair forces/torques of particles p0..p1-1 in ascending partner gid and write
-    their new contact history new_hist_val [nnz, HIST_LEN] (rows aligned with the adjacency)."""
+def finish_range(p0, p1, adj_start, adj_items, pi, res, on, pos, vel, quat, angmom, mass, inertia, shape, axes,
+                 rbound, material, force, torque, rot, omega, gx, gy, gz, has_gravity, dt, wall_m, wall_d, estar_w,
+                 gstar_w, zeta_w, mu_w, wall_hist, poly, oorg, orot, ax6, poly_scene, ref, out, m33, lb):
+    """The rest of the step for owned particles p0..p1-1, one particle at a time:
+    1. gather: sum the pair forces and torques of the touching pairs in ascending partner gid
+       (adjacency adj_start [n_owned+1], adj_items: pair indices; pi tells which end p is);
+    2. walls in wall order (empty wall_m: none), giving force[p], torque[p];
+    3. integration (dem.integrate: leapfrog, symplectic rotation, gravity (gx, gy, gz) [m/s^2]);
+    4. the derived rotation matrix rot[p] and world angular velocity omega[p] of the new
+       orientation (and the octant geometry of a poly-ellipsoid when poly_scene), so the next
+       step's resolution finds them ready;
+    5. the stability guard's sums: kinetic energy sum m |v|^2/2 + omega.L/2 [J], gravity work
+       dt sum m v.g [J], non-finite positions or velocities, and the largest squared displacement
+       since the reference positions ref [n_owned, 3] [m^2] (the neighbour list's rebuild test).
+    out [OUT_LEN], m33 [3, 3] and lb [3] are scratch (nothing is allocated). Returns FINISHED: (wall contacts, largest wall depth ratio, its particle or -1,
+    kinetic energy, gravity work, number of non-finite particles, the first of them or -1,
+    largest squared displacement)."""
+    n_wall = 0
+    wall_worst = 0.0
+    wall_worst_p = -1
+    ke = 0.0
+    wg = 0.0
+    n_bad = 0
+    first_bad = -1
+    disp2 = 0.0
     for p in range(p0, p1):
         fx = fy = fz = 0.0
         tx = ty = tz = 0.0
         for u in range(adj_start[p], adj_start[p + 1]):
             k = adj_items[u]
+            if on[k] == 0:
+                continue
             if pi[k] == p:
-                fx -= pair_res[k, PR_FX]
-                fy -= pair_res[k, PR_FX + 1]
-                fz -= pair_res[k, PR_FX + 2]
-                tx += pair_res[k, PR_TI]
-                ty += pair_res[k, PR_TI + 1]
-                tz += pair_res[k, PR_TI + 2]
+                fx -= res[k, PR_FX]
+                fy -= res[k, PR_FX + 1]
+                fz -= res[k, PR_FX + 2]
+                tx += res[k, PR_TI]
+                ty += res[k, PR_TI + 1]
+                tz += res[k, PR_TI + 2]
             else:
-                fx += pair_res[k, PR_FX]
-                fy += pair_res[k, PR_FX + 1]
-                fz += pair_res[k, PR_FX + 2]
-                tx += pair_res[k, PR_TJ]
-                ty += pair_res[k, PR_TJ + 1]
-                tz += pair_res[k, PR_TJ + 2]
-            for h in range(HIST_LEN):
-                new_hist_val[u, h] = pair_res[k, PR_HIST + h]
+                fx += res[k, PR_FX]
+                fy += res[k, PR_FX + 1]
+                fz += res[k, PR_FX + 2]
+                tx += res[k, PR_TJ]
+                ty += res[k, PR_TJ + 1]
+                tz += res[k, PR_TJ + 2]
+        if wall_m.shape[0]:
+            fx, fy, fz, tx, ty, tz, touching, worst = _wall_particle(
+                p, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar_w, gstar_w,
+                zeta_w, mu_w, wall_hist, dt, oorg, orot, ax6, out, fx, fy, fz, tx, ty, tz)
+            n_wall += touching
+            if worst > wall_worst:
+                wall_worst = worst
+                wall_worst_p = p
         force[p, 0] = fx
         force[p, 1] = fy
         force[p, 2] = fz
         torque[p, 0] = tx
         torque[p, 1] = ty
         torque[p, 2] = tz
-
-
-@njit(cache=True)
-def wall_range(p0, p1, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape, mass, material,
-               estar_w, gstar_w, zeta_w, mu_w, wall_hist, dt, force, torque, oorg, orot, ax6):
-    """Add planar-wall contacts of particles p0..p1-1 (walls in fixed order), updating each
-    particle's per-wall history. Wall planes: m.x = d with m the unit normal into the domain.
-    Body 1 is the particle, body 2 the (fixed) wall; the normal from particle into wall is -m.
-    Poly-ellipsoids use their octant geometry oorg, orot, ax6 (derive_geometry_range; empty
-    arrays in a scene without them).
-    Returns (number of wall contacts, largest depth ratio = depth over the smallest semi-axis,
-    local index of the particle with it or -1)."""
-    out = np.zeros(OUT_LEN)
-    worst = 0.0
-    worst_p = -1
-    touching = 0
-    for p in range(p0, p1):
-        for w in range(wall_m.shape[0]):
-            mx, my, mz = wall_m[w, 0], wall_m[w, 1], wall_m[w, 2]
-            dist = mx * pos[p, 0] + my * pos[p, 1] + mz * pos[p, 2] - wall_d[w]
-            if dist >= rbound[p]:
-                wall_hist[p, w, H_A] = 0.0
-                continue
-            if shape[p] == SPHERE:
-                hit, depth, xcx, xcy, xcz, r_e = sphere_wall_contact(pos[p, 0], pos[p, 1], pos[p, 2], axes[p, 0],
-                                                                     mx, my, mz, wall_d[w])
-                kratio = 1.0
-            elif shape[p] == POLY:
-                hit = polyellipsoid_wall_contact(oorg[p], orot[p], ax6[p], wall_m[w], wall_d[w], out) == 1
-                depth = out[OUT_DEPTH]
-                xcx, xcy, xcz = out[OUT_XCX], out[OUT_XCY], out[OUT_XCZ]
-                r_e = out[OUT_RE]
-                kratio = out[OUT_KRATIO]
-            else:
-                hit = ellipsoid_wall_contact(pos[p], rot[p], axes[p], wall_m[w], wall_d[w], out) == 1
-                depth = out[OUT_DEPTH]
-                xcx, xcy, xcz = out[OUT_XCX], out[OUT_XCY], out[OUT_XCZ]
-                r_e = out[OUT_RE]
-                kratio = out[OUT_KRATIO]
-            if not hit:
-                wall_hist[p, w, H_A] = 0.0
-                continue
-            r1x, r1y, r1z = xcx - pos[p, 0], xcy - pos[p, 1], xcz - pos[p, 2]
-            vrx = -vel[p, 0] - (omega[p, 1] * r1z - omega[p, 2] * r1y)
-            vry = -vel[p, 1] - (omega[p, 2] * r1x - omega[p, 0] * r1z)
-            vrz = -vel[p, 2] - (omega[p, 0] * r1y - omega[p, 1] * r1x)
-            a = material[p]
-            f = contact_force(depth, -mx, -my, -mz, r_e, kratio, r1x, r1y, r1z, 0.0, 0.0, 0.0, vrx, vry, vrz,
-                              mass[p], estar_w[a], gstar_w[a], zeta_w[a], mu_w[a],
-                              wall_hist[p, w, H_FT], wall_hist[p, w, H_FT + 1], wall_hist[p, w, H_FT + 2],
-                              wall_hist[p, w, H_A], wall_hist[p, w, H_A] > 0.0, dt)
-            force[p, 0] -= f[0]
-            force[p, 1] -= f[1]
-            force[p, 2] -= f[2]
-            torque[p, 0] += f[3]
-            torque[p, 1] += f[4]
-            torque[p, 2] += f[5]
-            wall_hist[p, w, H_FT] = f[9]
-            wall_hist[p, w, H_FT + 1] = f[10]
-            wall_hist[p, w, H_FT + 2] = f[11]
-            wall_hist[p, w, H_A] = f[12]
-            amin = min(axes[p, 0], min(axes[p, 1], axes[p, 2]))
-            if shape[p] == POLY:
-                for c in range(6):
-                    amin = min(amin, ax6[p, c])
-            ratio = depth / amin
-            if ratio > worst:
-                worst = ratio
-                worst_p = p
-            touching += 1
-    return touching, worst, worst_p
+        integrate_particle(p, pos, vel, quat, angmom, mass, inertia, shape, force, torque, gx, gy, gz,
+                           has_gravity, dt, m33, lb)
+        derive_particle(p, quat, angmom, inertia, shape, rot, omega)
+        if poly_scene:
+            derive_poly_geometry(p, pos, rot, axes, shape, poly, orot, oorg, ax6)
+        vx, vy, vz = vel[p, 0], vel[p, 1], vel[p, 2]
+        m = mass[p]
+        ke += 0.5 * m * (vx * vx + vy * vy + vz * vz) + 0.5 * (
+            omega[p, 0] * angmom[p, 0] + omega[p, 1] * angmom[p, 1] + omega[p, 2] * angmom[p, 2])
+        wg += dt * m * (vx * gx + vy * gy + vz * gz)
+        x, y, z = pos[p, 0], pos[p, 1], pos[p, 2]
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(vx)
+                and math.isfinite(vy) and math.isfinite(vz)):
+            n_bad += 1
+            if first_bad < 0:
+                first_bad = p
+        dx, dy, dz = x - ref[p, 0], y - ref[p, 1], z - ref[p, 2]
+        disp2 = max(disp2, dx * dx + dy * dy + dz * dz)
+    return n_wall, wall_worst, wall_worst_p, ke, wg, n_bad, first_bad, disp2

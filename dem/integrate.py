@@ -24,15 +24,18 @@ def _rotate_body_axis(q, lb, inertia, axis, h):
     lb [3] rotates by -t about e_k. Both arrays are updated in place.
     """
     t = h * lb[axis] / inertia[axis]
-    c = math.cos(0.5 * t)
     s = math.sin(0.5 * t)
+    # one sine and one root instead of four trigonometric calls: cos(t/2) >= 0 while |t| <= pi (a
+    # sub-step turns far less), cos t = 1 - 2 s^2, sin t = 2 s c
+    c = math.sqrt(1.0 - s * s) if abs(t) <= math.pi else math.cos(0.5 * t)
+    ct = 1.0 - 2.0 * s * s
+    st = 2.0 * s * c
     w, x, y, z = q[0], q[1], q[2], q[3]
     if axis == 0:
         q[0] = w * c - x * s
         q[1] = x * c + w * s
         q[2] = y * c + z * s
         q[3] = z * c - y * s
-        ct, st = math.cos(t), math.sin(t)
         l1, l2 = lb[1], lb[2]
         lb[1] = ct * l1 + st * l2
         lb[2] = -st * l1 + ct * l2
@@ -41,7 +44,6 @@ def _rotate_body_axis(q, lb, inertia, axis, h):
         q[1] = x * c - z * s
         q[2] = y * c + w * s
         q[3] = z * c + x * s
-        ct, st = math.cos(t), math.sin(t)
         l0, l2 = lb[0], lb[2]
         lb[0] = ct * l0 - st * l2
         lb[2] = st * l0 + ct * l2
@@ -50,7 +52,6 @@ def _rotate_body_axis(q, lb, inertia, axis, h):
         q[1] = x * c + y * s
         q[2] = y * c - x * s
         q[3] = z * c + w * s
-        ct, st = math.cos(t), math.sin(t)
         l0, l1 = lb[0], lb[1]
         lb[0] = ct * l0 + st * l1
         lb[1] = -st * l0 + ct * l1
@@ -83,8 +84,9 @@ def _spin_sphere(q, angmom, i0, dt):
     if wn == 0.0:
         return
     h = 0.5 * wn * dt
-    c = math.cos(h)
-    s = math.sin(h) / wn
+    sh = math.sin(h)
+    c = math.sqrt(1.0 - sh * sh) if h <= 0.5 * math.pi else math.cos(h)  # one sine, as above
+    s = sh / wn
     ax, ay, az = s * wx, s * wy, s * wz
     w, x, y, z = q[0], q[1], q[2], q[3]
     q[0] = c * w - ax * x - ay * y - az * z
@@ -167,27 +169,43 @@ def angular_velocity(quat, angmom, inertia, shape, out):
     derive_range(0, quat.shape[0], quat, angmom, inertia, shape, rot, out)
 
 
-@njit(cache=True)
-def derive_geometry_range(lo, hi, pos, rot, axes, shape, poly, orot, oorg, ax6):
-    """Contact geometry of particles lo..hi-1 in a scene with poly-ellipsoids: every particle as a
-    poly-ellipsoid (Peters et al. 2009): octant frame orot [n,3,3], octant origin oorg [n,3] [m],
-    six semi-axes ax6 [n,6] [m]. A poly-ellipsoid's come from its record (R_oct = R W,
+@njit(cache=True, inline="always")
+def derive_poly_geometry(p, pos, rot, axes, shape, poly, orot, oorg, ax6):
+    """Contact geometry of particle p in a scene with poly-ellipsoids: every particle as a
+    poly-ellipsoid (Peters et al. 2009): octant frame orot[p] [3,3], octant origin oorg[p] [3] [m],
+    six semi-axes ax6[p] [6] [m]. A poly-ellipsoid's come from its record (R_oct = R W,
     o = x + R off); an ellipsoid is its own octant frame with a+ = a-, ...; a sphere has the
-    identity frame and six equal radii. rot [n,3,3] must be derived first (derive_range)."""
-    for p in range(lo, hi):
-        if shape[p] == POLY:
-            for a in range(3):
-                for b in range(3):
-                    orot[p, a, b] = (rot[p, a, 0] * poly[p, P_ROT + b] + rot[p, a, 1] * poly[p, P_ROT + 3 + b]
-                                     + rot[p, a, 2] * poly[p, P_ROT + 6 + b])
-                oorg[p, a] = pos[p, a] + (rot[p, a, 0] * poly[p, P_OFF] + rot[p, a, 1] * poly[p, P_OFF + 1]
-                                          + rot[p, a, 2] * poly[p, P_OFF + 2])
-            for k in range(6):
-                ax6[p, k] = poly[p, P_AX + k]
-            continue
+    identity frame and six equal radii. rot[p] must be derived first (derive_particle)."""
+    if shape[p] == POLY:
         for a in range(3):
             for b in range(3):
-                orot[p, a, b] = (1.0 if a == b else 0.0) if shape[p] == SPHERE else rot[p, a, b]
-            oorg[p, a] = pos[p, a]
-            ax6[p, 2 * a] = axes[p, a]
-            ax6[p, 2 * a + 1] = axes[p, a]
+                orot[p, a, b] = (rot[p, a, 0] * poly[p, P_ROT + b] + rot[p, a, 1] * poly[p, P_ROT + 3 + b]
+                                 + rot[p, a, 2] * poly[p, P_ROT + 6 + b])
+            oorg[p, a] = pos[p, a] + (rot[p, a, 0] * poly[p, P_OFF] + rot[p, a, 1] * poly[p, P_OFF + 1]
+                                      + rot[p, a, 2] * poly[p, P_OFF + 2])
+        for k in range(6):
+            ax6[p, k] = poly[p, P_AX + k]
+        return
+    for a in range(3):
+        for b in range(3):
+            orot[p, a, b] = (1.0 if a == b else 0.0) if shape[p] == SPHERE else rot[p, a, b]
+        oorg[p, a] = pos[p, a]
+        ax6[p, 2 * a] = axes[p, a]
+        ax6[p, 2 * a + 1] = axes[p, a]
+
+
+@njit(cache=True)
+def derive_geometry_range(lo, hi, pos, rot, axes, shape, poly, orot, oorg, ax6):
+    """derive_poly_geometry of particles lo..hi-1."""
+    for p in range(lo, hi):
+        derive_poly_geometry(p, pos, rot, axes, shape, poly, orot, oorg, ax6)
+
+
+@njit(cache=True)
+def derive_all(lo, hi, pos, quat, angmom, inertia, axes, shape, poly, rot, omega, poly_scene, orot, oorg, ax6):
+    """Derived quantities of particles lo..hi-1: rot, omega (derive_particle) and, when poly_scene,
+    the octant geometry (derive_poly_geometry)."""
+    for p in range(lo, hi):
+        derive_particle(p, quat, angmom, inertia, shape, rot, omega)
+        if poly_scene:
+            derive_poly_geometry(p, pos, rot, axes, shape, poly, orot, oorg, ax6)

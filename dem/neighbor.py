@@ -11,6 +11,7 @@ both ghosts (index >= n_owned) are skipped: no rank needs them.
 The loop is written once (scan_rows) over a list of outer particle rows, for both methods (all-
 pairs is the same loop over a single cell), so a thread scheme only chooses which rows each
 thread takes.
+Neighbour lists kept between steps with a skin, and their contact history: dem.pairs.
 """
 import numpy as np
 from numba import njit
@@ -190,30 +191,30 @@ class CellGrid:
                          HALF_SHELL, self.spos, self.srb, self.sgid, n_owned, pi, pj, 0)[0]
 
 
+def find_pairs(method, pos, radii, gid, n_owned, buffers):
+    """Serial neighbour estimate into buffers(m) (a function returning pi, pj of at least m
+    entries, e.g. dem.pairs.PairList.buffers): pairs whose spheres of radii [n] overlap.
+    Returns the pair count. method: "allpairs" or "linkcell"."""
+    grid = CellGrid(method, pos, radii, gid)
+    rows = np.arange(pos.shape[0], dtype=np.int64)
+    pi, pj = buffers(0)
+    count = grid.scan(rows, n_owned, pi, pj)
+    if count > pi.shape[0]:
+        pi, pj = buffers(count)
+        count = grid.scan(rows, n_owned, pi, pj)
+    return count
+
+
 def candidate_pairs(method, pos, rbound, gid, n_owned, buf):
-    """Serial neighbour estimate: returns (pi, pj) views of the candidate pairs.
+    """Serial neighbour estimate: returns (pi, pj) views of the candidate pairs (buf: a PairBuffer).
 
     method: "allpairs" or "linkcell".
     """
-    grid = CellGrid(method, pos, rbound, gid)
-    rows = np.arange(pos.shape[0], dtype=np.int64)
-    while True:
-        count = grid.scan(rows, n_owned, buf.pi, buf.pj)
-        if buf.ensure(count):
-            break
+    def buffers(m):
+        buf.ensure(m)
+        return buf.pi, buf.pj
+    count = find_pairs(method, pos, rbound, gid, n_owned, buffers)
     return buf.pi[:count], buf.pj[:count]
-
-
-@njit(cache=True)
-def max_displacement2(pos, ref, n):
-    """Largest squared displacement [m^2] of particles 0..n-1 since the reference positions."""
-    worst = 0.0
-    for p in range(n):
-        dx = pos[p, 0] - ref[p, 0]
-        dy = pos[p, 1] - ref[p, 1]
-        dz = pos[p, 2] - ref[p, 2]
-        worst = max(worst, dx * dx + dy * dy + dz * dz)
-    return worst
 
 
 @njit(cache=True)
@@ -221,30 +222,3 @@ def cell_order(pos, cutoff):
     """Permutation [n] listing the particles cell by cell (x fastest): a spatial sort, so that
     particles close in space are close in memory."""
     return bin_particles(pos, cutoff)[4]
-
-
-class VerletList:
-    """Candidate pairs within r_i + r_j + skin, reused until some particle moved skin/2.
-
-    Bounding spheres do not change under rotation, so the list stays a superset of the touching
-    pairs until a particle has translated by half the skin (Verlet 1967; LAMMPS' neighbor skin).
-    The narrow phase then decides contact exactly, so the contact set, and the trajectory, are
-    those of a per-step estimate.
-    """
-
-    def __init__(self, skin):
-        self.skin = float(skin)     # [m]
-        self.ref = None
-        self.pi = self.pj = None
-        self.rebuilds = 0
-
-    def needs_rebuild(self, pos, n_owned):
-        if self.ref is None or self.ref.shape != pos.shape:
-            return True
-        return max_displacement2(pos, self.ref, pos.shape[0]) >= (0.5 * self.skin) ** 2
-
-    def keep(self, pos, pi, pj):
-        """Store a list built with radii rbound + skin/2 at positions pos."""
-        self.pi, self.pj = pi.copy(), pj.copy()
-        self.ref = pos.copy()
-        self.rebuilds += 1

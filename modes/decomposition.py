@@ -90,3 +90,21 @@ def direction_of(coords_from, coords_to):
     ok = np.all(np.abs(d) <= 1, axis=1)
     out[ok] = table[code[ok]]
     return out
+
+
+def fit_skin(grid, width, skin, explicit):
+    """The neighbour-list skin [m] the blocks allow. Ghosts must cover every pair that can touch
+    before the next rebuild, so the border layer is width + skin wide and a block at least that.
+    A default skin (explicit False) shrinks to fit (to 0 at worst: neighbours every step); an
+    explicit one that does not fit is refused."""
+    split = grid.dims > 1
+    if not split.any() or skin <= 0:
+        return skin
+    room = float(grid.h[split].min()) - width
+    if skin <= room:
+        return skin
+    if explicit:
+        raise DecompositionError(
+            f"a skin of {skin:.3g} m widens the border layer to {width + skin:.3g} m, wider than the "
+            f"{width + room:.3g} m blocks: use a skin of at most {max(room, 0.0):.3g} m or fewer blocks")
+    return max(room, 0.0) * (1.0 - 1e-9)

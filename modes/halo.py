@@ -1,24 +1,41 @@
 """Ghost exchange and particle migration between link blocks (MPI; no physics here).
 
-Ghosts (commuT): every step each block sends the owned particles inside the border layer to
-each neighbour that needs them, directly to all 26 neighbours (the paper's exchange, --halo 26)
-or in three sweeps of two messages that forward what earlier sweeps brought (--halo 6: fewer,
-larger messages; the same ghosts). The
-message carries only what the contact kernels read: for a scene of spheres 14 doubles
-(gid, material, mass, radius, moment of inertia, position, velocity, angular momentum: 112
-bytes); otherwise 23 (plus shape, three semi-axes, three moments, quaternion: 184 bytes); in a
-scene with poly-ellipsoids also the poly record (six semi-axes, octant-origin offset, principal ->
-octant rotation: 18 doubles, 328 bytes in all). The paper sends 624 bytes per ellipsoid. Ghosts are exact binary copies, so each rank derives the
-same rotation matrix and angular velocity from them as the owner does.
+As LAMMPS does (comm_brick: exchange() and borders() on reneighbouring steps, forward_comm()
+between them), the work splits by how often it is needed:
 
-Migration (migraT): particles whose centre left the block move to the neighbour that owns it
-with their whole state, wall history and contact history (rows keyed by partner gid), so the
-tangential springs never reset (the paper's code loses them).
+- on neighbour-rebuild steps, migration (migraT): particles whose centre left the block move to
+  the neighbour that owns it with their whole state, wall history and contact history (rows
+  keyed by partner gid), so the tangential springs never reset (the paper's code loses them);
+  then the choice of ghosts (commuT): each block sends the owned particles inside the border
+  layer to each neighbour that needs them, with every field the contact kernels read, directly
+  to all 26 neighbours (the paper's exchange, --halo 26) or in three sweeps of two messages that
+  forward what earlier sweeps brought (--halo 6: fewer, larger messages; the same ghosts).
+  Full ghost records: for a scene of spheres 14 doubles (gid, material, mass, radius, moment of
+  inertia, position, velocity, angular momentum: 112 bytes); otherwise 23 (plus shape, three
+  semi-axes, three moments, quaternion: 184 bytes); in a scene with poly-ellipsoids also the
+  poly record (18 doubles, 328 bytes). The paper sends 624 bytes per ellipsoid every step.
+- on the steps between, forward communication (commuT): only what changes (position, velocity,
+  angular momentum, and for non-spheres the quaternion: 72 or 104 bytes a ghost) travels to the
+  same ghosts, packed and unpacked by numba over the index lists of the last rebuild, into
+  buffers allocated once per rebuild, one message per neighbour per round.
 
-Messages are numpy float64 buffers sent with the uppercase (buffer) mpi4py calls: first the
-row counts, then the rows, all with Irecv/Isend and one Waitall per round.
+Ghosts are exact binary copies, so each rank derives the same rotation matrix and angular
+velocity from them as the owner does.
+
+MPI pattern of the forward exchange: persistent point-to-point requests (Send_init/Recv_init
+on the rebuild's buffers, then Startall + Waitall each step). Measured on 2 ranks (mpich 4,
+shared memory, 12 kB a message, median of alternating runs; bench perf --what comm and the
+note of issue 11): persistent requests cost less than new Isend/Irecv each step (no request
+objects created in Python) and less than a neighbourhood collective (Neighbor_alltoallv on a
+distributed-graph communicator, which mpich implements as the same point-to-point messages
+plus its argument handling), and they keep the --halo 6 sweeps, whose second and third rounds
+forward what the first brought, which one collective call cannot.
+
+Message sizes are fixed between rebuilds, so a forward round sends no counts; a rebuild round
+sends row counts first, then the rows.
 """
 import numpy as np
+from numba import njit
 
 from dem.state import HIST_LEN, POLY_LEN, SPHERE, bounding_radii, csr_rows
 from modes.decomposition import DIRECTIONS, OPPOSITE, direction_of, send_masks
@@ -28,11 +45,19 @@ GHOST_GENERAL = ("gid", "shape", "material", "mass", "axes", "inertia", "pos", "
 GHOST_POLY = GHOST_GENERAL + ("poly",)
 WIDTH = {"gid": 1, "shape": 1, "material": 1, "mass": 1, "axes0": 1, "inertia0": 1, "axes": 3, "inertia": 3,
          "pos": 3, "vel": 3, "angmom": 3, "quat": 4, "poly": POLY_LEN}
+# the fields a forward exchange refreshes
+MOVING_SPHERE = ("pos", "vel", "angmom")
+MOVING_GENERAL = ("pos", "vel", "angmom", "quat")
 
 
 def ghost_fields(all_spheres, has_poly):
     """The fields a ghost carries: only what the scene's kernels read."""
     return GHOST_POLY if has_poly else GHOST_SPHERE if all_spheres else GHOST_GENERAL
+
+
+def moving_fields(all_spheres):
+    """The fields a forward exchange refreshes (a sphere's orientation shapes nothing)."""
+    return MOVING_SPHERE if all_spheres else MOVING_GENERAL
 
 
 def _owner_fields(state):
@@ -78,12 +103,89 @@ def _split(rows, fields):
     return out
 
 
+@njit(cache=True)
+def pack_moving(idx, pos, vel, angmom, quat, with_quat, buf):
+    """buf[u] = (pos, vel, angmom[, quat]) of row idx[u] (buf [len(idx), 9 or 13])."""
+    for u in range(idx.shape[0]):
+        p = idx[u]
+        for c in range(3):
+            buf[u, c] = pos[p, c]
+            buf[u, 3 + c] = vel[p, c]
+            buf[u, 6 + c] = angmom[p, c]
+        if with_quat:
+            for c in range(4):
+                buf[u, 9 + c] = quat[p, c]
+
+
+@njit(cache=True)
+def unpack_moving(buf, g0, pos, vel, angmom, quat, with_quat):
+    """Rows g0.. of the state take (pos, vel, angmom[, quat]) from buf (inverse of pack_moving)."""
+    for u in range(buf.shape[0]):
+        p = g0 + u
+        for c in range(3):
+            pos[p, c] = buf[u, c]
+            vel[p, c] = buf[u, 3 + c]
+            angmom[p, c] = buf[u, 6 + c]
+        if with_quat:
+            for c in range(4):
+                quat[p, c] = buf[u, 9 + c]
+
+
+def compile_kernels():
+    """Compile (into numba's cache) the pack and unpack kernels, so that ranks do not compile at once."""
+    a = np.zeros((1, 3))
+    q = np.zeros((1, 4))
+    buf = np.zeros((1, 13))
+    idx = np.zeros(1, dtype=np.int64)
+    pack_moving(idx, a, a, a, q, True, buf)
+    unpack_moving(buf, 0, a, a, a, q, True)
+
+
+class _Round:
+    """One round of a forward exchange, fixed at a rebuild: the rows sent to each neighbour
+    (send_idx, concatenated in direction order, send_off [d+1]), the ghost rows received from each
+    (rows g0 + recv_off[d] ..), their buffers and persistent requests."""
+
+    def __init__(self, cart, dirs, ranks, send_lists, recv_counts, g0, width, wire):
+        self.g0 = g0
+        self.send_idx = (np.concatenate(send_lists).astype(np.int64) if send_lists
+                         else np.zeros(0, dtype=np.int64))
+        self.send_buf = np.zeros((len(self.send_idx), width))
+        self.recv_buf = np.zeros((int(sum(recv_counts)), width))
+        self.requests = []
+        self.bytes = 0
+        self.msgs = 0
+        self.wire_s = 0.0
+        so = ro = 0
+        for d, k in enumerate(dirs):
+            r = ranks[k]
+            ns, nr = len(send_lists[d]), int(recv_counts[d])
+            if nr:
+                self.requests.append(cart.Recv_init(self.recv_buf[ro:ro + nr], source=r, tag=int(OPPOSITE[k])))
+            if ns:
+                self.requests.append(cart.Send_init(self.send_buf[so:so + ns], dest=r, tag=int(k)))
+                nbytes = 8 * ns * width
+                self.bytes += nbytes
+                self.msgs += 1
+                if wire is not None:
+                    self.wire_s += wire.cost(r, nbytes)
+            so += ns
+            ro += nr
+
+    def free(self):
+        for req in self.requests:
+            req.Free()
+        self.requests = []
+
+
 class Halo:
     """Neighbour ranks of one block and the exchanges between them.
 
-    cart: MPI Cartesian communicator (not periodic); grid: BlockGrid; coords: this block."""
+    cart: MPI Cartesian communicator (not periodic); grid: BlockGrid; coords: this block; wire:
+    a modes.wire.WireModel of the links to the neighbour ranks (or None), for the wire time of
+    what each step sends. bytes_sent, msgs_sent, wire_s accumulate until the caller resets them."""
 
-    def __init__(self, cart, grid, coords, halo="26"):
+    def __init__(self, cart, grid, coords, halo="26", wire=None):
         if halo not in ("26", "6"):
             raise ValueError(f"halo must be '26' or '6', got {halo!r}")
         self.halo = halo
@@ -95,7 +197,33 @@ class Halo:
         for k in range(len(DIRECTIONS)):
             c = grid.neighbour(coords, k)
             self.ranks.append(None if c is None else cart.Get_cart_rank([int(x) for x in c]))
+        self.wire = wire
+        self.rounds = []
+        self.with_quat = True
+        self.reset_counters()
+
+    def clone(self):
+        """The same neighbours and grid, without a forward plan."""
+        return Halo(self.cart, self.grid, self.coords, halo=self.halo, wire=self.wire)
+
+    def reset_counters(self):
         self.bytes_sent = 0
+        self.msgs_sent = 0
+        self.wire_s = 0.0
+
+    def neighbour_ranks(self):
+        """The distinct ranks of the neighbour blocks."""
+        return sorted({r for r in self.ranks if r is not None})
+
+    def set_grid(self, grid):
+        self.grid = grid
+        self.lo, self.hi = grid.bounds(self.coords)
+
+    def _account(self, rank, nbytes):
+        self.bytes_sent += nbytes
+        self.msgs_sent += 1
+        if self.wire is not None:
+            self.wire_s += self.wire.cost(rank, nbytes)
 
     def exchange(self, outgoing, widths, dirs=None):
         """Send outgoing[k] (a tuple of float64 arrays [rows_a, widths[a]], or None) to neighbour k
@@ -118,6 +246,7 @@ class Halo:
             sizes[k] = (np.array([len(a) for a in outgoing[k]], dtype=np.int64) if outgoing[k] is not None
                         else np.zeros(na, dtype=np.int64))
             reqs.append(self.cart.Isend(sizes[k], dest=r, tag=k))
+            self._account(r, sizes[k].nbytes)
         MPI.Request.Waitall(reqs)
         incoming = [None] * len(DIRECTIONS)
         reqs = []
@@ -134,45 +263,84 @@ class Halo:
             for a in range(na):
                 if len(outgoing[k][a]):
                     buf = np.ascontiguousarray(outgoing[k][a])
-                    self.bytes_sent += buf.nbytes
+                    self._account(r, buf.nbytes)
                     reqs.append(self.cart.Isend(buf, dest=r, tag=100 + 32 * a + k))
         MPI.Request.Waitall(reqs)
         return incoming
 
     # --- ghosts -----------------------------------------------------------------------------
-    def exchange_ghosts(self, state, width, all_spheres):
-        """Drop old ghosts, send border particles to the neighbours that need them and append
-        the received ones after the owned particles. Returns the number of ghosts."""
+    def _round_dirs(self):
+        """The rounds of an exchange: lists of directions whose neighbours exist."""
+        if self.halo == "26":
+            return [[k for k, r in enumerate(self.ranks) if r is not None]]
+        rounds = []
+        for axis in range(3):
+            sweep = []
+            for sign in (-1, 1):
+                d = np.zeros(3, dtype=np.int64)
+                d[axis] = sign
+                k = int(np.flatnonzero((DIRECTIONS == d).all(axis=1))[0])
+                if self.ranks[k] is not None:
+                    sweep.append(k)
+            rounds.append(sorted(sweep))
+        return rounds
+
+    def build(self, state, width, all_spheres):
+        """Choose the ghosts (a neighbour-rebuild step): drop old ghosts, send the particles within
+        `width` of the block faces to the neighbours that need them with their full records,
+        append the received ones after the owned particles, and fix the forward exchange's plan
+        (index lists, buffers, persistent requests) until the next rebuild. Returns the number of
+        ghosts."""
+        self.free()
         drop_ghosts(state)
         n = state.n_owned
         fields = ghost_fields(all_spheres, state.has_poly)
         ncol = sum(WIDTH[f] for f in fields)
-        if self.halo == "26":
-            # direct: each border particle goes straight to every neighbour that needs it
-            masks = send_masks(state.pos[:n], self.lo, self.hi, width)
+        self.with_quat = not all_spheres
+        mwidth = sum(WIDTH[f] for f in moving_fields(all_spheres))
+        for dirs in self._round_dirs():
+            if self.halo == "26":
+                # direct: each border particle goes straight to every neighbour that needs it
+                masks = send_masks(state.pos[:n], self.lo, self.hi, width)
+                lists = [np.flatnonzero(masks[k]) for k in dirs]
+            else:
+                # a sweep along one axis forwards the ghosts of the earlier sweeps too, so edge and
+                # corner neighbours are served in two or three hops (the same particles as the
+                # direct exchange: the faces crossed are the same planes)
+                lists = []
+                for k in dirs:
+                    axis = int(np.flatnonzero(DIRECTIONS[k])[0])
+                    x = state.pos[:, axis]
+                    near = (x - self.lo[axis] < width) if DIRECTIONS[k][axis] < 0 else (self.hi[axis] - x < width)
+                    lists.append(np.flatnonzero(near))
             outgoing = [None] * len(DIRECTIONS)
-            for k, r in enumerate(self.ranks):
-                if r is not None:
-                    outgoing[k] = (_columns(state, fields, np.flatnonzero(masks[k])),)
-            self._append(state, self.exchange(outgoing, (ncol,)), fields, all_spheres)
-        else:
-            # three sweeps (x, y, z) of two messages; each sweep forwards the ghosts received
-            # in the earlier ones, so edge and corner neighbours are served in two or three hops
-            # (the same particles as the direct exchange: the faces crossed are the same planes)
-            for axis in range(3):
-                pos = state.pos
-                outgoing = [None] * len(DIRECTIONS)
-                sweep = []
-                for sign in (-1, 1):
-                    d = np.zeros(3, dtype=np.int64)
-                    d[axis] = sign
-                    k = int(np.flatnonzero((DIRECTIONS == d).all(axis=1))[0])
-                    sweep.append(k)
-                    near = (pos[:, axis] - self.lo[axis] < width) if sign < 0 else (self.hi[axis] - pos[:, axis] < width)
-                    if self.ranks[k] is not None:
-                        outgoing[k] = (_columns(state, fields, np.flatnonzero(near)),)
-                self._append(state, self.exchange(outgoing, (ncol,), dirs=sweep), fields, all_spheres)
+            for k, idx in zip(dirs, lists):
+                outgoing[k] = (_columns(state, fields, idx),)
+            incoming = self.exchange(outgoing, (ncol,), dirs=dirs)
+            counts = [len(incoming[k][0]) for k in dirs]
+            g0 = state.n
+            self.rounds.append(_Round(self.cart, dirs, self.ranks, lists, counts, g0, mwidth, self.wire))
+            self._append(state, incoming, fields, all_spheres)
         return state.n - n
+
+    def forward(self, state):
+        """Refresh the ghosts' moving fields from their owners (a step between rebuilds): per round,
+        pack, start the persistent requests, wait, unpack. Allocates nothing."""
+        from mpi4py import MPI
+        for rd in self.rounds:
+            pack_moving(rd.send_idx, state.pos, state.vel, state.angmom, state.quat, self.with_quat, rd.send_buf)
+            MPI.Prequest.Startall(rd.requests)
+            MPI.Request.Waitall(rd.requests)
+            unpack_moving(rd.recv_buf, rd.g0, state.pos, state.vel, state.angmom, state.quat, self.with_quat)
+            self.bytes_sent += rd.bytes
+            self.msgs_sent += rd.msgs
+            self.wire_s += rd.wire_s
+
+    def free(self):
+        """Release the forward exchange's persistent requests."""
+        for rd in self.rounds:
+            rd.free()
+        self.rounds = []
 
     @staticmethod
     def _append(state, incoming, fields, all_spheres):
@@ -189,7 +357,8 @@ class Halo:
     # --- migration ----------------------------------------------------------------------------
     def migrate(self, state):
         """Move owned particles whose centre left this block to the neighbour block that holds
-        it, with their whole state and contact history. Returns (sent, received)."""
+        it, with their whole state and contact history (a neighbour-rebuild step; ghosts are
+        dropped first). Returns (sent, received)."""
         drop_ghosts(state)
         n = state.n_owned
         target = self.grid.block_of(state.pos[:n])

@@ -1,59 +1,90 @@
 """Pure MPI (P-px-py-pz-1) and hybrid (P-px-py-pz-T) modes: link-block decomposition.
 
-Each rank owns the particles whose centre lies in its block of the Cartesian grid. A step is
-(DESIGN.md): migrate the particles that left the block (migraT), exchange ghosts with the up to
-26 neighbour blocks (commuT), then the serial (or threaded, for hybrid) step on owned + ghost
-particles: pairs with a ghost are computed on both ranks from identical inputs and identical
-contact history, gravity and integration touch owned particles only, and walls are visited
-only by blocks that touch them. Timers use MPI.Wtime. Halo and migration live in halo.py,
-the geometry of blocks in decomposition.py; this module only orchestrates.
+Each rank owns the particles whose centre lay in its block at the last neighbour rebuild. A
+rebuild step (DESIGN.md) migrates the particles that left the block (migraT), then chooses the
+ghosts from the up to 26 neighbour blocks (commuT), inside a border layer as wide as the largest
+bounding diameter plus the skin, so that every pair that can touch before the next rebuild is
+present; the steps between only forward the ghosts' moving fields (commuT). Then the serial (or
+threaded, for hybrid) step runs on owned + ghost particles: pairs with a ghost are computed on
+both ranks from identical inputs and identical contact history, gravity and integration touch
+owned particles only, and walls are visited only by blocks that touch them. Whether the next
+step rebuilds is decided collectively, in the one allreduce a step makes (commuT), which also
+carries the stability guard's sums.
+Timers use MPI.Wtime. Halo and migration live in halo.py, the geometry of blocks in
+decomposition.py, the ping-pong wire model in wire.py; this module only orchestrates.
 """
 import numpy as np
 
-from modes.base import register
-from modes.decomposition import BlockGrid, border_width
+from modes.base import ModeError, register
+from modes.decomposition import BlockGrid, DecompositionError, border_width, fit_skin
 from modes.halo import Halo
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
+from modes.wire import WireModel, pingpong
+
+# ping-pong message sizes [B] of a run's wire model: a count message to the largest ghost messages
+WIRE_SIZES = (8, 512, 4096, 32768, 262144)
 
 
 class _Blocks:
     """Mixin: decomposition + halo around a step driver's step()."""
 
-    def setup(self, scene, dt, cart=None, skin=0.0, halo="26", update_grid=0, **kw):
+    collective = True
+
+    def setup(self, scene, dt, cart=None, skin=None, halo="26", update_grid=0, wire=True, **kw):
         from mpi4py import MPI
-        self.wtime = MPI.Wtime
-        super().setup(scene, dt, skin=0.0, **kw)
+        self.clock = MPI.Wtime
+        self.mpi = MPI
+        super().setup(scene, dt, skin=skin, **kw)
         s = self.state
         self.cart = cart
         dims = cart.Get_topo()[0]
         self.grid = BlockGrid(scene.box, dims)
         self.coords = np.array(cart.Get_coords(cart.Get_rank()))
-        self.width = border_width(float(s.rbound.max()))
-        self.grid.check_width(self.width)
+        base = border_width(float(s.rbound.max()))
+        try:
+            self.grid.check_width(base)
+            self.skin = fit_skin(self.grid, base, self.skin, explicit=skin is not None)
+        except DecompositionError as e:
+            raise ModeError(str(e)) from None
+        self.skin_fraction = self.skin / (2.0 * float(s.rbound.max()))
+        self.width = base + self.skin
         mine = np.flatnonzero(np.all(self.grid.block_of(s.pos) == self.coords, axis=1))
         s.permute_keep(mine)
         self.halo = Halo(cart, self.grid, self.coords, halo=halo)
+        # the wire under this halo: a ping-pong with the same neighbour ranks, in this run (collective)
+        self.wire = WireModel(pingpong(cart, self.halo.neighbour_ranks(), sizes=WIRE_SIZES, time_per_size=1e-3)) \
+            if wire else None
+        self.halo.wire = self.wire
         self.update_grid = int(update_grid)
         self.steps_done = 0
         self.grid_updates = 0
+        self.decision = np.zeros(4)
         # walls only where the block touches the box face (others are farther than any radius)
         touch = []
         for w in scene.walls:
             axis = "xyz".index(w[0])
             touch.append(self.coords[axis] == (0 if w[1] == "-" else dims[axis] - 1))
-        self.has_walls = bool(any(touch))
+        self.touches_walls = any(touch)
         return self
 
+    def _fresh(self):
+        super()._fresh()
+        if hasattr(self, "halo"):  # a warm-up twin exchanges through a halo of its own
+            self.halo = self.halo.clone()
+
     def warmup(self):
-        super().warmup()  # collective: every rank steps its twin once
-        self.halo.bytes_sent = 0
+        super().warmup()  # collective: every rank steps its twin (a rebuild and a forward step)
+        self.halo.reset_counters()
+
+    def release(self):
+        self.halo.free()
 
     def refit_grid(self):
         """The paper's updateGrid: re-fit the block grid to the extent of the particle centres
         (all ranks agree through two allreduces) when the blocks stay wide enough, and hand
         particles to their new owners. Returns the number of particles this rank sent."""
-        from mpi4py import MPI
+        MPI = self.mpi
         from modes.halo import redistribute
         s = self.state
         n = s.n_owned
@@ -66,38 +97,46 @@ class _Blocks:
         if np.any((grid.dims > 1) & (grid.h < self.width)):
             return 0  # too tight for the border layer: keep the current grid
         self.grid = grid
-        self.halo.grid = grid
-        self.halo.lo, self.halo.hi = grid.bounds(self.coords)
+        self.halo.set_grid(grid)
         self.grid_updates += 1
         return redistribute(self.cart, grid, s, self.coords)
 
+    def _refit_due(self, step):
+        return self.update_grid and step % self.update_grid == 0
+
+    def migrate(self):
+        if self._refit_due(self.steps_done + 1):
+            return self.refit_grid()
+        return self.halo.migrate(self.state)[0]
+
+    def ghosts(self, rebuild):
+        if rebuild:
+            self.halo.build(self.state, self.width, self.all_spheres)
+        else:
+            self.halo.forward(self.state)
+
+    def decide(self, max_disp2, flag, ke, wg):
+        d = self.decision
+        d[0] = 1.0 if self.skin <= 0 or max_disp2 >= (0.5 * self.skin) ** 2 else 0.0
+        d[1] = flag
+        d[2] = ke
+        d[3] = wg
+        self.cart.Allreduce(self.mpi.IN_PLACE, d, op=self.mpi.SUM)
+        self.sums = (d[1], d[2], d[3])
+        return bool(d[0] > 0.0) or self._refit_due(self.steps_done + 2)
+
     def step(self):
-        t0 = self.wtime()
-        self.steps_done += 1
-        moved = 0
-        if self.update_grid and self.steps_done % self.update_grid == 0:
-            moved = self.refit_grid()
-        sent, received = self.halo.migrate(self.state)
-        sent += moved
-        t1 = self.wtime()
-        n_ghost = self.halo.exchange_ghosts(self.state, self.width, self.all_spheres)
-        t2 = self.wtime()
         row = super().step()
-        migra, commu = t1 - t0, t2 - t1
-        row["migraT"] = migra
-        row["commuT"] = commu
-        row["totalT"] = row["totalT"] + migra + commu
-        row["compuT"] = row["totalT"] - migra - commu
-        row["n_migrated"] = sent
-        row["n_ghost"] = n_ghost
-        row["bytes_sent"] = self.halo.bytes_sent
-        self.halo.bytes_sent = 0
+        self.steps_done += 1
+        h = self.halo
+        row["bytes_sent"] = h.bytes_sent
+        row["msgs_sent"] = h.msgs_sent
+        row["wire_s"] = h.wire_s
+        h.reset_counters()
         return row
 
     def snapshot(self):
         """Owned particles of every rank, gathered on rank 0 and sorted by gid (None elsewhere)."""
-        from modes.halo import drop_ghosts
-        drop_ghosts(self.state)
         parts = self.cart.gather(self.state.snapshot(), root=0)
         if self.cart.Get_rank() != 0:
             return None

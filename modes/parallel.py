@@ -11,10 +11,10 @@ of contact detection (neighbour estimate + contact resolution) for all-pairs and
 - dynamic:   rows (and then candidate pairs) handed out at run time in small chunks from a
              shared atomic counter, so it is really dynamic on the default omp layer too
              (numba's prange chunk size only balances on tbb).
-A thread resolves the contacts it found (the paper's loop: for each i, find and resolve its
-pairs), except dynamic, which also hands out the pair resolution in chunks, and static, which
-pranges over the pairs. Every other per-particle loop (gather, walls, integration) is split in
-T contiguous blocks. Results never depend on the scheme (DESIGN.md, Determinism): pairs are
+A thread resolves the contacts it found at the last neighbour rebuild (the paper's loop: for
+each i, find and resolve its pairs), except dynamic, which also hands out the pair resolution in
+chunks, and static, which pranges over the pairs. The per-particle pass (gather, walls,
+integration, derived quantities) is split in T contiguous blocks. Results never depend on the scheme (DESIGN.md, Determinism): pairs are
 resolved independently and gathered per particle in ascending partner id.
 
 Busy time per thread is read from the CPU cycle counter around each thread's share of a phase
@@ -28,9 +28,8 @@ from numba import get_thread_id, njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from dem.forces import (SPHERES, POLYS, gather_range, resolve_pairs_range, resolve_poly_pairs_range,
-                        resolve_sphere_pairs_range, wall_range)
-from dem.integrate import derive_geometry_range, derive_range, integrate_range
+from dem.forces import finish_range, resolve_range
+from dem.integrate import derive_all
 from dem.neighbor import HALF_SHELL, scan_rows
 
 SCHEMES = ("partition", "frogleap", "headtail", "static", "dynamic")
@@ -162,105 +161,121 @@ def compact_pairs(threads, pi_t, pj_t, offsets, pi, pj):
             pj[o + k] = pj_t[t, k]
 
 
-@njit(cache=True)
-def _resolve_chunk(k0, k1, kind, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid, n_owned,
-                   hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt, method, active, pair_res,
-                   depth_ratio, oorg, orot, ax6):
-    """Resolve pairs k0..k1-1 with the loop of the scene kind (dem.forces: SPHERES, ELLIPSOIDS,
-    POLYS); returns solver calls."""
-    if kind == POLYS:
-        return resolve_poly_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid,
-                                        n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
-                                        method, active, pair_res, depth_ratio, oorg, orot, ax6)
-    if kind == SPHERES:
-        return resolve_sphere_pairs_range(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, gid, n_owned,
-                                          hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt,
-                                          active, pair_res, depth_ratio)
-    return resolve_pairs_range(k0, k1, pi, pj, pos, vel, omega, rot, axes, shape, mass, material, gid, n_owned,
-                               hist_start, hist_partner, hist_val, estar, gstar, mu, zeta, dt, method, active,
-                               pair_res, depth_ratio)
+RED_LEN = 5      # per-thread row of dem.forces.RESOLVED
+FIN_LEN = 8      # per-thread row of dem.forces.FINISHED
+
+
+@njit(cache=True, inline="always")
+def _fold_resolved(red, t, r):
+    """Accumulate one chunk's dem.forces.RESOLVED tuple r into thread t's row red[t]."""
+    red[t, 0] += r[0]
+    red[t, 1] += r[1]
+    if r[2] > red[t, 2]:
+        red[t, 2] = r[2]
+        red[t, 3] = r[3]
+    red[t, 4] += r[4]
 
 
 @njit(parallel=True, cache=True)
-def resolve_threads(code, threads, offsets, kind, pi, pj, pos, vel, omega, rot, axes, shape, mass,
-                    material, gid, n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta,
-                    dt, method, active, pair_res, depth_ratio, oorg, orot, ax6, busy):
-    """Contact resolution of the candidate pairs under a scheme; returns ellipsoid-solver calls.
-
-    Explicit schemes: thread t resolves the pairs it found, offsets[t]..offsets[t+1]; static:
-    prange over blocks of STATIC_BLOCK pairs; dynamic: chunks of DYNAMIC_PAIRS from an atomic
-    counter."""
+def resolve_threads(code, threads, offsets, kind, method, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass,
+                    material, estar, gstar, mu, zeta, dt, res, on, oorg, orot, ax6, outs, n0s, counter, red, busy):
+    """Contact resolution of the pair list under a scheme. Explicit schemes: thread t resolves the pairs it
+    found, offsets[t]..offsets[t+1]; static: prange over blocks of STATIC_BLOCK pairs; dynamic:
+    chunks of DYNAMIC_PAIRS from the atomic counter [1]. outs [T, OUT_LEN], n0s [T, 3] are
+    per-thread scratch, red [T, RED_LEN] per-thread reductions, busy [T] cycles.
+    Returns dem.forces.RESOLVED over all threads."""
     m = offsets[threads]
-    ecalls = np.zeros(threads, dtype=np.int64)
+    red[:, :] = 0.0
+    red[:, 3] = -1.0
     if code == STATIC:
         for b in prange((m + STATIC_BLOCK - 1) // STATIC_BLOCK):
             t = get_thread_id()
             c0 = cycle_counter()
             k = b * STATIC_BLOCK
-            k1 = min(m, k + STATIC_BLOCK)
-            ecalls[t] += _resolve_chunk(k, k1, kind, pi, pj, pos, vel, omega, rot, axes, shape, mass, material,
-                                        gid, n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta,
-                                        dt, method, active, pair_res, depth_ratio, oorg, orot, ax6)
+            r = resolve_range(kind, method, k, min(m, k + STATIC_BLOCK), pi, pj, pos, vel, omega, rot, axes, rbound,
+                              shape, mass, material, estar, gstar, mu, zeta, dt, res, on, oorg, orot, ax6, outs[t],
+                              n0s[t])
+            _fold_resolved(red, t, r)
             busy[t] += cycle_counter() - c0
-        return ecalls.sum()
-    counter = np.zeros(1, dtype=np.int64)
-    for t in prange(threads):
-        c0 = cycle_counter()
-        k0 = offsets[t]
-        k1 = offsets[t + 1]
-        while True:
-            if code == DYNAMIC:
-                k0 = fetch_add(counter, 0, DYNAMIC_PAIRS)
-                if k0 >= m:
+    else:
+        counter[0] = 0
+        for t in prange(threads):
+            c0 = cycle_counter()
+            k0 = offsets[t]
+            k1 = offsets[t + 1]
+            while True:
+                if code == DYNAMIC:
+                    k0 = fetch_add(counter, 0, DYNAMIC_PAIRS)
+                    if k0 >= m:
+                        break
+                    k1 = min(m, k0 + DYNAMIC_PAIRS)
+                r = resolve_range(kind, method, k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass,
+                                  material, estar, gstar, mu, zeta, dt, res, on, oorg, orot, ax6, outs[t], n0s[t])
+                _fold_resolved(red, t, r)
+                if code != DYNAMIC:
                     break
-                k1 = min(m, k0 + DYNAMIC_PAIRS)
-            ecalls[t] += _resolve_chunk(k0, k1, kind, pi, pj, pos, vel, omega, rot, axes, shape, mass, material,
-                                        gid, n_owned, hist_start, hist_partner, hist_val, estar, gstar, mu, zeta,
-                                        dt, method, active, pair_res, depth_ratio, oorg, orot, ax6)
-            if code != DYNAMIC:
-                break
-        busy[t] += cycle_counter() - c0
-    return ecalls.sum()
+            busy[t] += cycle_counter() - c0
+    nc = 0
+    calls = 0
+    worst = 0.0
+    worst_k = -1
+    rsum = 0.0
+    for t in range(threads):
+        nc += int(red[t, 0])
+        calls += int(red[t, 1])
+        if red[t, 2] > worst:
+            worst = red[t, 2]
+            worst_k = int(red[t, 3])
+        rsum += red[t, 4]
+    return nc, calls, worst, worst_k, rsum
 
 
 @njit(parallel=True, cache=True)
-def derive_threads(threads, n, quat, angmom, inertia, shape, rot, omega, poly_scene, pos, axes, poly, orot, oorg,
+def derive_threads(threads, lo, hi, pos, quat, angmom, inertia, axes, shape, poly, rot, omega, poly_scene, orot, oorg,
                    ax6):
+    """dem.integrate.derive_all of particles lo..hi-1 in T contiguous blocks."""
     for t in prange(threads):
-        lo = (t * n) // threads
-        hi = ((t + 1) * n) // threads
-        derive_range(lo, hi, quat, angmom, inertia, shape, rot, omega)
-        if poly_scene:
-            derive_geometry_range(lo, hi, pos, rot, axes, shape, poly, orot, oorg, ax6)
+        derive_all(lo + (t * (hi - lo)) // threads, lo + ((t + 1) * (hi - lo)) // threads, pos, quat, angmom, inertia,
+                   axes, shape, poly, rot, omega, poly_scene, orot, oorg, ax6)
 
 
 @njit(parallel=True, cache=True)
-def gather_threads(threads, n, adj_start, adj_items, pi, pj, pair_res, force, torque, new_hist_val):
+def finish_threads(threads, n, adj_start, adj_items, pi, res, on, pos, vel, quat, angmom, mass, inertia, shape, axes,
+                   rbound, material, force, torque, rot, omega, gx, gy, gz, has_gravity, dt, wall_m, wall_d, estar_w,
+                   gstar_w, zeta_w, mu_w, wall_hist, poly, oorg, orot, ax6, poly_scene, ref, outs, m33s, lbs, fin):
+    """dem.forces.finish_range of the owned particles 0..n-1 in T contiguous blocks (particles are
+    independent in this pass: each reads only its own pairs' results). fin [T, FIN_LEN] holds the
+    per-thread results, combined here in thread order. Returns dem.forces.FINISHED."""
     for t in prange(threads):
-        gather_range((t * n) // threads, ((t + 1) * n) // threads, adj_start, adj_items, pi, pj, pair_res,
-                     force, torque, new_hist_val)
-
-
-@njit(parallel=True, cache=True)
-def wall_threads(threads, n, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape, mass, material,
-                 estar_w, gstar_w, zeta_w, mu_w, wall_hist, dt, force, torque, oorg, orot, ax6):
-    touching = np.zeros(threads, dtype=np.int64)
-    worst = np.zeros(threads)
-    worst_p = np.zeros(threads, dtype=np.int64)
-    for t in prange(threads):
-        c, w, wp = wall_range((t * n) // threads, ((t + 1) * n) // threads, wall_m, wall_d, pos, vel, omega, rot, axes,
-                          rbound, shape, mass, material, estar_w, gstar_w, zeta_w, mu_w, wall_hist, dt, force, torque,
-                          oorg, orot, ax6)
-        touching[t] = c
-        worst[t] = w
-        worst_p[t] = wp
-    k = np.argmax(worst)
-    return touching.sum(), worst[k], worst_p[k]
-
-
-@njit(parallel=True, cache=True)
-def integrate_threads(threads, n, pos, vel, quat, angmom, mass, inertia, shape, force, torque,
-                      gx, gy, gz, has_gravity, dt):
-    for t in prange(threads):
-        integrate_range((t * n) // threads, ((t + 1) * n) // threads, pos, vel, quat, angmom, mass, inertia,
-                        shape, force, torque, gx, gy, gz, has_gravity, dt)
+        r = finish_range((t * n) // threads, ((t + 1) * n) // threads, adj_start, adj_items, pi, res, on, pos, vel,
+                         quat, angmom, mass, inertia, shape, axes, rbound, material, force, torque, rot, omega, gx, gy,
+                         gz, has_gravity, dt, wall_m, wall_d, estar_w, gstar_w, zeta_w, mu_w, wall_hist, poly, oorg,
+                         orot, ax6, poly_scene, ref, outs[t], m33s[t], lbs[t])
+        fin[t, 0] = r[0]
+        fin[t, 1] = r[1]
+        fin[t, 2] = r[2]
+        fin[t, 3] = r[3]
+        fin[t, 4] = r[4]
+        fin[t, 5] = r[5]
+        fin[t, 6] = r[6]
+        fin[t, 7] = r[7]
+    n_wall = 0
+    wall_worst = 0.0
+    wall_p = -1
+    ke = 0.0
+    wg = 0.0
+    n_bad = 0
+    first_bad = -1
+    disp2 = 0.0
+    for t in range(threads):
+        n_wall += int(fin[t, 0])
+        if fin[t, 1] > wall_worst:
+            wall_worst = fin[t, 1]
+            wall_p = int(fin[t, 2])
+        ke += fin[t, 3]
+        wg += fin[t, 4]
+        n_bad += int(fin[t, 5])
+        if first_bad < 0 and fin[t, 6] >= 0:
+            first_bad = int(fin[t, 6])
+        disp2 = max(disp2, fin[t, 7])
+    return n_wall, wall_worst, wall_p, ke, wg, n_bad, first_bad, disp2

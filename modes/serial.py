@@ -1,48 +1,45 @@
 """Serial mode: one process, one thread; the reference trajectory every mode reproduces.
 
-The step follows DESIGN.md: (migrate, exchange: no-ops here) -> neighbour estimate (neighborT)
--> contact resolution + pair forces (resolveT) -> gather, walls, gravity, integration.
-Timers wrap these phases here, never inside kernels.
+The step follows DESIGN.md. On a rebuild step (the first, and whenever a particle has moved
+half the skin since the last one; every step with skin 0): contact history into the state's
+per-particle rows, migrate and exchange ghosts (no-ops here), a spatial re-sort (with a skin),
+then the neighbour estimate into the pair list (neighborT). Every step: contact resolution of
+the pair list (resolveT), then one pass over the owned particles: gather (ascending partner
+gid), walls, gravity, integration and the derived quantities of the new orientation. A step
+between rebuilds is two kernel calls and allocates nothing. Timers wrap these phases here,
+never inside kernels; the subclasses (modes/mpi.py) fill the migrate and ghost hooks.
 """
 import copy
 import time
 
 import numpy as np
 
-from dem.forces import (CONTACT_METHODS, PR_LEN, POLYS, SPHERES, build_adjacency, gather_range,
-                        resolve_pairs_range, resolve_poly_pairs_range, resolve_sphere_pairs_range,
-                        scene_kind, wall_range)
-from dem.integrate import derive_geometry_range, derive_range, integrate_range
-from dem.state import HIST_LEN
-from dem.neighbor import PairBuffer, VerletList, candidate_pairs, cell_order
+from dem.contact.ellipsoid import OUT_LEN
+from dem.forces import CONTACT_METHODS, POLYS, finish_range, resolve_range, scene_kind
+from dem.integrate import derive_all
+from dem.neighbor import cell_order, find_pairs
+from dem.pairs import DEFAULT_SKIN, PairList
 from modes.base import ModeError, register
-
-
-class PairArrays:
-    """Per-pair work arrays reused across steps, grown on demand."""
-
-    def __init__(self):
-        self.active = np.zeros(0, dtype=np.int8)
-        self.res = np.zeros((0, PR_LEN))
-        self.ratio = np.zeros(0)
-
-    def ensure(self, m):
-        if m > self.active.shape[0]:
-            cap = int(m * 1.25) + 64
-            self.active = np.zeros(cap, dtype=np.int8)
-            self.res = np.zeros((cap, PR_LEN))
-            self.ratio = np.zeros(cap)
 
 
 @register("serial")
 class SerialMode:
-    """Reference step driver. options: neighbor ('allpairs' | 'linkcell'); skin: Verlet skin as a
-    fraction of the largest bounding diameter (0: estimate neighbours every step, the paper's way);
-    contact_method: ellipsoid contact geometry, one of dem.forces.CONTACT_METHODS."""
+    """Reference step driver. options: neighbor ('allpairs' | 'linkcell'); skin: the neighbour
+    list's skin as a fraction of the largest bounding diameter (None: dem.pairs.DEFAULT_SKIN; 0:
+    estimate neighbours every step, the paper's way); contact_method: ellipsoid contact geometry,
+    one of dem.forces.CONTACT_METHODS."""
 
-    def setup(self, scene, dt, neighbor="linkcell", skin=0.0, contact_method="exact", **_):
+    clock = staticmethod(time.perf_counter)
+    collective = False   # whether decide() communicates (its time is then commuT)
+    guard_overlap = 0.05  # the stability guard's overlap limit (bench.guard sets it)
+
+    def setup(self, scene, dt, neighbor="linkcell", skin=None, contact_method="exact", **options):
+        if options:
+            raise ModeError(f"unknown option(s) for the {self.name} mode: {', '.join(sorted(options))}")
         if contact_method not in CONTACT_METHODS:
             raise ModeError(f"unknown contact method {contact_method!r} ({', '.join(CONTACT_METHODS)})")
+        if neighbor not in ("allpairs", "linkcell"):
+            raise ModeError(f"unknown neighbour method {neighbor!r} (allpairs, linkcell)")
         self.contact_method = contact_method
         self.method = CONTACT_METHODS.index(contact_method)
         self.scene = scene
@@ -51,54 +48,47 @@ class SerialMode:
         self.neighbor = neighbor
         self.g = np.asarray(scene.gravity, dtype=np.float64)
         self.has_gravity = bool(np.any(self.g != 0.0))
-        self.has_walls = len(scene.walls) > 0
+        self.touches_walls = True   # MPI: whether this block touches a wall (modes/mpi.py)
+        self.no_walls = (np.zeros((0, 3)), np.zeros(0))
         self.all_spheres = self.state.all_spheres
         self.kind = scene_kind(self.state.shape, self.state.has_poly)
-        self.pairs = PairBuffer(max(1024, 8 * self.state.n))
-        self.skin = float(skin)
-        self.verlet = VerletList(self.skin * 2.0 * float(self.state.rbound.max())) if skin > 0 else None
-        self.rebuilt = True
-        self.work = PairArrays()
-        self.rot = None
-        self.ensure_derived()
+        self.skin_fraction = DEFAULT_SKIN if skin is None else float(skin)
+        self.skin = self.skin_fraction * 2.0 * float(self.state.rbound.max()) if self.state.n else 0.0
         self.max_overlap_ratio = 0.0
         self.worst_contact = None
+        self._fresh()
         return self
 
+    def _fresh(self):
+        """Per-run buffers: pair list, derived arrays, scratch; the next step rebuilds."""
+        self.pairs = PairList(max(1024, 8 * self.state.n))
+        self.rebuild_next = True
+        self.rot = None
+        self.out = np.zeros(OUT_LEN)
+        self.n0 = np.zeros(3)
+        self.m33 = np.zeros((3, 3))
+        self.lb = np.zeros(3)
+        self.ensure_derived()
+
     def warmup(self):
-        """Compile every kernel by stepping a deep copy once (nothing of it is kept)."""
+        """Compile every kernel by stepping a deep copy three times: a first build, a step between
+        rebuilds and a rebuild that carries history over (nothing of it is kept; under MPI every
+        rank does it together)."""
         twin = copy.copy(self)
         twin.state = copy.deepcopy(self.state)
-        twin.pairs = PairBuffer(self.pairs.pi.shape[0])
-        if self.verlet is not None:
-            twin.verlet = VerletList(self.verlet.skin)
-        twin.work = PairArrays()
-        twin.rot = None
-        twin.ensure_derived()
-        twin.step()
+        twin._fresh()
+        for rebuild in (True, False, True):
+            twin.rebuild_next = rebuild
+            twin.step()
+        twin.release()
+
+    def release(self):
+        """Free what the mode holds outside Python's reach (MPI requests); nothing here."""
 
     # --- phases -------------------------------------------------------------------------------
-    def find_pairs(self, radii):
-        """Candidate pairs whose spheres of radii [n] overlap (the mode's loop strategy)."""
-        s = self.state
-        return candidate_pairs(self.neighbor, s.pos, radii, s.gid, s.n_owned, self.pairs)
-
-    def neighbour_phase(self):
-        s = self.state
-        if self.verlet is None:
-            self.rebuilt = True
-            return self.find_pairs(s.rbound)
-        v = self.verlet
-        self.rebuilt = v.needs_rebuild(s.pos, s.n_owned)
-        if self.rebuilt:
-            # re-sort particles in space first: memory order never changes results (Determinism)
-            s.permute(cell_order(s.pos, 2.0 * float(s.rbound.max())))
-            v.keep(s.pos, *self.find_pairs(s.rbound + 0.5 * v.skin))
-        return v.pi, v.pj
-
     def ensure_derived(self):
-        """Per-step rotation matrices [n,3,3] and angular velocities [n,3] sized to the current n
-        (MPI changes n every step: ghosts and migrants); in a scene with poly-ellipsoids also the
+        """Rotation matrices [n,3,3] and angular velocities [n,3] sized to the current n (MPI
+        changes n at rebuilds: ghosts and migrants); in a scene with poly-ellipsoids also the
         octant geometry oorg [n,3], orot [n,3,3], ax6 [n,6] (empty otherwise)."""
         n = self.state.n
         if self.rot is None or self.rot.shape[0] != n:
@@ -109,89 +99,144 @@ class SerialMode:
             self.orot = np.zeros((g, 3, 3))
             self.ax6 = np.zeros((g, 6))
 
-    def derive(self):
+    def derive(self, lo, hi):
+        """Derived quantities of particles lo..hi-1 (all of them after a rebuild; ghosts after a
+        forward exchange)."""
+        s = self.state
+        derive_all(lo, hi, s.pos, s.quat, s.angmom, s.inertia, s.axes, s.shape, s.poly, self.rot, self.omega,
+                   self.kind == POLYS, self.orot, self.oorg, self.ax6)
+
+    def sync_history(self):
+        """Write the pair list's contact history into the state's per-particle rows (the form that
+        migrates, is cached and restarts)."""
+        s = self.state
+        s.hist_start, s.hist_partner, s.hist_val = self.pairs.history(s.gid, s.n_owned)
+
+    def reorder(self):
+        """With a skin, re-sort the owned particles in space at each rebuild (memory order never
+        changes results: DESIGN.md, Determinism)."""
+        s = self.state
+        if self.skin > 0 and s.n == s.n_owned and s.n > 1:
+            s.permute(cell_order(s.pos, 2.0 * float(s.rbound.max())))
+
+    def find_pairs(self, radii):
+        """Candidate pairs whose spheres of radii [n] overlap, into the pair list's buffers (the
+        mode's loop strategy); returns their number."""
+        s = self.state
+        return find_pairs(self.neighbor, s.pos, radii, s.gid, s.n_owned, self.pairs.buffers)
+
+    def build_list(self):
+        """The neighbour list: pairs within r_i + r_j + skin, their history from the state's rows."""
         s = self.state
         self.ensure_derived()
-        derive_range(0, s.n, s.quat, s.angmom, s.inertia, s.shape, self.rot, self.omega)
-        if self.kind == POLYS:
-            derive_geometry_range(0, s.n, s.pos, self.rot, s.axes, s.shape, s.poly, self.orot, self.oorg, self.ax6)
+        self.derive(0, s.n)
+        m = self.find_pairs(s.rbound + 0.5 * self.skin if self.skin > 0 else s.rbound)
+        self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos)
 
-    def resolve_phase(self, pi, pj):
-        s, m = self.state, self.scene.materials
-        self.derive()
-        self.work.ensure(len(pi))
-        w = self.work
-        if self.kind == POLYS:
-            return resolve_poly_pairs_range(0, len(pi), pi, pj, s.pos, s.vel, self.omega, self.rot, s.axes,
-                                            s.shape, s.mass, s.material, s.gid, s.n_owned, s.hist_start,
-                                            s.hist_partner, s.hist_val, m.estar, m.gstar, m.mu, m.zeta, self.dt,
-                                            self.method, w.active, w.res, w.ratio, self.oorg, self.orot, self.ax6)
-        if self.kind == SPHERES:
-            return resolve_sphere_pairs_range(0, len(pi), pi, pj, s.pos, s.vel, self.omega, s.axes, s.mass,
-                                              s.material, s.gid, s.n_owned, s.hist_start, s.hist_partner,
-                                              s.hist_val, m.estar, m.gstar, m.mu, m.zeta, self.dt,
-                                              w.active, w.res, w.ratio)
-        return resolve_pairs_range(0, len(pi), pi, pj, s.pos, s.vel, self.omega, self.rot, s.axes,
-                                   s.shape, s.mass, s.material, s.gid, s.n_owned, s.hist_start,
-                                   s.hist_partner, s.hist_val, m.estar, m.gstar, m.mu, m.zeta, self.dt,
-                                   self.method, w.active, w.res, w.ratio)
+    def migrate(self):
+        """Hand particles that left the block to their new owner (MPI); returns how many left."""
+        return 0
 
-    def gather(self, pi, pj, start, items, new_val):
-        s = self.state
-        gather_range(0, s.n_owned, start, items, pi, pj, self.work.res, s.force, s.torque, new_val)
+    def ghosts(self, rebuild):
+        """Exchange ghosts (MPI): new ones on a rebuild, else the moving fields of the same ones."""
+
+    def decide(self, max_disp2, flag, ke, wg):
+        """Whether the next step rebuilds (some particle moved half the skin), and the run's sums
+        for the stability guard, self.sums = (flagged, kinetic energy [J], gravity work [J]) from
+        this rank's flag (a non-finite particle or an overlap above guard_overlap) and sums. Under
+        MPI both are one allreduce (its time is commuT)."""
+        self.sums = (flag, ke, wg)
+        return self.skin <= 0 or max_disp2 >= (0.5 * self.skin) ** 2
+
+    def resolve(self):
+        """Contact resolution of the pair list; returns dem.forces.RESOLVED."""
+        s, m, p = self.state, self.scene.materials, self.pairs
+        return resolve_range(self.kind, self.method, 0, p.m, p.pi, p.pj, s.pos, s.vel, self.omega, self.rot,
+                             s.axes, s.rbound, s.shape, s.mass, s.material, m.estar, m.gstar, m.mu, m.zeta, self.dt,
+                             p.res, p.on, self.oorg, self.orot, self.ax6, self.out, self.n0)
+
+    @property
+    def has_walls(self):
+        """Whether the step has a wall pass (a scene with walls, a block that touches one)."""
+        return bool(len(self.scene.walls)) and self.touches_walls
 
     def walls(self):
-        s, m, sc = self.state, self.scene.materials, self.scene
-        return wall_range(0, s.n_owned, sc.wall_m, sc.wall_d, s.pos, s.vel, self.omega, self.rot, s.axes,
-                          s.rbound, s.shape, s.mass, s.material, m.estar_w, m.gstar_w, m.zeta_w, m.mu_w,
-                          s.wall_hist, self.dt, s.force, s.torque, self.oorg, self.orot, self.ax6)
+        """Wall planes (normals [n_walls, 3], offsets [n_walls]) this rank's particles can touch;
+        read from the scene each step (a build moves them)."""
+        return (self.scene.wall_m, self.scene.wall_d) if self.has_walls else self.no_walls
 
-    def integrate(self):
-        s, g = self.state, self.g
-        integrate_range(0, s.n_owned, s.pos, s.vel, s.quat, s.angmom, s.mass, s.inertia, s.shape,
-                        s.force, s.torque, g[0], g[1], g[2], self.has_gravity, self.dt)
+    def finish(self):
+        """Gather, walls, integration, derived quantities and guard sums; returns dem.forces.FINISHED."""
+        s, m, p, g = self.state, self.scene.materials, self.pairs, self.g
+        return finish_range(0, s.n_owned, p.adj_start, p.adj_items, p.pi, p.res, p.on, s.pos, s.vel, s.quat,
+                            s.angmom, s.mass, s.inertia, s.shape, s.axes, s.rbound, s.material, s.force, s.torque,
+                            self.rot, self.omega, g[0], g[1], g[2], self.has_gravity, self.dt, *self.walls(),
+                            m.estar_w, m.gstar_w, m.zeta_w, m.mu_w, s.wall_hist, s.poly, self.oorg,
+                            self.orot, self.ax6, self.kind == POLYS, p.ref, self.out, self.m33, self.lb)
 
-    def gather_phase(self, pi, pj):
-        """Gather (ascending partner gid), walls, gravity and integration of the owned particles."""
-        s = self.state
-        w = self.work
-        active = w.active[:len(pi)]
-        start, items, keys = build_adjacency(pi, pj, active, s.gid, s.n_owned)
-        new_val = np.empty((len(items), HIST_LEN))
-        self.gather(pi, pj, start, items, new_val)
-        s.hist_start, s.hist_partner, s.hist_val = start, keys, new_val
-        n_wall, wall_worst, wall_p = self.walls() if self.has_walls else (0, 0.0, -1)
-        n_contacts = int(active.sum())
-        # the deepest contact of the step, named by global ids for the stability guard
-        pair_worst = 0.0
-        self.worst_contact = None
-        if n_contacts:
-            ratios = np.where(active == 1, w.ratio[:len(pi)], -1.0)
-            k = int(np.argmax(ratios))
-            pair_worst = float(ratios[k])
-            self.worst_contact = (int(s.gid[pi[k]]), int(s.gid[pj[k]]))
-        if wall_worst > pair_worst:
-            self.worst_contact = (int(s.gid[wall_p]), "wall")
-        self.integrate()
-        return n_contacts, n_wall, max(pair_worst, wall_worst)
+    # --- contact detection alone (bench schemes: the paper's Table 1) --------------------------
+    def neighbour_phase(self):
+        """The neighbour estimate on the current positions into the pair list (with its history
+        and adjacency); returns (pi, pj)."""
+        self.build_list()
+        return self.pairs.pi, self.pairs.pj
+
+    def resolve_phase(self, pi=None, pj=None):
+        """Contact resolution of the current pair list; positions do not move."""
+        return self.resolve()
 
     def step(self):
         """One time step; returns the phase times [s] and counters of DESIGN.md's steps.csv."""
-        t0 = time.perf_counter()
-        pi, pj = self.neighbour_phase()
-        t1 = time.perf_counter()
-        ecalls = self.resolve_phase(pi, pj)
-        t2 = time.perf_counter()
-        n_contacts, n_wall, worst = self.gather_phase(pi, pj)
-        t3 = time.perf_counter()
+        clock = self.clock
+        t0 = clock()
+        rebuild = self.rebuild_next
+        migra = commu = 0.0
+        sent = 0
+        if rebuild:
+            if self.pairs.rebuilds:  # the first build takes the state's own (loaded) history
+                self.sync_history()
+            ta = clock()
+            sent = self.migrate()
+            tb = clock()
+            self.reorder()
+            tc = clock()
+            self.ghosts(True)
+            td = clock()
+            self.build_list()
+            migra, commu = tb - ta, td - tc
+        else:
+            tc = clock()
+            self.ghosts(False)
+            commu = clock() - tc
+            if self.state.n > self.state.n_owned:  # ghosts moved: their rotations and spins
+                self.derive(self.state.n_owned, self.state.n)
+        t1 = clock()
+        neighbor = t1 - t0 - commu - migra if rebuild else 0.0
+        nc, calls, worst, worst_k, rsum = self.resolve()
+        t2 = clock()
+        n_wall, wall_worst, wall_p, ke, wg, n_bad, first_bad, disp2 = self.finish()
+        pair_worst = worst
+        if wall_worst > worst:
+            worst = wall_worst
+        t3 = clock()
+        self.rebuild_next = self.decide(disp2, float(n_bad > 0 or worst > self.guard_overlap), ke, wg)
+        t4 = clock()
+        commu += t4 - t3 if self.collective else 0.0
+        s = self.state
+        self.worst_contact = (int(s.gid[self.pairs.pi[worst_k]]), int(s.gid[self.pairs.pj[worst_k]])) \
+            if worst_k >= 0 else None
+        if wall_worst > pair_worst:
+            self.worst_contact = (int(s.gid[wall_p]), "wall")
         self.max_overlap_ratio = max(self.max_overlap_ratio, worst)
-        total = t3 - t0
-        return {"totalT": total, "commuT": 0.0, "migraT": 0.0, "compuT": total,
-                "neighborT": t1 - t0, "resolveT": t2 - t1, "n_owned": self.state.n_owned,
-                "n_ghost": self.state.n - self.state.n_owned, "n_contacts": n_contacts,
-                "n_wall_contacts": n_wall,
-                "n_candidates": len(pi), "neighbor_rebuilt": int(self.rebuilt), "n_migrated": 0, "bytes_sent": 0,
-                "ellipsoid_calls": ecalls, "max_overlap_ratio": worst}
+        total = t4 - t0
+        return {"totalT": total, "commuT": commu, "migraT": migra, "compuT": total - commu - migra,
+                "neighborT": neighbor, "resolveT": t2 - t1,
+                "n_owned": s.n_owned, "n_ghost": s.n - s.n_owned, "n_contacts": nc, "n_wall_contacts": n_wall,
+                "n_candidates": self.pairs.m, "neighbor_rebuilt": int(rebuild), "n_migrated": sent,
+                "bytes_sent": 0, "ellipsoid_calls": calls, "max_overlap_ratio": worst,
+                "pair_overlap_ratio_sum": rsum, "pair_worst_ratio": pair_worst,
+                "kinetic_energy": ke, "gravity_work": wg, "n_bad": n_bad,
+                "first_bad": int(s.gid[first_bad]) if first_bad >= 0 else -1}
 
     def snapshot(self):
         return self.state.snapshot()

@@ -1,14 +1,15 @@
 """Threads mode: mapping 1-1-1-1-T, T numba threads under one of the paper's five schemes.
 
 The step is the serial one (modes/serial.py) with each phase's loop run by modes/parallel.py:
-contact detection (neighbour scan, contact resolution) under the chosen scheme, and, unless
-`threaded = "detection"` (the paper's situation, for the Amdahl ceiling it reports), the force
-gather, walls, integration and derived quantities in T contiguous blocks. The adjacency
-(counting sort of the touching pairs) stays serial: it is O(contacts) integer work.
+contact detection (neighbour scan on rebuilds, contact resolution every step) under the chosen
+scheme, and, unless `threaded = "detection"` (the paper's situation, for the Amdahl ceiling it
+reports), the per-particle pass (gather, walls, integration, derived quantities) in T
+contiguous blocks. The pair adjacency (a counting sort, once per rebuild) stays serial.
 """
 import numpy as np
 import numba
 
+from dem.contact.ellipsoid import OUT_LEN
 from dem.forces import POLYS
 from dem.neighbor import CellGrid
 from modes.base import ModeError, register
@@ -40,20 +41,30 @@ class ThreadsMode(SerialMode):
         if threads > numba.config.NUMBA_NUM_THREADS:
             raise ModeError(f"{threads} threads asked but numba started with NUMBA_NUM_THREADS="
                             f"{numba.config.NUMBA_NUM_THREADS}; set it before numba starts (bench run does)")
-        super().setup(scene, dt, **kw)
         self.threads = int(threads)
         self.scheme = scheme
         self.code = par.SCHEMES.index(scheme)
         self.threaded = threaded
         numba.set_num_threads(self.threads)
         self.cap = 1024
-        self.offsets = np.zeros(self.threads + 1, dtype=np.int64)
         self.busy = np.zeros(self.threads, dtype=np.int64)
         self.scan_busy = np.zeros(self.threads, dtype=np.int64)
         self.tests = np.zeros(self.threads, dtype=np.int64)
         self.counts = np.zeros(self.threads, dtype=np.int64)
         self.work_imbalance = 1.0
+        super().setup(scene, dt, **kw)
         return self
+
+    def _fresh(self):
+        super()._fresh()
+        t = self.threads
+        self.outs = np.zeros((t, OUT_LEN))
+        self.n0s = np.zeros((t, 3))
+        self.m33s = np.zeros((t, 3, 3))
+        self.lbs = np.zeros((t, 3))
+        self.red = np.zeros((t, par.RED_LEN))
+        self.fin = np.zeros((t, par.FIN_LEN))
+        self.counter = np.zeros(1, dtype=np.int64)
 
     def warmup(self):
         numba.set_num_threads(self.threads)
@@ -66,6 +77,7 @@ class ThreadsMode(SerialMode):
         n = s.n
         row_start, rows = par.scheme_rows(self.scheme, n, self.threads)
         # rows are scan-order positions; explicit schemes index them, static/dynamic use identity
+        self.scan_busy[:] = 0
         while True:
             pi_t = np.empty((self.threads, self.cap), dtype=np.int64)
             pj_t = np.empty((self.threads, self.cap), dtype=np.int64)
@@ -75,69 +87,49 @@ class ThreadsMode(SerialMode):
             if self.counts.max() <= self.cap:
                 break
             self.cap = int(self.counts.max() * 1.25) + 64
-        self.offsets[1:] = np.cumsum(self.counts)
-        m = int(self.offsets[-1])
-        self.pairs.ensure(m)
-        pi, pj = self.pairs.pi[:m], self.pairs.pj[:m]
-        par.compact_pairs(self.threads, pi_t, pj_t, self.offsets, pi, pj)
+        offsets = np.zeros(self.threads + 1, dtype=np.int64)
+        offsets[1:] = np.cumsum(self.counts)
+        m = int(offsets[-1])
+        pi, pj = self.pairs.buffers(m)
+        par.compact_pairs(self.threads, pi_t, pj_t, offsets, pi, pj)
+        self.pairs.offsets = offsets
         self.cap = max(1024, int(self.counts.max() * 1.25) + 64)
         self.work_imbalance = float(self.tests.max() / max(self.tests.mean(), 1e-300))
-        return pi, pj
+        return m
 
-    def neighbour_phase(self):
-        self.scan_busy[:] = 0
-        return super().neighbour_phase()
-
-    def resolve_phase(self, pi, pj):
-        s, m = self.state, self.scene.materials
-        self.derive()
-        self.work.ensure(len(pi))
-        w = self.work
+    def resolve(self):
+        s, m, p = self.state, self.scene.materials, self.pairs
         self.busy[:] = 0
-        return par.resolve_threads(self.code, self.threads, self.offsets, self.kind, pi, pj, s.pos, s.vel,
-                                   self.omega, self.rot, s.axes, s.shape, s.mass, s.material, s.gid, s.n_owned,
-                                   s.hist_start, s.hist_partner, s.hist_val, m.estar, m.gstar, m.mu, m.zeta,
-                                   self.dt, self.method, w.active, w.res, w.ratio, self.oorg, self.orot, self.ax6,
-                                   self.busy)
+        return par.resolve_threads(self.code, self.threads, p.offsets, self.kind, self.method, p.pi, p.pj, s.pos,
+                                   s.vel, self.omega, self.rot, s.axes, s.rbound, s.shape, s.mass, s.material,
+                                   m.estar, m.gstar, m.mu, m.zeta, self.dt,
+                                   p.res, p.on, self.oorg, self.orot, self.ax6, self.outs, self.n0s, self.counter,
+                                   self.red, self.busy)
 
     # --- the rest of the step --------------------------------------------------------------------
-    def derive(self):
-        s = self.state
-        self.ensure_derived()
-        if self.threaded == "step":
-            par.derive_threads(self.threads, s.n, s.quat, s.angmom, s.inertia, s.shape, self.rot, self.omega,
-                               self.kind == POLYS, s.pos, s.axes, s.poly, self.orot, self.oorg, self.ax6)
+    def derive(self, lo, hi):
+        if self.threaded == "step" and hi > lo:
+            s = self.state
+            par.derive_threads(self.threads, lo, hi, s.pos, s.quat, s.angmom, s.inertia, s.axes, s.shape, s.poly,
+                               self.rot, self.omega, self.kind == POLYS, self.orot, self.oorg, self.ax6)
         else:
-            super().derive()
+            super().derive(lo, hi)
 
-    def gather(self, pi, pj, start, items, new_val):
-        s = self.state
-        if self.threaded == "step":
-            par.gather_threads(self.threads, s.n_owned, start, items, pi, pj, self.work.res, s.force, s.torque, new_val)
-        else:
-            super().gather(pi, pj, start, items, new_val)
-
-    def walls(self):
-        s, m, sc = self.state, self.scene.materials, self.scene
-        if self.threaded == "step":
-            return par.wall_threads(self.threads, s.n_owned, sc.wall_m, sc.wall_d, s.pos, s.vel, self.omega,
-                                    self.rot, s.axes, s.rbound, s.shape, s.mass, s.material, m.estar_w, m.gstar_w,
-                                    m.zeta_w, m.mu_w, s.wall_hist, self.dt, s.force, s.torque, self.oorg, self.orot,
-                                    self.ax6)
-        return super().walls()
-
-    def integrate(self):
-        s, g = self.state, self.g
-        if self.threaded == "step":
-            par.integrate_threads(self.threads, s.n_owned, s.pos, s.vel, s.quat, s.angmom, s.mass, s.inertia,
-                                  s.shape, s.force, s.torque, g[0], g[1], g[2], self.has_gravity, self.dt)
-        else:
-            super().integrate()
+    def finish(self):
+        if self.threaded != "step":
+            return super().finish()
+        s, m, p, g = self.state, self.scene.materials, self.pairs, self.g
+        return par.finish_threads(self.threads, s.n_owned, p.adj_start, p.adj_items, p.pi, p.res, p.on, s.pos, s.vel,
+                                  s.quat, s.angmom, s.mass, s.inertia, s.shape, s.axes, s.rbound, s.material, s.force,
+                                  s.torque, self.rot, self.omega, g[0], g[1], g[2], self.has_gravity, self.dt,
+                                  *self.walls(), m.estar_w, m.gstar_w, m.zeta_w, m.mu_w, s.wall_hist,
+                                  s.poly, self.oorg, self.orot, self.ax6, self.kind == POLYS, p.ref, self.outs,
+                                  self.m33s, self.lbs, self.fin)
 
     def step(self):
         row = super().step()
         hz = cycles_per_second()
-        busy = (self.busy + (self.scan_busy if self.rebuilt else 0)) / hz
+        busy = (self.busy + (self.scan_busy if row["neighbor_rebuilt"] else 0)) / hz
         row["busy_max"] = float(busy.max())
         row["busy_mean"] = float(busy.mean())
         row["imbalance"] = float(busy.max() / busy.mean()) if busy.mean() > 0 else 1.0

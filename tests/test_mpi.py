@@ -126,7 +126,11 @@ def test_records_of_a_pure_mpi_run(tmp_path):
     totalT - commuT - migraT; run.json names the MPI library."""
     _, steps, info = mpi_run(tmp_path, "gas", 50, "2-2-1-1-1")
     assert len(steps) == 2 * 50 and set(steps["rank"]) == {0, 1}
-    assert (steps["commuT"] > 0).all() and (steps["migraT"] > 0).all()
+    # ghosts travel every step; migration only on the neighbour-list rebuilds (the first step and
+    # whenever a particle has moved half the skin)
+    rebuilt = steps["neighbor_rebuilt"] == 1
+    assert (steps["commuT"] > 0).all() and (steps["migraT"][rebuilt] > 0).all()
+    assert (steps["migraT"][~rebuilt] == 0).all() and rebuilt.sum() < len(steps)
     assert np.allclose(steps["compuT"], steps["totalT"] - steps["commuT"] - steps["migraT"])
     assert steps["n_owned"].groupby(steps["step"]).sum().eq(300).all()
     assert "MPICH" in info["mpi_library"] or "Open MPI" in info["mpi_library"]
@@ -152,3 +156,57 @@ def test_update_grid_bit_identical(tmp_path, tmp_path_factory):
     assert info["grid_updates"] >= 10
     assert steps["n_contacts"].sum() > 0
     assert_same(ref, got)
+
+
+def test_every_step_estimate_bit_identical(tmp_path, tmp_path_factory):
+    """--skin 0 (the paper's every-step neighbour estimate, ghosts chosen every step) on 2 and on
+    2x2x2 blocks with the three-sweep halo: the serial trajectory bit for bit."""
+    ref = serial_state(tmp_path_factory, "gas", 2500)
+    for mapping, extra in (("2-2-1-1-1", ()), ("8-2-2-2-1", ("--halo", "6"))):
+        got, steps, info = mpi_run(tmp_path / mapping, "gas", 2500, mapping, "--skin", "0", *extra)
+        assert info["skin"] == 0.0 and (steps["neighbor_rebuilt"] == 1).all()
+        assert_same(ref, got)
+
+
+def test_rebuilds_decided_together_and_forward_sends_moving_fields(tmp_path):
+    """With a skin every rank rebuilds on the same steps (one collective decision); between
+    rebuilds each rank sends one message per neighbour holding only the moving fields of the
+    same ghosts: position, velocity, angular momentum, quaternion = 13 doubles = 104 bytes a
+    ghost for ellipsoids, so rank 0's bytes equal 104 x rank 1's ghosts on those steps."""
+    _, steps, info = mpi_run(tmp_path, "gas", 400, "2-2-1-1-1")
+    wide = steps.pivot(index="step", columns="rank")
+    assert (wide["neighbor_rebuilt"][0] == wide["neighbor_rebuilt"][1]).all()
+    between = wide[wide["neighbor_rebuilt"][0] == 0]
+    assert 0 < len(between) < 400 and info["forward_bytes_per_ghost"] == 104
+    assert (between["n_migrated"][0] == 0).all() and (between["migraT"][0] == 0).all()
+    assert (between["msgs_sent"][0] == 1).all() and (between["msgs_sent"][1] == 1).all()
+    assert (between["bytes_sent"][0] == 104 * between["n_ghost"][1]).all()
+    assert (between["bytes_sent"][1] == 104 * between["n_ghost"][0]).all()
+
+
+def test_wire_time_is_the_measured_model_of_the_bytes_sent(tmp_path):
+    """run.json holds each rank's ping-pong fit of its link (latency alpha > 0, bandwidth beta > 0,
+    the same for both ends); steps.csv's wire_s is exactly sum over the step's messages of
+    alpha + bytes / beta (Hockney's model; modes/wire.py), which for one neighbour is
+    msgs_sent alpha + bytes_sent / beta."""
+    _, steps, info = mpi_run(tmp_path, "gas", 100, "2-2-1-1-1")
+    w0 = info["wire"]["0"]["partners"]["1"]
+    w1 = info["wire"]["1"]["partners"]["0"]
+    assert w0 == w1 and w0["latency_s"] > 0 and w0["bandwidth_Bps"] > 0
+    model = steps["msgs_sent"] * w0["latency_s"] + steps["bytes_sent"] / w0["bandwidth_Bps"]
+    assert np.allclose(steps["wire_s"], model, rtol=1e-9, atol=0)
+    assert (steps["wire_s"] > 0).all()
+
+
+def test_default_skin_fits_narrow_blocks_explicit_one_refused(tmp_path):
+    """Ghost layers are the largest bounding diameter plus the skin wide: on blocks too narrow for
+    the default skin it shrinks to fit (run.json says by how much); an explicit skin that does not
+    fit is refused in one line."""
+    # blocks 2.1 mm wide along x, the largest bounding diameter 2 mm: room for a 0.1 mm skin (0.05 d)
+    pair = [("sphere", [1e-3], [0.0011, 0.01, 0.0011], [0.1, 0.0, 0.0]),
+            ("sphere", [1e-3], [0.00312, 0.01, 0.0011], [-0.1, 0.0, 0.0])]
+    scene = write(tmp_path, scene_with(pair, box="[[0.0, 0.0, 0.0], [0.0042, 0.02, 0.02]]"))
+    got, _, info = mpi_run(tmp_path, scene, 50, "2-2-1-1-1")
+    assert info["skin"] == pytest.approx(0.05, rel=1e-6) and info["skin_requested"] is None
+    one_line_error(bench("run", "--scene", scene, "--mapping", "2-2-1-1-1", "--skin", "0.5",
+                         "--out", str(tmp_path / "o")), "use a skin of at most")

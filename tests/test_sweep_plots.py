@@ -11,7 +11,7 @@ pd = pytest.importorskip("pandas")
 pytest.importorskip("matplotlib")
 
 from bench import sweep_plots  # noqa: E402
-from bench.sweep_plots import RUN_COLUMNS, plot_paper, plot_sweep  # noqa: E402
+from bench.sweep_plots import RUN_COLUMNS, modules_figure, plot_paper, plot_sweep  # noqa: E402
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 SWEEP_PNGS = ("speedup.png", "efficiency.png", "edsf.png", "modules.png", "error_vs_time.png")
@@ -25,8 +25,9 @@ def low_dpi(monkeypatch):
 
 
 def row(mapping, scheme="", status="done", reason="", totalT=None, commu=0.0, migra=0.0, err=0.0, rms=None,
-        scene="gas", particles=4000, steps=50, neighbor="linkcell", t1=T1):
-    """One runs.csv record as bench sweep writes it (derived columns from totalT and T(1))."""
+        scene="gas", particles=4000, steps=50, neighbor="linkcell", t1=T1, wire=None):
+    """One runs.csv record as bench sweep writes it (derived columns from totalT and T(1); wireT
+    and above_wireT = commuT + migraT - wireT only when `wire` is given)."""
     p, px, py, pz, t = (int(x) for x in mapping.split("-"))
     cores = p * t
     r = {c: math.nan for c in RUN_COLUMNS}
@@ -42,6 +43,8 @@ def row(mapping, scheme="", status="done", reason="", totalT=None, commu=0.0, mi
              edsf=(1 / s - 1 / cores) / (1 - 1 / cores) if cores > 1 else math.nan, rss_mb=120.0 * p,
              err_max=err, err_rms=err / 3 if rms is None else rms, stable=True, wall_s=totalT * steps + 2.0,
              load_before=0.5, load_after=1.5)
+    if wire is not None:
+        r.update(wireT=wire, above_wireT=commu + migra - wire)
     return r
 
 
@@ -54,8 +57,8 @@ def full_sweep():
         row("1-1-1-1-4", "dynamic", totalT=0.062),
         row("1-1-1-1-4", "static", totalT=0.071),
         row("1-1-1-1-8", "dynamic", totalT=0.041),
-        row("2-2-1-1-1", totalT=0.104, commu=0.004, migra=0.0004, err=2e-13),
-        row("4-2-2-1-1", totalT=0.056, commu=0.006, migra=0.0006, err=5e-13),
+        row("2-2-1-1-1", totalT=0.104, commu=0.004, migra=0.0004, err=2e-13, wire=0.0012),
+        row("4-2-2-1-1", totalT=0.056, commu=0.006, migra=0.0006, err=5e-13, wire=0.0015),
         row("8-2-2-2-1", totalT=0.033, commu=0.007, migra=0.0008, err=1.1e-12),
         row("2-2-1-1-2", "dynamic", totalT=0.060, commu=0.003, migra=0.0003, err=3e-13),
         row("2-2-1-1-4", "dynamic", totalT=0.036, commu=0.003, migra=0.0003, err=0.0, rms=0.0),
@@ -163,3 +166,150 @@ def test_degenerate_sweeps(tmp_path, case):
     write_schemes(d)
     assert_pngs(plot_sweep(d), SWEEP_PNGS)
     assert_pngs(plot_paper(d), ["paper_table4.png", "paper_table1.png"])
+
+
+# --- the wire under commuT + migraT (issue 11): runs.csv wireT / above_wireT and modules.png -----------
+def steps_frame(procs, commu, migra, wire=None, steps=3, totalT=0.01):
+    """A steps.csv of `procs` ranks x `steps` steps: commu[r][s], migra[r][s] and (optional)
+    wire[r][s] per rank r and step s [s]; the other columns constant."""
+    rows = []
+    for s in range(steps):
+        for r in range(procs):
+            d = dict(step=s + 1, rank=r, totalT=totalT + 1e-4 * r, commuT=commu[r][s], migraT=migra[r][s],
+                     compuT=totalT - commu[r][s] - migra[r][s], neighborT=1e-3, resolveT=2e-3, rss_mb=100.0)
+            if wire is not None:
+                d.update(wire_s=wire[r][s], msgs_sent=52)
+            rows.append(d)
+    return pd.DataFrame(rows)
+
+
+def write_point(d, mapping, steps):
+    """A done point folder as bench sweep leaves it (status.json, run.json, steps.csv, state.npz);
+    returns its Point."""
+    import json
+    import numpy as np
+    from bench.sweep import Point
+    p = Point(mapping, "", "gas", 4, int(steps["step"].max()), 0, "linkcell", "", False, "26")
+    rep = os.path.join(d, p.key, "rep0")
+    os.makedirs(rep)
+    steps.to_csv(os.path.join(rep, "steps.csv"), index=False)
+    with open(os.path.join(rep, "status.json"), "w") as fh:
+        json.dump({"status": "done", "reason": ""}, fh)
+    with open(os.path.join(rep, "run.json"), "w") as fh:
+        json.dump({"particles": 4, "steps": int(steps["step"].max()), "stable": True, "wall_s": 0.1}, fh)
+    np.savez(os.path.join(rep, "state.npz"), id=np.arange(4), pos=np.zeros((4, 3)), axes=np.ones((4, 3)))
+    return p
+
+
+def sweep_folder(d, with_wire=True):
+    """Serial, 2 and 4 ranks, summarised by bench.sweep.summarise from steps.csv files written here,
+    runs.csv written by bench.sweep.write_runs. Numbers (ms): 2 ranks, 3 steps: commuT rank 0 =
+    0.5, rank 1 = 0.7 every step (mean 0.6), migraT 0.1, wire_s rank 0 = 0.1, 0.2, 0.3 and rank 1 =
+    0.3, 0.4, 0.5 (step means 0.2, 0.3, 0.4: wireT = 0.3), so above_wireT = 0.6 + 0.1 - 0.3 = 0.4;
+    4 ranks: commuT 0.8, migraT 0.2, wire_s 0.25 everywhere: wireT 0.25, above_wireT 0.75. The
+    serial steps.csv carries wire_s = 0 (a serial mode may write it), which must still give NaN."""
+    import bench.sweep as sw
+    ms = 1e-3
+    serial = steps_frame(1, [[0.0] * 3], [[0.0] * 3], [[0.0] * 3] if with_wire else None, totalT=0.02)
+    two = steps_frame(2, [[0.5 * ms] * 3, [0.7 * ms] * 3], [[0.1 * ms] * 3] * 2,
+                      [[0.1 * ms, 0.2 * ms, 0.3 * ms], [0.3 * ms, 0.4 * ms, 0.5 * ms]] if with_wire else None)
+    four = steps_frame(4, [[0.8 * ms] * 3] * 4, [[0.2 * ms] * 3] * 4, [[0.25 * ms] * 3] * 4 if with_wire else None,
+                       totalT=0.006)
+    rows = []
+    t1 = None
+    for mapping, st in (("1-1-1-1-1", serial), ("2-2-1-1-1", two), ("4-2-2-1-1", four)):
+        p = write_point(d, mapping, st)
+        r = sw.summarise(p, [os.path.join(d, p.key, "rep0")], None, t1)
+        t1 = t1 or r["totalT"]
+        rows.append(r)
+    os.makedirs(d, exist_ok=True)
+    sw.write_runs(os.path.join(d, "runs.csv"), rows)
+    return str(d)
+
+
+def bars(ax):
+    """{container label: [bar heights]} of an axes."""
+    return {c.get_label(): [p.get_height() for p in c.patches] for c in ax.containers}
+
+
+def test_runs_csv_wire_columns(tmp_path):
+    """wireT = mean over steps of the per-rank mean of wire_s (like commuT): 0.3 ms for 2 ranks,
+    0.25 ms for 4; above_wireT = commuT + migraT - wireT = 0.4 ms and 0.75 ms; empty (NaN) for the
+    serial point even though its steps.csv has wire_s = 0."""
+    d = sweep_folder(tmp_path / "sw")
+    runs = pd.read_csv(os.path.join(d, "runs.csv"))
+    assert runs["mapping"].tolist() == ["1-1-1-1-1", "2-2-1-1-1", "4-2-2-1-1"]
+    assert math.isnan(runs.loc[0, "wireT"]) and math.isnan(runs.loc[0, "above_wireT"])
+    assert runs.loc[1, "commuT"] == pytest.approx(0.6e-3, rel=1e-12)
+    assert runs.loc[1, "wireT"] == pytest.approx(0.3e-3, rel=1e-12)
+    assert runs.loc[1, "above_wireT"] == pytest.approx(0.4e-3, rel=1e-9)
+    assert runs.loc[2, "wireT"] == pytest.approx(0.25e-3, rel=1e-12)
+    assert runs.loc[2, "above_wireT"] == pytest.approx(0.75e-3, rel=1e-9)
+
+
+def test_modules_figure_draws_the_wire(tmp_path):
+    """modules.png from that sweep: every point has its compuT / commuT / migraT bar (heights in ms
+    equal runs.csv's, x 1e3); the two MPI points have a second bar stacking compuT, wireT and
+    above_wireT at exactly runs.csv's values (0.3 and 0.25 ms of wire; 0.4 and 0.75 ms above it),
+    with bottoms compuT and compuT + wireT; the lower panel draws the same in % of totalT; the
+    serial point has no split. plot_sweep writes the PNGs from the same figure code."""
+    d = sweep_folder(tmp_path / "sw")
+    runs = pd.read_csv(os.path.join(d, "runs.csv"))
+    fig = modules_figure(d)
+    try:
+        ax, ax2 = fig.axes[:2]
+        h = bars(ax)
+        for col in ("compuT", "commuT", "migraT"):
+            assert h[col] == pytest.approx((1e3 * runs[col].clip(lower=0)).tolist(), rel=1e-12), col
+        mpi = runs.iloc[1:]
+        assert h["wireT"] == pytest.approx((1e3 * mpi["wireT"]).tolist(), rel=1e-12)
+        assert h["above_wireT"] == pytest.approx((1e3 * mpi["above_wireT"]).tolist(), rel=1e-12)
+        assert h["split compuT"] == pytest.approx((1e3 * mpi["compuT"]).tolist(), rel=1e-12)
+        assert h["wireT"] == pytest.approx([0.3, 0.25], rel=1e-9)
+        wire_c = next(c for c in ax.containers if c.get_label() == "wireT")
+        above_c = next(c for c in ax.containers if c.get_label() == "above_wireT")
+        assert [p.get_y() for p in wire_c.patches] == pytest.approx((1e3 * mpi["compuT"]).tolist(), rel=1e-12)
+        assert [p.get_y() for p in above_c.patches] == pytest.approx((1e3 * (mpi["compuT"] + mpi["wireT"])).tolist(),
+                                                                      rel=1e-12)
+        h2 = bars(ax2)
+        assert h2["wireT"] == pytest.approx((100 * mpi["wireT"] / mpi["totalT"]).tolist(), rel=1e-12)
+        assert h2["above_wireT"] == pytest.approx((100 * mpi["above_wireT"] / mpi["totalT"]).tolist(), rel=1e-12)
+        legend = [t.get_text() for t in ax.get_legend().get_texts()]
+        assert any(t.startswith("wireT") for t in legend) and any(t.startswith("above_wireT") for t in legend)
+    finally:
+        sweep_plots.plt.close(fig)
+    assert_pngs(plot_sweep(d), SWEEP_PNGS)
+
+
+@pytest.mark.parametrize("old", ["steps_without_wire", "runs_without_columns"])
+def test_modules_figure_without_wire(tmp_path, old):
+    """Older records still load and plot, as before the wire: a sweep whose steps.csv files lack
+    wire_s (runs.csv wireT and above_wireT empty), and a runs.csv written before those columns
+    existed. One bar per point (compuT, commuT, migraT, at runs.csv's values), no wire bar."""
+    d = sweep_folder(tmp_path / "sw", with_wire=False)
+    runs = pd.read_csv(os.path.join(d, "runs.csv"))
+    assert runs["wireT"].isna().all() and runs["above_wireT"].isna().all()
+    if old == "runs_without_columns":
+        runs.drop(columns=["wireT", "above_wireT"]).to_csv(os.path.join(d, "runs.csv"), index=False)
+    fig = modules_figure(d)
+    try:
+        h = bars(fig.axes[0])
+        assert set(h) == {"compuT", "commuT", "migraT"}
+        assert h["commuT"] == pytest.approx((1e3 * runs["commuT"]).tolist(), rel=1e-12)
+    finally:
+        sweep_plots.plt.close(fig)
+    assert_pngs(plot_sweep(d), SWEEP_PNGS)
+
+
+def test_modules_figure_wire_above_overhead(tmp_path):
+    """A modelled wire above the measured overhead (messages overlapped better than one after
+    another): above_wireT < 0 is drawn as a 0-high bar marked '<0', the wire bar at its value."""
+    d = write_runs(tmp_path, [row("1-1-1-1-1", totalT=T1),
+                              row("2-2-1-1-1", totalT=0.104, commu=0.001, migra=0.0001, wire=0.0015)])
+    fig = modules_figure(d)
+    try:
+        h = bars(fig.axes[0])
+        assert h["wireT"] == pytest.approx([1.5], rel=1e-12) and h["above_wireT"] == [0.0]
+        assert "<0" in [t.get_text() for t in fig.axes[0].texts]
+    finally:
+        sweep_plots.plt.close(fig)
