@@ -146,9 +146,12 @@ def build_parser():
     pf = sub.add_parser("perf", help="speed figures (per pair, per particle-step; --what comm: MPI ping-pong)")
     pf.add_argument("--particles", type=_positive_int, default=10000)
     pf.add_argument("--steps", type=_positive_int, default=20)
-    pf.add_argument("--what", default="all", choices=["all", "pairs", "ellipsoids", "spheres", "comm"],
+    pf.add_argument("--what", default="all", choices=["all", "pairs", "ellipsoids", "spheres", "comm", "overhead"],
                     help="comm: OSU-style ping-pong between neighbour ranks (latency, bandwidth, fitted "
-                         "alpha/beta; not part of all)")
+                         "alpha/beta); overhead: the fixed cost of a step (48 particles) and 2 ranks against "
+                         "serial with commuT + migraT against the wire (neither is part of all)")
+    pf.add_argument("--repeats", type=_positive_int, default=3,
+                    help="--what overhead: alternating runs per configuration, medians (default 3)")
     pf.add_argument("--procs", type=_positive_int, default=None,
                     help="--what comm: ranks, on the most cubic grid (default: the mapping's)")
     pf.add_argument("--mapping", default=None,
@@ -300,6 +303,19 @@ def cmd_schemes(args):
 
 
 def cmd_perf(args):
+    if args.what == "overhead":
+        from bench.perf_overhead import measure
+        try:
+            report = measure(args.repeats, print)
+        except RuntimeError as e:  # a run of the benchmark failed: its own one line
+            print(f"bench: error: {e}", file=sys.stderr)
+            return 1
+        if args.out:
+            import os
+            from bench.records import write_json
+            os.makedirs(args.out, exist_ok=True)
+            write_json(os.path.join(args.out, "perf.json"), report)
+        return 0
     if args.what == "comm":
         from bench.perf_comm import perf_comm
         return _one_line(perf_comm)(args)

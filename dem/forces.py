@@ -1,16 +1,23 @@
 """Contact forces: per-pair resolution into the pair list, deterministic per-particle finish.
 
-The pair list (built by dem.neighbor, kept between rebuilds) holds each candidate pair (i, j),
-gid[i] < gid[j], once, with its record res [m, PR_LEN]: the force on j and the torques of the
-last resolution, and the pair's contact history (tangential spring, contact radius, PW warm
-start). on [m] (int8) says whether the pair touched at its last resolution, i.e. whether its
-history is valid. Resolution reads a pair's history and overwrites it in place: a pair is
-resolved by exactly one thread, and nothing else reads its record during resolution.
+The pair list (dem.pairs, kept between neighbour rebuilds) holds each candidate pair (i, j),
+gid[i] < gid[j], once, with its contact history hist [m, HIST_LEN] (tangential spring, contact
+radius, PW warm start: dem.state H_*) and on [m] (int8: the pair touched at its last resolution,
+so its history is valid). Resolution reads a pair's history and overwrites it in place: a pair
+is resolved by exactly one thread, and nothing else reads its record meanwhile. It writes the
+pair's forces into pf [m, PF_LEN], in pair order (a sequential stream: scattering them to the
+two ends' rows was measured 3x dearer on a 10k sphere bed, the stores missing the cache).
 
 Determinism (DESIGN.md): particle p then sums its pair contributions in ascending partner gid
-(the pair adjacency of dem.history, sorted once per rebuild), then its wall contributions in
-wall order. The result is independent of how pairs were found, of the memory order and of
-which thread computed them, so every mode is bit-identical to serial.
+(the adjacency of dem.pairs, sorted once per rebuild), then its walls in wall order. The result
+is independent of how pairs were found, of the memory order and of which thread computed them,
+so every mode is bit-identical to serial.
+
+The loop kernels are compiled without numba's reference counting (_nrt=False): they allocate
+nothing, and the counts that inlined helpers taking arrays would add (an atomic increment and
+decrement per array per call) were measured to cost as much as the physics (a 10k sphere bed:
+resolution 1.9x faster without them). A kernel they call that allocates (the sextic method)
+asks for the runtime explicitly (_nrt=True).
 """
 import math
 import numpy as np
@@ -24,14 +31,13 @@ from dem.contact.methods import pw_contact, sextic_contact
 from dem.contact.polyellipsoid import polyellipsoid_contact, polyellipsoid_wall_contact
 from dem.contact.sphere import sphere_contact, sphere_wall_contact
 from dem.integrate import derive_particle, derive_poly_geometry, integrate_particle
-from dem.state import SPHERE, POLY, H_FT, H_A, H_LAM, H_N, HIST_LEN
+from dem.state import SPHERE, POLY, H_FT, H_A, H_LAM, H_N
 
-# per-pair record layout: res [m, PR_LEN]
-PR_FX = 0      # force on j [3] (i gets the exact negation)
-PR_TI = 3      # torque on i [3]
-PR_TJ = 6      # torque on j [3]
-PR_HIST = 9    # the pair's contact history [HIST_LEN] (dem.state H_*)
-PR_LEN = 9 + HIST_LEN
+# a pair's forces: pf [m, PF_LEN]
+PF_F = 0       # force on j [3] [N] (i gets the exact negation)
+PF_TI = 3      # torque on i about its mass centre [3] [N m]
+PF_TJ = 6      # torque on j [3] [N m]
+PF_LEN = 9
 
 # ellipsoid contact methods (issue 7; dem/contact/methods.py): index = the `method` argument
 CONTACT_METHODS = ("exact", "pw", "sextic")
@@ -95,33 +101,33 @@ def contact_force(depth, nx, ny, nz, r_e, kratio, r1x, r1y, r1z, r2x, r2y, r2z, 
 
 
 @njit(cache=True, inline="always")
-def _store(res, k, f, nx, ny, nz, lam):
-    """Write contact_force's tuple f and the warm-start data into pair record res[k]."""
-    res[k, PR_FX] = f[0]
-    res[k, PR_FX + 1] = f[1]
-    res[k, PR_FX + 2] = f[2]
-    res[k, PR_TI] = f[3]
-    res[k, PR_TI + 1] = f[4]
-    res[k, PR_TI + 2] = f[5]
-    res[k, PR_TJ] = f[6]
-    res[k, PR_TJ + 1] = f[7]
-    res[k, PR_TJ + 2] = f[8]
-    h = PR_HIST
-    res[k, h + H_FT] = f[9]
-    res[k, h + H_FT + 1] = f[10]
-    res[k, h + H_FT + 2] = f[11]
-    res[k, h + H_A] = f[12]
-    res[k, h + H_LAM] = lam
-    res[k, h + H_N] = nx
-    res[k, h + H_N + 1] = ny
-    res[k, h + H_N + 2] = nz
+def _store(hist, k, f, nx, ny, nz, lam, pf):
+    """Write contact_force's tuple f: the new history of pair k (spring, contact radius, warm start)
+    and its forces pf[k]."""
+    hist[k, H_FT] = f[9]
+    hist[k, H_FT + 1] = f[10]
+    hist[k, H_FT + 2] = f[11]
+    hist[k, H_A] = f[12]
+    hist[k, H_LAM] = lam
+    hist[k, H_N] = nx
+    hist[k, H_N + 1] = ny
+    hist[k, H_N + 2] = nz
+    pf[k, PF_F] = f[0]
+    pf[k, PF_F + 1] = f[1]
+    pf[k, PF_F + 2] = f[2]
+    pf[k, PF_TI] = f[3]
+    pf[k, PF_TI + 1] = f[4]
+    pf[k, PF_TI + 2] = f[5]
+    pf[k, PF_TJ] = f[6]
+    pf[k, PF_TJ + 1] = f[7]
+    pf[k, PF_TJ + 2] = f[8]
 
 
 @njit(cache=True, inline="always")
 def pair_law(i, j, depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio, pos, vel, omega, mass, material,
-             estar, gstar, zeta, mu, res, k, has_hist, dt, lam):
+             estar, gstar, zeta, mu, hist, k, has_hist, dt, lam, pf):
     """contact_force for particles i -> j, inputs read by index; the old history is read from and the
-    result written to pair record res[k]."""
+    new one written to hist[k], the forces to pf[k]."""
     r1x, r1y, r1z = xcx - pos[i, 0], xcy - pos[i, 1], xcz - pos[i, 2]
     r2x, r2y, r2z = xcx - pos[j, 0], xcy - pos[j, 1], xcz - pos[j, 2]
     vrx = (vel[j, 0] + (omega[j, 1] * r2z - omega[j, 2] * r2y)
@@ -134,25 +140,23 @@ def pair_law(i, j, depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio, pos, vel, omeg
     mj = mass[j]
     a = material[i]
     b = material[j]
-    h = PR_HIST
     f = contact_force(depth, nx, ny, nz, r_e, kratio, r1x, r1y, r1z, r2x, r2y, r2z, vrx, vry, vrz,
                       mi * mj / (mi + mj), estar[a, b], gstar[a, b], zeta[a, b], mu[a, b],
-                      res[k, h + H_FT], res[k, h + H_FT + 1], res[k, h + H_FT + 2], res[k, h + H_A],
-                      has_hist, dt)
-    _store(res, k, f, nx, ny, nz, lam)
+                      hist[k, H_FT], hist[k, H_FT + 1], hist[k, H_FT + 2], hist[k, H_A], has_hist, dt)
+    _store(hist, k, f, nx, ny, nz, lam, pf)
 
 
 @njit(cache=True, inline="always")
-def _warm_start(res, k, has_hist, n0):
+def _warm_start(hist, k, has_hist, n0):
     """Stored PW lambda (or -1) of pair k's history, its normal into n0 [3]."""
     if not has_hist:
         n0[0] = n0[1] = n0[2] = 0.0
         return -1.0
-    # the stored normal points i -> j (canonical order) on both ends
-    n0[0] = res[k, PR_HIST + H_N]
-    n0[1] = res[k, PR_HIST + H_N + 1]
-    n0[2] = res[k, PR_HIST + H_N + 2]
-    return res[k, PR_HIST + H_LAM]
+    # the stored normal points i -> j (canonical order)
+    n0[0] = hist[k, H_N]
+    n0[1] = hist[k, H_N + 1]
+    n0[2] = hist[k, H_N + 2]
+    return hist[k, H_LAM]
 
 
 @njit(cache=True, inline="always")
@@ -167,7 +171,7 @@ def _apart(i, j, pos, rbound):
 
 
 @njit(cache=True, inline="always")
-def _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt, res, on):
+def _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt, hist, on, pf):
     """Closed-form sphere-sphere contact and law for pair k = (i, j); returns the depth ratio (depth
     over the smaller radius) or -1 when apart."""
     hit, depth, nx, ny, nz, xcx, xcy, xcz, r_e = sphere_contact(
@@ -176,14 +180,14 @@ def _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, estar, gstar, m
         on[k] = 0
         return -1.0
     pair_law(i, j, depth, nx, ny, nz, xcx, xcy, xcz, r_e, 1.0, pos, vel, omega, mass, material,
-             estar, gstar, zeta, mu, res, k, on[k] == 1, dt, 0.0)
+             estar, gstar, zeta, mu, hist, k, on[k] == 1, dt, 0.0, pf)
     on[k] = 1
     return depth / min(axes[i, 0], axes[j, 0])
 
 
 @njit(cache=True, inline="always")
 def _solved_pair(hit, k, i, j, out, amin_i, amin_j, pos, vel, omega, mass, material, estar, gstar, zeta, mu,
-                 res, on, dt):
+                 hist, on, dt, pf):
     """After a solver filled out [OUT_LEN] (hit = 1) or found no contact: apply the law to pair k and
     return the depth over the smaller of the smallest semi-axes amin_i, amin_j [m] (-1 when apart)."""
     if hit == 0:
@@ -192,16 +196,16 @@ def _solved_pair(hit, k, i, j, out, amin_i, amin_j, pos, vel, omega, mass, mater
     depth = out[OUT_DEPTH]
     pair_law(i, j, depth, out[OUT_NX], out[OUT_NY], out[OUT_NZ], out[OUT_XCX], out[OUT_XCY],
              out[OUT_XCZ], out[OUT_RE], out[OUT_KRATIO], pos, vel, omega, mass, material,
-             estar, gstar, zeta, mu, res, k, on[k] == 1, dt, out[OUT_LAM])
+             estar, gstar, zeta, mu, hist, k, on[k] == 1, dt, out[OUT_LAM], pf)
     on[k] = 1
     return depth / min(amin_i, amin_j)
 
 
 @njit(cache=True, inline="always")
 def _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, estar, gstar, mu, zeta, dt, method,
-                    res, on, out, n0):
+                    hist, on, out, n0, pf):
     """Ellipsoid (or sphere-ellipsoid) pair k = (i, j) by CONTACT_METHODS[method], then the law."""
-    lam0 = _warm_start(res, k, on[k] == 1, n0)
+    lam0 = _warm_start(hist, k, on[k] == 1, n0)
     if method == EXACT:
         hit = ellipsoid_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
     elif method == PW:
@@ -211,15 +215,15 @@ def _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, estar, 
     ai = min(axes[i, 0], min(axes[i, 1], axes[i, 2]))
     aj = min(axes[j, 0], min(axes[j, 1], axes[j, 2]))
     return _solved_pair(hit, k, i, j, out, ai, aj, pos, vel, omega, mass, material, estar, gstar, zeta, mu,
-                        res, on, dt)
+                        hist, on, dt, pf)
 
 
 @njit(cache=True, inline="always")
-def _poly_pair(k, i, j, pos, vel, omega, mass, material, estar, gstar, mu, zeta, dt, res, on, oorg, orot, ax6,
-               out, n0):
+def _poly_pair(k, i, j, pos, vel, omega, mass, material, estar, gstar, mu, zeta, dt, hist, on, oorg, orot, ax6,
+               out, n0, pf):
     """Pair k = (i, j) with a poly-ellipsoid: the octant active-set solver (the other body as a
     poly-ellipsoid with equal halves) on the octant geometry; lever arms refer to the mass centres."""
-    _warm_start(res, k, on[k] == 1, n0)
+    _warm_start(hist, k, on[k] == 1, n0)
     hit = polyellipsoid_contact(oorg[i], orot[i], ax6[i], oorg[j], orot[j], ax6[j], n0, out)
     ai = ax6[i, 0]
     aj = ax6[j, 0]
@@ -227,11 +231,12 @@ def _poly_pair(k, i, j, pos, vel, omega, mass, material, estar, gstar, mu, zeta,
         ai = min(ai, ax6[i, c])
         aj = min(aj, ax6[j, c])
     return _solved_pair(hit, k, i, j, out, ai, aj, pos, vel, omega, mass, material, estar, gstar, zeta, mu,
-                        res, on, dt)
+                        hist, on, dt, pf)
 
 
-@njit(cache=True)
-def _resolve_spheres(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt, res, on):
+@njit(cache=True, _nrt=False)
+def _resolve_spheres(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt, hist, on,
+                     pf):
     """The sphere loop: no solver in it, so a sphere scene neither runs nor carries one."""
     nc = 0
     worst = 0.0
@@ -239,7 +244,7 @@ def _resolve_spheres(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, esta
     rsum = 0.0
     for k in range(k0, k1):
         r = _sphere_pair(k, pi[k], pj[k], pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt,
-                         res, on)
+                         hist, on, pf)
         if r >= 0.0:
             nc += 1
             rsum += r
@@ -249,9 +254,9 @@ def _resolve_spheres(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, esta
     return nc, 0, worst, worst_k, rsum
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar, gstar,
-                        mu, zeta, dt, method, res, on, oorg, orot, ax6, poly_scene, out, n0):
+                        mu, zeta, dt, method, hist, on, pf, oorg, orot, ax6, poly_scene, out, n0):
     """The loop of a scene with ellipsoids (and poly-ellipsoids when poly_scene): closed form for
     two spheres, the bounding-sphere test, then the solver of the pair's shapes."""
     nc = 0
@@ -263,18 +268,19 @@ def _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shap
         i = pi[k]
         j = pj[k]
         if shape[i] == SPHERE and shape[j] == SPHERE:
-            r = _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt, res, on)
+            r = _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt, hist, on,
+                             pf)
         elif _apart(i, j, pos, rbound):
             on[k] = 0
             r = -1.0
         elif poly_scene and (shape[i] == POLY or shape[j] == POLY):
             calls += 1
-            r = _poly_pair(k, i, j, pos, vel, omega, mass, material, estar, gstar, mu, zeta, dt, res, on,
-                           oorg, orot, ax6, out, n0)
+            r = _poly_pair(k, i, j, pos, vel, omega, mass, material, estar, gstar, mu, zeta, dt, hist, on,
+                           oorg, orot, ax6, out, n0, pf)
         else:
             calls += 1
             r = _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, estar, gstar, mu, zeta, dt,
-                                method, res, on, out, n0)
+                                method, hist, on, out, n0, pf)
         if r >= 0.0:
             nc += 1
             rsum += r
@@ -284,29 +290,31 @@ def _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shap
     return nc, calls, worst, worst_k, rsum
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def resolve_range(kind, method, k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass, material,
-                  estar, gstar, mu, zeta, dt, res, on, oorg, orot, ax6, out, n0):
+                  estar, gstar, mu, zeta, dt, hist, on, pf, oorg, orot, ax6, out, n0):
     """Resolve pairs k0..k1-1 of the pair list: geometry (closed form for two spheres; otherwise the
     ellipsoid method CONTACT_METHODS[method]: EXACT = PW + Newton on S^2, PW = Perram-Wertheim depth
     only, SEXTIC = Yan 2010; poly-ellipsoids by the octant active set), then the contact law.
-    Updates res [m, PR_LEN] and on [m] in place (on[k] = 1: touching; its history is valid).
-    kind (SPHERES, ELLIPSOIDS, POLYS) picks the loop, so a scene pays only for the solvers its
-    shapes use. out [OUT_LEN], n0 [3] are scratch; oorg [n,3], orot [n,3,3], ax6 [n,6] the octant
-    geometry (empty outside POLYS). Returns RESOLVED: (contacts, solver calls, largest depth ratio
-    = depth over the smaller minimum semi-axis, its pair or -1, sum of the depth ratios)."""
+    Updates hist [m, HIST_LEN] and on [m] in place (on[k] = 1: touching; its history is valid) and
+    writes the forces of the touching pairs into pf [m, PF_LEN]. kind (SPHERES, ELLIPSOIDS, POLYS) picks the loop, so a scene pays only for the
+    solvers its shapes use. out [OUT_LEN], n0 [3] are scratch; oorg [n,3], orot [n,3,3], ax6 [n,6]
+    the octant geometry (empty outside POLYS). Returns RESOLVED: (contacts, solver calls, largest
+    depth ratio = depth over the smaller minimum semi-axis, its pair or -1, sum of the depth ratios)."""
     if kind == SPHERES:
         return _resolve_spheres(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt,
-                                res, on)
+                                hist, on, pf)
     return _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar,
-                               gstar, mu, zeta, dt, method, res, on, oorg, orot, ax6, kind == POLYS, out, n0)
+                               gstar, mu, zeta, dt, method, hist, on, pf, oorg, orot, ax6,
+                               kind == POLYS, out, n0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False)
 def _wall_particle(p, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar_w, gstar_w,
                    zeta_w, mu_w, wall_hist, dt, oorg, orot, ax6, out, fx, fy, fz, tx, ty, tz):
     """Planar-wall contacts of particle p (walls in fixed order) added to its force (fx, fy, fz) and
-    torque (tx, ty, tz); updates its per-wall history. Wall planes: m.x = d with m the unit normal
+    torque (tx, ty, tz); updates its per-wall history. Called only for a particle within reach of a
+    wall, and not inlined: the wall solvers would crowd the per-particle loop. Wall planes: m.x = d with m the unit normal
     into the domain; body 1 is the particle, body 2 the fixed wall, the normal from particle into
     wall is -m. Poly-ellipsoids use their octant geometry. Returns (force [3], torque [3], wall
     contacts, largest depth ratio = depth over the smallest semi-axis)."""
@@ -362,13 +370,94 @@ def _wall_particle(p, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape,
     return fx, fy, fz, tx, ty, tz, touching, worst
 
 
-@njit(cache=True)
-def finish_range(p0, p1, adj_start, adj_items, pi, res, on, pos, vel, quat, angmom, mass, inertia, shape, axes,
+@njit(cache=True, inline="always")
+def _gather(p, adj_start, adj_items, on, pf):
+    """Force and torque on particle p from its touching pairs, summed in ascending partner gid
+    (adj_items = 2 k + (1 if p is pair k's j end))."""
+    fx = fy = fz = 0.0
+    tx = ty = tz = 0.0
+    for u in range(adj_start[p], adj_start[p + 1]):
+        e = adj_items[u]
+        k = e >> 1
+        if on[k] == 0:
+            continue
+        if e & 1:
+            fx += pf[k, PF_F]
+            fy += pf[k, PF_F + 1]
+            fz += pf[k, PF_F + 2]
+            tx += pf[k, PF_TJ]
+            ty += pf[k, PF_TJ + 1]
+            tz += pf[k, PF_TJ + 2]
+        else:
+            fx -= pf[k, PF_F]
+            fy -= pf[k, PF_F + 1]
+            fz -= pf[k, PF_F + 2]
+            tx += pf[k, PF_TI]
+            ty += pf[k, PF_TI + 1]
+            tz += pf[k, PF_TI + 2]
+    return fx, fy, fz, tx, ty, tz
+
+
+@njit(cache=True, inline="always")
+def _near_wall(p, wall_m, wall_d, pos, rbound, wall_hist):
+    """Whether particle p is within reach of a wall (then _wall_particle does the contacts); ends
+    the history of the walls out of reach."""
+    near = False
+    for w in range(wall_m.shape[0]):
+        if wall_m[w, 0] * pos[p, 0] + wall_m[w, 1] * pos[p, 1] + wall_m[w, 2] * pos[p, 2] - wall_d[w] < rbound[p]:
+            near = True
+        elif wall_hist[p, w, H_A] != 0.0:
+            wall_hist[p, w, H_A] = 0.0
+    return near
+
+
+@njit(cache=True, inline="always")
+def _put(p, force, torque, fx, fy, fz, tx, ty, tz):
+    force[p, 0] = fx
+    force[p, 1] = fy
+    force[p, 2] = fz
+    torque[p, 0] = tx
+    torque[p, 1] = ty
+    torque[p, 2] = tz
+
+
+@njit(cache=True, inline="always")
+def _guard_terms(p, pos, vel, mass, omega, angmom, gx, gy, gz, dt, ref):
+    """Particle p's share of the guard's sums: (kinetic energy m |v|^2/2 + omega.L/2 [J], gravity
+    work dt m v.g [J], 1 if its position or velocity is not finite, squared displacement since
+    ref[p] [m^2])."""
+    vx, vy, vz = vel[p, 0], vel[p, 1], vel[p, 2]
+    m = mass[p]
+    ke = 0.5 * m * (vx * vx + vy * vy + vz * vz) + 0.5 * (
+        omega[p, 0] * angmom[p, 0] + omega[p, 1] * angmom[p, 1] + omega[p, 2] * angmom[p, 2])
+    wg = dt * m * (vx * gx + vy * gy + vz * gz)
+    x, y, z = pos[p, 0], pos[p, 1], pos[p, 2]
+    bad = 0 if (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(vx)
+                and math.isfinite(vy) and math.isfinite(vz)) else 1
+    dx, dy, dz = x - ref[p, 0], y - ref[p, 1], z - ref[p, 2]
+    return ke, wg, bad, dx * dx + dy * dy + dz * dz
+
+
+@njit(cache=True, inline="always")
+def _fold(acc, p, touching, worst, ke, wg, bad, d2):
+    """Add particle p's results to the running FINISHED tuple acc."""
+    n_wall, wall_worst, wall_p, ke_sum, wg_sum, n_bad, first_bad, disp2 = acc
+    if worst > wall_worst:
+        wall_worst = worst
+        wall_p = p
+    if bad and first_bad < 0:
+        first_bad = p
+    return (n_wall + touching, wall_worst, wall_p, ke_sum + ke, wg_sum + wg, n_bad + bad, first_bad,
+            max(disp2, d2))
+
+
+@njit(cache=True, _nrt=False)
+def finish_range(p0, p1, spheres, adj_start, adj_items, on, pf, pos, vel, quat, angmom, mass, inertia, shape, axes,
                  rbound, material, force, torque, rot, omega, gx, gy, gz, has_gravity, dt, wall_m, wall_d, estar_w,
-                 gstar_w, zeta_w, mu_w, wall_hist, poly, oorg, orot, ax6, poly_scene, ref, out, m33, lb):
+                 gstar_w, zeta_w, mu_w, wall_hist, poly, oorg, orot, ax6, poly_scene, ref, out):
     """The rest of the step for owned particles p0..p1-1, one particle at a time:
-    1. gather: sum the pair forces and torques of the touching pairs in ascending partner gid
-       (adjacency adj_start [n_owned+1], adj_items: pair indices; pi tells which end p is);
+    1. gather: sum the forces and torques of particle p's touching pairs in ascending partner gid
+       (adjacency adj_start [n_owned+1], adj_items = 2 k + (1 if p is pair k's j end));
     2. walls in wall order (empty wall_m: none), giving force[p], torque[p];
     3. integration (dem.integrate: leapfrog, symplectic rotation, gravity (gx, gy, gz) [m/s^2]);
     4. the derived rotation matrix rot[p] and world angular velocity omega[p] of the new
@@ -377,68 +466,42 @@ def finish_range(p0, p1, adj_start, adj_items, pi, res, on, pos, vel, quat, angm
     5. the stability guard's sums: kinetic energy sum m |v|^2/2 + omega.L/2 [J], gravity work
        dt sum m v.g [J], non-finite positions or velocities, and the largest squared displacement
        since the reference positions ref [n_owned, 3] [m^2] (the neighbour list's rebuild test).
-    out [OUT_LEN], m33 [3, 3] and lb [3] are scratch (nothing is allocated). Returns FINISHED: (wall contacts, largest wall depth ratio, its particle or -1,
-    kinetic energy, gravity work, number of non-finite particles, the first of them or -1,
-    largest squared displacement)."""
-    n_wall = 0
-    wall_worst = 0.0
-    wall_worst_p = -1
-    ke = 0.0
-    wg = 0.0
-    n_bad = 0
-    first_bad = -1
-    disp2 = 0.0
+    spheres: a scene of spheres only (its loop is compiled without the ellipsoid rotation, which
+    would otherwise crowd it: measured 2x on a sphere bed). out [OUT_LEN] is scratch
+    (nothing is allocated). Returns FINISHED: (wall contacts, largest wall depth ratio, its
+    particle or -1, kinetic energy, gravity work, number of non-finite particles, the first of
+    them or -1, largest squared displacement)."""
+    acc = (0, 0.0, -1, 0.0, 0.0, 0, -1, 0.0)
+    # the same per-particle work twice: with the literal `spheres` True the compiled loop holds no
+    # ellipsoid rotation (numba inlines, LLVM prunes the branch)
+    if spheres:
+        for p in range(p0, p1):
+            fx, fy, fz, tx, ty, tz = _gather(p, adj_start, adj_items, on, pf)
+            touching, worst = 0, 0.0
+            if _near_wall(p, wall_m, wall_d, pos, rbound, wall_hist):
+                fx, fy, fz, tx, ty, tz, touching, worst = _wall_particle(
+                    p, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar_w, gstar_w,
+                    zeta_w, mu_w, wall_hist, dt, oorg, orot, ax6, out, fx, fy, fz, tx, ty, tz)
+            _put(p, force, torque, fx, fy, fz, tx, ty, tz)
+            integrate_particle(p, pos, vel, quat, angmom, mass, inertia, shape, force, torque, gx, gy, gz,
+                               has_gravity, dt, True)
+            derive_particle(p, quat, angmom, inertia, shape, rot, omega, False, True)
+            ke, wg, bad, d2 = _guard_terms(p, pos, vel, mass, omega, angmom, gx, gy, gz, dt, ref)
+            acc = _fold(acc, p, touching, worst, ke, wg, bad, d2)
+        return acc
     for p in range(p0, p1):
-        fx = fy = fz = 0.0
-        tx = ty = tz = 0.0
-        for u in range(adj_start[p], adj_start[p + 1]):
-            k = adj_items[u]
-            if on[k] == 0:
-                continue
-            if pi[k] == p:
-                fx -= res[k, PR_FX]
-                fy -= res[k, PR_FX + 1]
-                fz -= res[k, PR_FX + 2]
-                tx += res[k, PR_TI]
-                ty += res[k, PR_TI + 1]
-                tz += res[k, PR_TI + 2]
-            else:
-                fx += res[k, PR_FX]
-                fy += res[k, PR_FX + 1]
-                fz += res[k, PR_FX + 2]
-                tx += res[k, PR_TJ]
-                ty += res[k, PR_TJ + 1]
-                tz += res[k, PR_TJ + 2]
-        if wall_m.shape[0]:
+        fx, fy, fz, tx, ty, tz = _gather(p, adj_start, adj_items, on, pf)
+        touching, worst = 0, 0.0
+        if _near_wall(p, wall_m, wall_d, pos, rbound, wall_hist):
             fx, fy, fz, tx, ty, tz, touching, worst = _wall_particle(
                 p, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar_w, gstar_w,
                 zeta_w, mu_w, wall_hist, dt, oorg, orot, ax6, out, fx, fy, fz, tx, ty, tz)
-            n_wall += touching
-            if worst > wall_worst:
-                wall_worst = worst
-                wall_worst_p = p
-        force[p, 0] = fx
-        force[p, 1] = fy
-        force[p, 2] = fz
-        torque[p, 0] = tx
-        torque[p, 1] = ty
-        torque[p, 2] = tz
+        _put(p, force, torque, fx, fy, fz, tx, ty, tz)
         integrate_particle(p, pos, vel, quat, angmom, mass, inertia, shape, force, torque, gx, gy, gz,
-                           has_gravity, dt, m33, lb)
-        derive_particle(p, quat, angmom, inertia, shape, rot, omega)
+                           has_gravity, dt, False)
+        derive_particle(p, quat, angmom, inertia, shape, rot, omega, False, False)
         if poly_scene:
             derive_poly_geometry(p, pos, rot, axes, shape, poly, orot, oorg, ax6)
-        vx, vy, vz = vel[p, 0], vel[p, 1], vel[p, 2]
-        m = mass[p]
-        ke += 0.5 * m * (vx * vx + vy * vy + vz * vz) + 0.5 * (
-            omega[p, 0] * angmom[p, 0] + omega[p, 1] * angmom[p, 1] + omega[p, 2] * angmom[p, 2])
-        wg += dt * m * (vx * gx + vy * gy + vz * gz)
-        x, y, z = pos[p, 0], pos[p, 1], pos[p, 2]
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(vx)
-                and math.isfinite(vy) and math.isfinite(vz)):
-            n_bad += 1
-            if first_bad < 0:
-                first_bad = p
-        dx, dy, dz = x - ref[p, 0], y - ref[p, 1], z - ref[p, 2]
-        disp2 = max(disp2, dx * dx + dy * dy + dz * dz)
-    return n_wall, wall_worst, wall_worst_p, ke, wg, n_bad, first_bad, disp2
+        ke, wg, bad, d2 = _guard_terms(p, pos, vel, mass, omega, angmom, gx, gy, gz, dt, ref)
+        acc = _fold(acc, p, touching, worst, ke, wg, bad, d2)
+    return acc

@@ -7,99 +7,124 @@ angular momentum takes the torque kick L += dt T, then the free-rotor drift is s
 rotations about the body axes 1(dt/2) 2(dt/2) 3(dt) 2(dt/2) 1(dt/2). It keeps the gyroscopic terms
 (ParaEllip3d drops them) and conserves |L| to round-off; energy error is O(dt^2)
 (contact-mechanics.md §4.2: 3.3e-6 at T/2000). Spheres (isotropic I) rotate by the exact exp map.
+The half-angle sines and cosines of a step's small rotations come from their Taylor series
+(truncated below 1e-20 relative), libm only for angles above 0.1 rad.
 """
 import math
 import numpy as np
 from numba import njit
 
-from dem.quaternion import quat_to_matrix, quat_normalize
 from dem.state import SPHERE, POLY, P_AX, P_OFF, P_ROT
 
 
-@njit(cache=True, inline="always")
-def _rotate_body_axis(q, lb, inertia, axis, h):
-    """Exact free rotation of duration h [s] about body axis `axis` under T_k = L_k^2/(2 I_k).
+# Taylor coefficients of sin x / x and cos x in x^2 (|x| <= HALF_ANGLE_SERIES: the first term left
+# out is below 1e-20 relative, far under one rounding)
+S3, S5, S7, S9 = 1.0 / 6.0, 1.0 / 20.0, 1.0 / 42.0, 1.0 / 72.0
+C2, C4, C6, C8, C10 = 0.5, 1.0 / 12.0, 1.0 / 30.0, 1.0 / 56.0, 1.0 / 90.0
+HALF_ANGLE_SERIES = 0.05
 
-    q <- q (x) (cos(t/2), sin(t/2) e_k) with t = h L_k/I_k; the body-frame angular momentum
-    lb [3] rotates by -t about e_k. Both arrays are updated in place.
-    """
-    t = h * lb[axis] / inertia[axis]
-    s = math.sin(0.5 * t)
-    # one sine and one root instead of four trigonometric calls: cos(t/2) >= 0 while |t| <= pi (a
-    # sub-step turns far less), cos t = 1 - 2 s^2, sin t = 2 s c
-    c = math.sqrt(1.0 - s * s) if abs(t) <= math.pi else math.cos(0.5 * t)
-    ct = 1.0 - 2.0 * s * s
-    st = 2.0 * s * c
-    w, x, y, z = q[0], q[1], q[2], q[3]
+
+@njit(cache=True, inline="always")
+def _sinc_cos(x2):
+    """(sin x / x, cos x) from x^2 <= HALF_ANGLE_SERIES^2 by their Taylor series (Horner form)."""
+    sinc = 1.0 - x2 * S3 * (1.0 - x2 * S5 * (1.0 - x2 * S7 * (1.0 - x2 * S9)))
+    cos = 1.0 - x2 * C2 * (1.0 - x2 * C4 * (1.0 - x2 * C6 * (1.0 - x2 * C8 * (1.0 - x2 * C10))))
+    return sinc, cos
+
+
+@njit(cache=True, inline="always")
+def half_angle(t):
+    """(sin(t/2), cos(t/2)) of a rotation angle t [rad]: the series for the small angles of a time
+    step (a few multiplications instead of two libm calls), libm beyond."""
+    x = 0.5 * t
+    if abs(x) <= HALF_ANGLE_SERIES:
+        sinc, c = _sinc_cos(x * x)
+        return x * sinc, c
+    return math.sin(x), math.cos(x)
+
+
+@njit(cache=True, inline="always")
+def _turn(axis, h, ii, w, x, y, z, l0, l1, l2):
+    """Exact free rotation of duration h [s] about body axis `axis` under T_k = L_k^2/(2 I_k), ii =
+    1/I_k: q <- q (x) (cos(t/2), sin(t/2) e_k) with t = h L_k / I_k, and the body-frame angular
+    momentum (l0, l1, l2) rotates by -t about e_k (cos t = 1 - 2 s^2, sin t = 2 s c from the half
+    angle). Returns the new (w, x, y, z, l0, l1, l2)."""
     if axis == 0:
-        q[0] = w * c - x * s
-        q[1] = x * c + w * s
-        q[2] = y * c + z * s
-        q[3] = z * c - y * s
-        l1, l2 = lb[1], lb[2]
-        lb[1] = ct * l1 + st * l2
-        lb[2] = -st * l1 + ct * l2
-    elif axis == 1:
-        q[0] = w * c - y * s
-        q[1] = x * c - z * s
-        q[2] = y * c + w * s
-        q[3] = z * c + x * s
-        l0, l2 = lb[0], lb[2]
-        lb[0] = ct * l0 - st * l2
-        lb[2] = st * l0 + ct * l2
-    else:
-        q[0] = w * c - z * s
-        q[1] = x * c + y * s
-        q[2] = y * c - x * s
-        q[3] = z * c + w * s
-        l0, l1 = lb[0], lb[1]
-        lb[0] = ct * l0 + st * l1
-        lb[1] = -st * l0 + ct * l1
+        s, c = half_angle(h * l0 * ii)
+        ct, st = 1.0 - 2.0 * s * s, 2.0 * s * c
+        return (w * c - x * s, x * c + w * s, y * c + z * s, z * c - y * s,
+                l0, ct * l1 + st * l2, -st * l1 + ct * l2)
+    if axis == 1:
+        s, c = half_angle(h * l1 * ii)
+        ct, st = 1.0 - 2.0 * s * s, 2.0 * s * c
+        return (w * c - y * s, x * c - z * s, y * c + w * s, z * c + x * s,
+                ct * l0 - st * l2, l1, st * l0 + ct * l2)
+    s, c = half_angle(h * l2 * ii)
+    ct, st = 1.0 - 2.0 * s * s, 2.0 * s * c
+    return (w * c - z * s, x * c + y * s, y * c - x * s, z * c + w * s,
+            ct * l0 + st * l1, -st * l0 + ct * l1, l2)
+
+
+@njit(cache=True, inline="always")
+def _normalized(w, x, y, z):
+    """q / |q| (removes O(eps) drift each step)."""
+    s = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
+    return w * s, x * s, y * s, z * s
+
+
+@njit(cache=True, inline="always")
+def drift(w, x, y, z, lx, ly, lz, i0, i1, i2, dt):
+    """Quaternion (w, x, y, z) advanced by dt [s] under constant world angular momentum
+    (lx, ly, lz) [kg m^2/s], principal moments (i0, i1, i2) [kg m^2]: the symmetric splitting
+    1(dt/2) 2(dt/2) 3(dt) 2(dt/2) 1(dt/2) of the free rotor, normalised. Scalars only: no array
+    views, whose reference counts cost atomic operations in numba."""
+    # body-frame angular momentum R^T L
+    l0 = ((1.0 - 2.0 * (y * y + z * z)) * lx + 2.0 * (x * y + w * z) * ly + 2.0 * (x * z - w * y) * lz)
+    l1 = (2.0 * (x * y - w * z) * lx + (1.0 - 2.0 * (x * x + z * z)) * ly + 2.0 * (y * z + w * x) * lz)
+    l2 = (2.0 * (x * z + w * y) * lx + 2.0 * (y * z - w * x) * ly + (1.0 - 2.0 * (x * x + y * y)) * lz)
+    i0, i1, i2 = 1.0 / i0, 1.0 / i1, 1.0 / i2
+    h = 0.5 * dt
+    w, x, y, z, l0, l1, l2 = _turn(0, h, i0, w, x, y, z, l0, l1, l2)
+    w, x, y, z, l0, l1, l2 = _turn(1, h, i1, w, x, y, z, l0, l1, l2)
+    w, x, y, z, l0, l1, l2 = _turn(2, dt, i2, w, x, y, z, l0, l1, l2)
+    w, x, y, z, l0, l1, l2 = _turn(1, h, i1, w, x, y, z, l0, l1, l2)
+    w, x, y, z, l0, l1, l2 = _turn(0, h, i0, w, x, y, z, l0, l1, l2)
+    return _normalized(w, x, y, z)
 
 
 @njit(cache=True)
 def free_rotor_drift(q, angmom, inertia, dt, rot, lb):
-    """Advance quaternion q [4] by dt under constant world angular momentum angmom [3].
-
-    Symmetric splitting 1(dt/2) 2(dt/2) 3(dt) 2(dt/2) 1(dt/2); rot [3,3] and lb [3] are scratch.
-    """
-    quat_to_matrix(q, rot)
-    for k in range(3):
-        lb[k] = rot[0, k] * angmom[0] + rot[1, k] * angmom[1] + rot[2, k] * angmom[2]
-    _rotate_body_axis(q, lb, inertia, 0, 0.5 * dt)
-    _rotate_body_axis(q, lb, inertia, 1, 0.5 * dt)
-    _rotate_body_axis(q, lb, inertia, 2, dt)
-    _rotate_body_axis(q, lb, inertia, 1, 0.5 * dt)
-    _rotate_body_axis(q, lb, inertia, 0, 0.5 * dt)
-    quat_normalize(q)
+    """drift() on arrays: advance quaternion q [4] in place by dt under constant world angular
+    momentum angmom [3] (rot [3,3], lb [3]: unused, kept for callers that pass scratch)."""
+    q[0], q[1], q[2], q[3] = drift(q[0], q[1], q[2], q[3], angmom[0], angmom[1], angmom[2],
+                                   inertia[0], inertia[1], inertia[2], dt)
 
 
 @njit(cache=True, inline="always")
-def _spin_sphere(q, angmom, i0, dt):
-    """q <- (cos(|w|dt/2), sin(|w|dt/2) w_hat) (x) q with w = L/I (world frame), exact for spheres."""
-    wx = angmom[0] / i0
-    wy = angmom[1] / i0
-    wz = angmom[2] / i0
-    wn = math.sqrt(wx * wx + wy * wy + wz * wz)
-    if wn == 0.0:
-        return
-    h = 0.5 * wn * dt
-    sh = math.sin(h)
-    c = math.sqrt(1.0 - sh * sh) if h <= 0.5 * math.pi else math.cos(h)  # one sine, as above
-    s = sh / wn
-    ax, ay, az = s * wx, s * wy, s * wz
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    q[0] = c * w - ax * x - ay * y - az * z
-    q[1] = c * x + ax * w + ay * z - az * y
-    q[2] = c * y - ax * z + ay * w + az * x
-    q[3] = c * z + ax * y - ay * x + az * w
-    quat_normalize(q)
+def spin(w, x, y, z, ox, oy, oz, dt):
+    """Quaternion (w, x, y, z) of a sphere turned at world angular velocity (ox, oy, oz) [rad/s] for
+    dt [s]: the exact exp map (cos h, sin(h)/|omega| omega) (x) q, h = |omega| dt/2, by the series
+    in h^2 (no root, no libm) for the small angles of a step; normalised."""
+    h2 = 0.25 * dt * dt * (ox * ox + oy * oy + oz * oz)
+    if h2 == 0.0:
+        return w, x, y, z
+    if h2 <= HALF_ANGLE_SERIES * HALF_ANGLE_SERIES:
+        sinc, c = _sinc_cos(h2)
+        s = 0.5 * dt * sinc
+    else:
+        wn = math.sqrt(ox * ox + oy * oy + oz * oz)
+        c = math.cos(0.5 * wn * dt)
+        s = math.sin(0.5 * wn * dt) / wn
+    ax, ay, az = s * ox, s * oy, s * oz
+    return _normalized(c * w - ax * x - ay * y - az * z, c * x + ax * w + ay * z - az * y,
+                       c * y - ax * z + ay * w + az * x, c * z + ax * y - ay * x + az * w)
 
 
 @njit(cache=True, inline="always")
 def integrate_particle(p, pos, vel, quat, angmom, mass, inertia, shape, force, torque,
-                       gx, gy, gz, has_gravity, dt, rot, lb):
-    """One leapfrog step of particle p (see module docstring). rot [3,3], lb [3] are scratch."""
+                       gx, gy, gz, has_gravity, dt, spheres):
+    """One leapfrog step of particle p (see module docstring); spheres: a literal True where every
+    particle is a sphere (the ellipsoid rotation is then compiled out)."""
     im = 1.0 / mass[p]
     if has_gravity:
         vel[p, 0] += dt * (force[p, 0] * im + gx)
@@ -115,51 +140,76 @@ def integrate_particle(p, pos, vel, quat, angmom, mass, inertia, shape, force, t
     angmom[p, 0] += dt * torque[p, 0]
     angmom[p, 1] += dt * torque[p, 1]
     angmom[p, 2] += dt * torque[p, 2]
-    if shape[p] == SPHERE:
-        _spin_sphere(quat[p], angmom[p], inertia[p, 0], dt)
+    lx, ly, lz = angmom[p, 0], angmom[p, 1], angmom[p, 2]
+    w, x, y, z = quat[p, 0], quat[p, 1], quat[p, 2], quat[p, 3]
+    if spheres or shape[p] == SPHERE:
+        ii = 1.0 / inertia[p, 0]
+        w, x, y, z = spin(w, x, y, z, lx * ii, ly * ii, lz * ii, dt)
     else:
-        free_rotor_drift(quat[p], angmom[p], inertia[p], dt, rot, lb)
+        w, x, y, z = drift(w, x, y, z, lx, ly, lz, inertia[p, 0], inertia[p, 1], inertia[p, 2], dt)
+    quat[p, 0] = w
+    quat[p, 1] = x
+    quat[p, 2] = y
+    quat[p, 3] = z
 
 
 @njit(cache=True)
 def integrate_range(lo, hi, pos, vel, quat, angmom, mass, inertia, shape, force, torque,
                     gx, gy, gz, has_gravity, dt):
     """Integrate particles lo..hi-1 (a loop strategy's share of the owned particles)."""
-    rot = np.empty((3, 3))
-    lb = np.empty(3)
     for p in range(lo, hi):
         integrate_particle(p, pos, vel, quat, angmom, mass, inertia, shape, force, torque,
-                           gx, gy, gz, has_gravity, dt, rot, lb)
+                           gx, gy, gz, has_gravity, dt, False)
 
 
 @njit(cache=True, inline="always")
-def derive_particle(p, quat, angmom, inertia, shape, rot, omega):
+def derive_particle(p, quat, angmom, inertia, shape, rot, omega, sphere_rot, spheres):
     """Rotation matrix rot[p] [3,3] and world angular velocity omega[p] [3]. A sphere's rot is the
     identity (its orientation does not shape it; a sphere-ellipsoid pair reads it, and a fixed value
-    keeps that pair's rounding the same in every mode)."""
-    if shape[p] == SPHERE:
-        for a in range(3):
-            for b in range(3):
-                rot[p, a, b] = 1.0 if a == b else 0.0
-        i0 = inertia[p, 0]
-        omega[p, 0] = angmom[p, 0] / i0
-        omega[p, 1] = angmom[p, 1] / i0
-        omega[p, 2] = angmom[p, 2] / i0
+    keeps that pair's rounding the same in every mode), written only when sphere_rot (it never
+    changes, so the per-step pass leaves it); spheres as in integrate_particle."""
+    if spheres or shape[p] == SPHERE:
+        if sphere_rot:
+            for a in range(3):
+                for b in range(3):
+                    rot[p, a, b] = 1.0 if a == b else 0.0
+        ii = 1.0 / inertia[p, 0]
+        omega[p, 0] = angmom[p, 0] * ii
+        omega[p, 1] = angmom[p, 1] * ii
+        omega[p, 2] = angmom[p, 2] * ii
         return
-    r = rot[p]
-    quat_to_matrix(quat[p], r)
-    b0 = (r[0, 0] * angmom[p, 0] + r[1, 0] * angmom[p, 1] + r[2, 0] * angmom[p, 2]) / inertia[p, 0]
-    b1 = (r[0, 1] * angmom[p, 0] + r[1, 1] * angmom[p, 1] + r[2, 1] * angmom[p, 2]) / inertia[p, 1]
-    b2 = (r[0, 2] * angmom[p, 0] + r[1, 2] * angmom[p, 1] + r[2, 2] * angmom[p, 2]) / inertia[p, 2]
-    omega[p, 0] = r[0, 0] * b0 + r[0, 1] * b1 + r[0, 2] * b2
-    omega[p, 1] = r[1, 0] * b0 + r[1, 1] * b1 + r[1, 2] * b2
-    omega[p, 2] = r[2, 0] * b0 + r[2, 1] * b1 + r[2, 2] * b2
+    w, x, y, z = quat[p, 0], quat[p, 1], quat[p, 2], quat[p, 3]
+    r00 = 1.0 - 2.0 * (y * y + z * z)
+    r01 = 2.0 * (x * y - w * z)
+    r02 = 2.0 * (x * z + w * y)
+    r10 = 2.0 * (x * y + w * z)
+    r11 = 1.0 - 2.0 * (x * x + z * z)
+    r12 = 2.0 * (y * z - w * x)
+    r20 = 2.0 * (x * z - w * y)
+    r21 = 2.0 * (y * z + w * x)
+    r22 = 1.0 - 2.0 * (x * x + y * y)
+    rot[p, 0, 0] = r00
+    rot[p, 0, 1] = r01
+    rot[p, 0, 2] = r02
+    rot[p, 1, 0] = r10
+    rot[p, 1, 1] = r11
+    rot[p, 1, 2] = r12
+    rot[p, 2, 0] = r20
+    rot[p, 2, 1] = r21
+    rot[p, 2, 2] = r22
+    lx, ly, lz = angmom[p, 0], angmom[p, 1], angmom[p, 2]
+    b0 = (r00 * lx + r10 * ly + r20 * lz) / inertia[p, 0]
+    b1 = (r01 * lx + r11 * ly + r21 * lz) / inertia[p, 1]
+    b2 = (r02 * lx + r12 * ly + r22 * lz) / inertia[p, 2]
+    omega[p, 0] = r00 * b0 + r01 * b1 + r02 * b2
+    omega[p, 1] = r10 * b0 + r11 * b1 + r12 * b2
+    omega[p, 2] = r20 * b0 + r21 * b1 + r22 * b2
 
 
 @njit(cache=True)
 def derive_range(lo, hi, quat, angmom, inertia, shape, rot, omega):
     for p in range(lo, hi):
-        derive_particle(p, quat, angmom, inertia, shape, rot, omega)
+        derive_particle(p, quat, angmom, inertia, shape, rot, omega, True, False)
 
 
 @njit(cache=True)
@@ -206,6 +256,6 @@ def derive_all(lo, hi, pos, quat, angmom, inertia, axes, shape, poly, rot, omega
     """Derived quantities of particles lo..hi-1: rot, omega (derive_particle) and, when poly_scene,
     the octant geometry (derive_poly_geometry)."""
     for p in range(lo, hi):
-        derive_particle(p, quat, angmom, inertia, shape, rot, omega)
+        derive_particle(p, quat, angmom, inertia, shape, rot, omega, True, False)
         if poly_scene:
             derive_poly_geometry(p, pos, rot, axes, shape, poly, orot, oorg, ax6)

@@ -178,7 +178,8 @@ def _fold_resolved(red, t, r):
 
 @njit(parallel=True, cache=True)
 def resolve_threads(code, threads, offsets, kind, method, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass,
-                    material, estar, gstar, mu, zeta, dt, res, on, oorg, orot, ax6, outs, n0s, counter, red, busy):
+                    material, estar, gstar, mu, zeta, dt, hist, on, pf, oorg, orot, ax6, outs, n0s,
+                    counter, red, busy):
     """Contact resolution of the pair list under a scheme. Explicit schemes: thread t resolves the pairs it
     found, offsets[t]..offsets[t+1]; static: prange over blocks of STATIC_BLOCK pairs; dynamic:
     chunks of DYNAMIC_PAIRS from the atomic counter [1]. outs [T, OUT_LEN], n0s [T, 3] are
@@ -193,8 +194,8 @@ def resolve_threads(code, threads, offsets, kind, method, pi, pj, pos, vel, omeg
             c0 = cycle_counter()
             k = b * STATIC_BLOCK
             r = resolve_range(kind, method, k, min(m, k + STATIC_BLOCK), pi, pj, pos, vel, omega, rot, axes, rbound,
-                              shape, mass, material, estar, gstar, mu, zeta, dt, res, on, oorg, orot, ax6, outs[t],
-                              n0s[t])
+                              shape, mass, material, estar, gstar, mu, zeta, dt, hist, on, pf, oorg,
+                              orot, ax6, outs[t], n0s[t])
             _fold_resolved(red, t, r)
             busy[t] += cycle_counter() - c0
     else:
@@ -210,7 +211,8 @@ def resolve_threads(code, threads, offsets, kind, method, pi, pj, pos, vel, omeg
                         break
                     k1 = min(m, k0 + DYNAMIC_PAIRS)
                 r = resolve_range(kind, method, k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass,
-                                  material, estar, gstar, mu, zeta, dt, res, on, oorg, orot, ax6, outs[t], n0s[t])
+                                  material, estar, gstar, mu, zeta, dt, hist, on, pf, oorg, orot,
+                                  ax6, outs[t], n0s[t])
                 _fold_resolved(red, t, r)
                 if code != DYNAMIC:
                     break
@@ -240,17 +242,17 @@ def derive_threads(threads, lo, hi, pos, quat, angmom, inertia, axes, shape, pol
 
 
 @njit(parallel=True, cache=True)
-def finish_threads(threads, n, adj_start, adj_items, pi, res, on, pos, vel, quat, angmom, mass, inertia, shape, axes,
-                   rbound, material, force, torque, rot, omega, gx, gy, gz, has_gravity, dt, wall_m, wall_d, estar_w,
-                   gstar_w, zeta_w, mu_w, wall_hist, poly, oorg, orot, ax6, poly_scene, ref, outs, m33s, lbs, fin):
+def finish_threads(threads, n, spheres, adj_start, adj_items, on, pf, pos, vel, quat, angmom, mass, inertia, shape, axes, rbound, material,
+                   force, torque, rot, omega, gx, gy, gz, has_gravity, dt, wall_m, wall_d, estar_w, gstar_w, zeta_w,
+                   mu_w, wall_hist, poly, oorg, orot, ax6, poly_scene, ref, outs, fin):
     """dem.forces.finish_range of the owned particles 0..n-1 in T contiguous blocks (particles are
     independent in this pass: each reads only its own pairs' results). fin [T, FIN_LEN] holds the
     per-thread results, combined here in thread order. Returns dem.forces.FINISHED."""
     for t in prange(threads):
-        r = finish_range((t * n) // threads, ((t + 1) * n) // threads, adj_start, adj_items, pi, res, on, pos, vel,
-                         quat, angmom, mass, inertia, shape, axes, rbound, material, force, torque, rot, omega, gx, gy,
-                         gz, has_gravity, dt, wall_m, wall_d, estar_w, gstar_w, zeta_w, mu_w, wall_hist, poly, oorg,
-                         orot, ax6, poly_scene, ref, outs[t], m33s[t], lbs[t])
+        r = finish_range((t * n) // threads, ((t + 1) * n) // threads, spheres, adj_start, adj_items, on, pf, pos, vel, quat, angmom,
+                         mass, inertia, shape, axes, rbound, material, force, torque, rot, omega, gx, gy, gz,
+                         has_gravity, dt, wall_m, wall_d, estar_w, gstar_w, zeta_w, mu_w, wall_hist, poly, oorg, orot,
+                         ax6, poly_scene, ref, outs[t])
         fin[t, 0] = r[0]
         fin[t, 1] = r[1]
         fin[t, 2] = r[2]

@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from dem.contact.ellipsoid import OUT_LEN
-from dem.forces import CONTACT_METHODS, POLYS, finish_range, resolve_range, scene_kind
+from dem.forces import CONTACT_METHODS, POLYS, SPHERES, finish_range, resolve_range, scene_kind
 from dem.integrate import derive_all
 from dem.neighbor import cell_order, find_pairs
 from dem.pairs import DEFAULT_SKIN, PairList
@@ -66,8 +66,6 @@ class SerialMode:
         self.rot = None
         self.out = np.zeros(OUT_LEN)
         self.n0 = np.zeros(3)
-        self.m33 = np.zeros((3, 3))
-        self.lb = np.zeros(3)
         self.ensure_derived()
 
     def warmup(self):
@@ -153,7 +151,8 @@ class SerialMode:
         s, m, p = self.state, self.scene.materials, self.pairs
         return resolve_range(self.kind, self.method, 0, p.m, p.pi, p.pj, s.pos, s.vel, self.omega, self.rot,
                              s.axes, s.rbound, s.shape, s.mass, s.material, m.estar, m.gstar, m.mu, m.zeta, self.dt,
-                             p.res, p.on, self.oorg, self.orot, self.ax6, self.out, self.n0)
+                             p.hist, p.on, p.pf, self.oorg, self.orot, self.ax6, self.out,
+                             self.n0)
 
     @property
     def has_walls(self):
@@ -168,11 +167,11 @@ class SerialMode:
     def finish(self):
         """Gather, walls, integration, derived quantities and guard sums; returns dem.forces.FINISHED."""
         s, m, p, g = self.state, self.scene.materials, self.pairs, self.g
-        return finish_range(0, s.n_owned, p.adj_start, p.adj_items, p.pi, p.res, p.on, s.pos, s.vel, s.quat,
+        return finish_range(0, s.n_owned, self.kind == SPHERES, p.adj_start, p.adj_items, p.on, p.pf, s.pos, s.vel, s.quat,
                             s.angmom, s.mass, s.inertia, s.shape, s.axes, s.rbound, s.material, s.force, s.torque,
                             self.rot, self.omega, g[0], g[1], g[2], self.has_gravity, self.dt, *self.walls(),
                             m.estar_w, m.gstar_w, m.zeta_w, m.mu_w, s.wall_hist, s.poly, self.oorg,
-                            self.orot, self.ax6, self.kind == POLYS, p.ref, self.out, self.m33, self.lb)
+                            self.orot, self.ax6, self.kind == POLYS, p.ref, self.out)
 
     # --- contact detection alone (bench schemes: the paper's Table 1) --------------------------
     def neighbour_phase(self):

@@ -10,7 +10,7 @@ import numpy as np
 import numba
 
 from dem.contact.ellipsoid import OUT_LEN
-from dem.forces import POLYS
+from dem.forces import POLYS, SPHERES
 from dem.neighbor import CellGrid
 from modes.base import ModeError, register
 from modes import parallel as par
@@ -60,8 +60,6 @@ class ThreadsMode(SerialMode):
         t = self.threads
         self.outs = np.zeros((t, OUT_LEN))
         self.n0s = np.zeros((t, 3))
-        self.m33s = np.zeros((t, 3, 3))
-        self.lbs = np.zeros((t, 3))
         self.red = np.zeros((t, par.RED_LEN))
         self.fin = np.zeros((t, par.FIN_LEN))
         self.counter = np.zeros(1, dtype=np.int64)
@@ -103,7 +101,8 @@ class ThreadsMode(SerialMode):
         return par.resolve_threads(self.code, self.threads, p.offsets, self.kind, self.method, p.pi, p.pj, s.pos,
                                    s.vel, self.omega, self.rot, s.axes, s.rbound, s.shape, s.mass, s.material,
                                    m.estar, m.gstar, m.mu, m.zeta, self.dt,
-                                   p.res, p.on, self.oorg, self.orot, self.ax6, self.outs, self.n0s, self.counter,
+                                   p.hist, p.on, p.pf, self.oorg, self.orot, self.ax6,
+                                   self.outs, self.n0s, self.counter,
                                    self.red, self.busy)
 
     # --- the rest of the step --------------------------------------------------------------------
@@ -119,12 +118,12 @@ class ThreadsMode(SerialMode):
         if self.threaded != "step":
             return super().finish()
         s, m, p, g = self.state, self.scene.materials, self.pairs, self.g
-        return par.finish_threads(self.threads, s.n_owned, p.adj_start, p.adj_items, p.pi, p.res, p.on, s.pos, s.vel,
+        return par.finish_threads(self.threads, s.n_owned, self.kind == SPHERES, p.adj_start, p.adj_items, p.on, p.pf, s.pos, s.vel,
                                   s.quat, s.angmom, s.mass, s.inertia, s.shape, s.axes, s.rbound, s.material, s.force,
                                   s.torque, self.rot, self.omega, g[0], g[1], g[2], self.has_gravity, self.dt,
                                   *self.walls(), m.estar_w, m.gstar_w, m.zeta_w, m.mu_w, s.wall_hist,
                                   s.poly, self.oorg, self.orot, self.ax6, self.kind == POLYS, p.ref, self.outs,
-                                  self.m33s, self.lbs, self.fin)
+                                  self.fin)
 
     def step(self):
         row = super().step()

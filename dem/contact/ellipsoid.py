@@ -73,7 +73,7 @@ def new_out():
     return np.zeros(OUT_LEN)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _shape_matrix(rot, ax):
     """Upper triangle (q00, q01, q02, q11, q12, q22) of Q = R diag(ax^2) R^T."""
     s0 = ax[0] * ax[0]
@@ -96,7 +96,7 @@ def _shape_matrix(rot, ax):
             r20 * r20 * s0 + r21 * r21 * s1 + r22 * r22 * s2)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _hq(rot, ax, nx, ny, nz):
     """Support function h = sqrt(n^T Q n) and Q n, evaluated in the body frame.
 
@@ -116,7 +116,7 @@ def _hq(rot, ax, nx, ny, nz):
             rot[2, 0] * p0 + rot[2, 1] * p1 + rot[2, 2] * p2)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _h(rot, ax, nx, ny, nz):
     """Support function h(n) = sqrt(n^T Q n) (n need not be unit), body frame."""
     m0 = (rot[0, 0] * nx + rot[1, 0] * ny + rot[2, 0] * nz) * ax[0]
@@ -125,7 +125,7 @@ def _h(rot, ax, nx, ny, nz):
     return np.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _basis(nx, ny, nz):
     """Orthonormal tangent basis t1, t2 of unit n (t1 = n x e_k / |.|, k = smallest |n_k|)."""
     ax = abs(nx)
@@ -144,7 +144,7 @@ def _basis(nx, ny, nz):
     return tx, ty, tz, ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _curv(rot, ax, h, t1x, t1y, t1z, t2x, t2y, t2z):
     """Curvature tensor K = h T^T A T (A = Q^-1) at the support point of normal n = t1 x t2.
 
@@ -161,7 +161,7 @@ def _curv(rot, ax, h, t1x, t1y, t1z, t2x, t2y, t2z):
             h * (v0 * v0 + v1 * v1 + v2 * v2))
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _hertz_radius(k11, k12, k22):
     """R_e = det(K)^-1/2 and kappa''/kappa' of a 2x2 SPD curvature tensor."""
     det = k11 * k22 - k12 * k12
@@ -172,7 +172,7 @@ def _hertz_radius(k11, k12, k22):
     return 1.0 / np.sqrt(det), big / small
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _sphere_newton(rot1, ax1, rot2, ax2, rx, ry, rz, rn, nx, ny, nz, maxit, deep_maxit):
     """Minimise phi(n) = h1(n) + h2(n) - n.R on S^2 from the unit normal (nx, ny, nz).
 
@@ -282,7 +282,7 @@ def _write_out(out, depth, nx, ny, nz, p1x, p1y, p1z, p2x, p2y, p2z, re, kr, lam
     out[OUT_NEWTON_ITERS] = nw_it
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _fill(c1, rot1, ax1, c2, rot2, ax2, nx, ny, nz, rx, ry, rz, lam, pw_it, nw_it, out):
     """Write depth, normal, contact points, R_e, kratio at the normal n; returns the depth."""
     h1, u0, u1, u2 = _hq(rot1, ax1, nx, ny, nz)
@@ -304,7 +304,7 @@ def _fill(c1, rot1, ax1, c2, rot2, ax2, nx, ny, nz, rx, ry, rz, lam, pw_it, nw_i
     return depth
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _min_curv_radius(ax):
     """Smallest radius of curvature c^2 / a of an ellipsoid with semi-axes ax [3]."""
     amax = max(ax[0], max(ax[1], ax[2]))
@@ -312,7 +312,7 @@ def _min_curv_radius(ax):
     return amin * amin / amax
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def pw_maximise(q1, q2, rx, ry, rz, lam):
     """Maximise F(lam) = lam (1 - lam) R^T G^-1 R, G = (1 - lam) Q1 + lam Q2, on [0, 1].
 
@@ -396,7 +396,7 @@ def pw_maximise(q1, q2, rx, ry, rz, lam):
     return 1, lam_out, f, sx, sy, sz, it
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def ellipsoid_contact(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out):
     """Exact contact of ellipsoids 1 and 2; returns 1 and fills out [OUT_LEN] on overlap, else 0.
 
@@ -474,7 +474,7 @@ def ellipsoid_contact(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def ellipsoid_wall_contact(c, rot, ax, m, d, out):
     """Contact of an ellipsoid with the planar wall m.x = d (unit m points into the particle region).
 

@@ -101,7 +101,7 @@ _FH_TABLE, _LNR_TABLE = _build_table(N_TABLE, LNK_MAX)
 _H = LNK_MAX / (N_TABLE - 1)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _interp(table, kratio):
     """4-point Lagrange interpolation of a table on the uniform ln-k grid, clamped at the ends."""
     if not (kratio > 1.0):
@@ -121,7 +121,7 @@ def _interp(table, kratio):
             - table[j + 2] * t * t1 * t3 / 2.0 + table[j + 3] * t * t1 * t2 / 6.0)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def hertz_factor(kratio):
     """Exact elliptical-Hertz force factor f_H = P_exact / P(R_e = sqrt(R'R'')) for B/A = kratio.
 
@@ -130,7 +130,7 @@ def hertz_factor(kratio):
     return _interp(_FH_TABLE, kratio)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def contact_ellipse_ratio(kratio):
     """Axis ratio b/a <= 1 of the elliptical Hertz contact area for B/A = kratio (1 at kratio 1)."""
     return np.exp(_interp(_LNR_TABLE, kratio))

@@ -55,7 +55,7 @@ SEXTIC_EPS_DET = 1e-12   # |det M(lam)| > EPS * |det A_1| : M invertible
 
 
 # ================================================================ Perram-Wertheim only
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def pw_contact(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out):
     """Perram-Wertheim-only contact; returns 1 and fills out [OUT_LEN] on overlap, else 0.
 
@@ -298,7 +298,7 @@ def _mean_curv_radius(c, rot, ax, p):
     return 2.0 / (k[0] + k[2])
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=True)  # it allocates: not inherit the callers' _nrt=False (dem.forces)
 def sextic_contact(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out, minoverlap=MINOVERLAP):
     """Yan (2010) sextic contact; returns 1 and fills out [OUT_LEN] on a valid contact, else 0.
 

@@ -131,7 +131,7 @@ def _oct_axes(rot, a6, nx, ny, nz):
             a6[4] if m2 >= 0.0 else a6[5])
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def poly_support(o, rot, axes6, nx, ny, nz):
     """Support function and support point of a poly-ellipsoid in direction n (world frame).
 
@@ -143,7 +143,7 @@ def poly_support(o, rot, axes6, nx, ny, nz):
     return h, o[0] + u0 / h, o[1] + u1 / h, o[2] + u2 / h
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _phi(rot1, a1, rot2, a2, rx, ry, rz, nx, ny, nz):
     """phi_P(n) = h1(n) + h2(-n) - n.R."""
     ax1 = _oct_axes(rot1, a1, nx, ny, nz)
@@ -153,7 +153,7 @@ def _phi(rot1, a1, rot2, a2, rx, ry, rz, nx, ny, nz):
     return h1 + h2 - (nx * rx + ny * ry + nz * rz)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _consistent(rot, ax, a6, nx, ny, nz):
     """Does the octant with semi-axes ax contain the normal n (within OCT_PLANE_TOL)?"""
     m0 = rot[0, 0] * nx + rot[1, 0] * ny + rot[2, 0] * nz
@@ -169,7 +169,7 @@ def _consistent(rot, ax, a6, nx, ny, nz):
     return ok
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _inside(o, rot, a6, x, y, z):
     """Implicit function sum_k (x_b,k / alpha_k)^2 of the poly-ellipsoid at world point (x, y, z)."""
     dx = x - o[0]
@@ -184,7 +184,7 @@ def _inside(o, rot, a6, x, y, z):
     return m0 * m0 + m1 * m1 + m2 * m2
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _min_curv_radius6(a6):
     """Lower bound a_min^2 / a_max of every octant ellipsoid's smallest curvature radius."""
     amin = a6[0]
@@ -197,7 +197,7 @@ def _min_curv_radius6(a6):
 
 # ------------------------------------------------------------------ direct Newton on phi_P
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _poly_newton(rot1, a1, rot2, a2, rx, ry, rz, rn, nx, ny, nz, maxit, deep_maxit):
     """Trust-region Newton on S^2 for phi_P (octants re-chosen at every evaluation).
 
@@ -275,7 +275,7 @@ def _poly_newton(rot1, a1, rot2, a2, rx, ry, rz, rn, nx, ny, nz, maxit, deep_max
 
 # ------------------------------------------------------------------ pair contact
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def polyellipsoid_contact(o1, rot1, ax6_1, o2, rot2, ax6_2, n0, out):
     """Exact contact of poly-ellipsoids 1 and 2; returns 1 and fills out on overlap, else 0.
 
@@ -424,7 +424,7 @@ def polyellipsoid_contact(o1, rot1, ax6_1, o2, rot2, ax6_2, n0, out):
 
 # ------------------------------------------------------------------ wall contact
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def polyellipsoid_wall_contact(o, rot, axes6, m, d, out):
     """Contact of a poly-ellipsoid with the wall m.x = d (unit m points into the particle region).
 
