@@ -120,7 +120,8 @@ class PairList:
 
     pi, pj [m] int64, hist [m, HIST_LEN], pf [m, PF_LEN] and on [m] int8 are views of buffers that
     grow by 25 % when a rebuild needs more (steps between rebuilds allocate nothing); adj_start,
-    adj_items the adjacency; ref [n_owned, 3] the owned positions at the rebuild [m]; offsets [T+1]
+    adj_items the adjacency; near [n_owned] int8 the wall list (dem.forces.wall_candidates); ref
+    [n_owned, 3] the owned positions at the rebuild [m]; offsets [T+1]
     the pairs each thread found (thread schemes resolve their own pairs); rebuilds counts the
     builds."""
 
@@ -132,6 +133,7 @@ class PairList:
         self.adj_start = np.zeros(1, dtype=np.int64)
         self.adj_items = np.zeros(0, dtype=np.int64)
         self.ref = np.zeros((0, 3))
+        self.near = np.zeros(0, dtype=np.int8)
         self.rebuilds = 0
 
     def _alloc(self, cap):

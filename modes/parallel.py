@@ -242,14 +242,14 @@ def derive_threads(threads, lo, hi, pos, quat, angmom, inertia, axes, shape, pol
 
 
 @njit(parallel=True, cache=True)
-def finish_threads(threads, n, spheres, adj_start, adj_items, on, pf, pos, vel, quat, angmom, mass, inertia, shape, axes, rbound, material,
+def finish_threads(threads, n, spheres, adj_start, adj_items, on, pf, near, pos, vel, quat, angmom, mass, inertia, shape, axes, rbound, material,
                    force, torque, rot, omega, gx, gy, gz, has_gravity, dt, wall_m, wall_d, estar_w, gstar_w, zeta_w,
                    mu_w, wall_hist, poly, oorg, orot, ax6, poly_scene, ref, outs, fin):
     """dem.forces.finish_range of the owned particles 0..n-1 in T contiguous blocks (particles are
     independent in this pass: each reads only its own pairs' results). fin [T, FIN_LEN] holds the
     per-thread results, combined here in thread order. Returns dem.forces.FINISHED."""
     for t in prange(threads):
-        r = finish_range((t * n) // threads, ((t + 1) * n) // threads, spheres, adj_start, adj_items, on, pf, pos, vel, quat, angmom,
+        r = finish_range((t * n) // threads, ((t + 1) * n) // threads, spheres, adj_start, adj_items, on, pf, near, pos, vel, quat, angmom,
                          mass, inertia, shape, axes, rbound, material, force, torque, rot, omega, gx, gy, gz,
                          has_gravity, dt, wall_m, wall_d, estar_w, gstar_w, zeta_w, mu_w, wall_hist, poly, oorg, orot,
                          ax6, poly_scene, ref, outs[t])

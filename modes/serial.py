@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from dem.contact.ellipsoid import OUT_LEN
-from dem.forces import CONTACT_METHODS, POLYS, SPHERES, finish_range, resolve_range, scene_kind
+from dem.forces import CONTACT_METHODS, POLYS, SPHERES, finish_range, resolve_range, scene_kind, wall_candidates
 from dem.integrate import derive_all
 from dem.neighbor import cell_order, find_pairs
 from dem.pairs import DEFAULT_SKIN, PairList
@@ -124,12 +124,16 @@ class SerialMode:
         return find_pairs(self.neighbor, s.pos, radii, s.gid, s.n_owned, self.pairs.buffers)
 
     def build_list(self):
-        """The neighbour list: pairs within r_i + r_j + skin, their history from the state's rows."""
+        """The neighbour list: pairs within r_i + r_j + skin, their history from the state's rows, and
+        the wall list (the particles within their bounding radius plus half the skin of a wall)."""
         s = self.state
         self.ensure_derived()
         self.derive(0, s.n)
-        m = self.find_pairs(s.rbound + 0.5 * self.skin if self.skin > 0 else s.rbound)
+        reach = s.rbound + 0.5 * self.skin if self.skin > 0 else s.rbound
+        m = self.find_pairs(reach)
         self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos)
+        self.pairs.near = np.zeros(s.n_owned, dtype=np.int8)
+        wall_candidates(s.n_owned, s.pos, reach, *self.walls(), s.wall_hist, self.pairs.near)
 
     def migrate(self):
         """Hand particles that left the block to their new owner (MPI); returns how many left."""
@@ -167,7 +171,7 @@ class SerialMode:
     def finish(self):
         """Gather, walls, integration, derived quantities and guard sums; returns dem.forces.FINISHED."""
         s, m, p, g = self.state, self.scene.materials, self.pairs, self.g
-        return finish_range(0, s.n_owned, self.kind == SPHERES, p.adj_start, p.adj_items, p.on, p.pf, s.pos, s.vel, s.quat,
+        return finish_range(0, s.n_owned, self.kind == SPHERES, p.adj_start, p.adj_items, p.on, p.pf, p.near, s.pos, s.vel, s.quat,
                             s.angmom, s.mass, s.inertia, s.shape, s.axes, s.rbound, s.material, s.force, s.torque,
                             self.rot, self.omega, g[0], g[1], g[2], self.has_gravity, self.dt, *self.walls(),
                             m.estar_w, m.gstar_w, m.zeta_w, m.mu_w, s.wall_hist, s.poly, self.oorg,
