@@ -9,9 +9,12 @@ point DIR/runs.csv is rewritten atomically, so an interrupted sweep leaves a con
 hangs past its timeout or goes unstable is recorded with its status and reason, and the sweep
 goes on. Module times per point (DESIGN.md): totalT = mean over steps of the max over ranks,
 commuT and migraT = mean over steps of the per-rank mean, compuT = totalT - commuT - migraT;
-wireT = mean over steps of the per-rank mean of wire_s (the modelled wire time of what a rank
-sent, modes/wire.py), above_wireT = commuT + migraT - wireT (the software above the wire; both
-NaN without MPI or when steps.csv has no wire_s); with --repeats R the median over the R runs.
+syncT = mean over steps of the per-rank mean of syncT (the step's one allreduce, part of commuT:
+waiting for the slowest rank + the collective's latency; NaN without MPI or when steps.csv has no
+syncT); wireT = mean over steps of the per-rank mean of wire_s (the modelled wire time of what a
+rank sent, modes/wire.py), above_wireT = commuT + migraT - syncT - wireT (the software above the
+wire in the exchanges; commuT + migraT - wireT where syncT is NaN, older records; both NaN
+without MPI or when steps.csv has no wire_s); with --repeats R the median over the R runs.
 """
 import hashlib
 import json
@@ -93,8 +96,11 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
 # --- records ---------------------------------------------------------------------------------------
 def module_times(steps):
     """Per-step module times of one run (DESIGN.md): dict of totalT, commuT, migraT, compuT,
-    wireT (mean over steps of the per-rank mean of wire_s [s]; NaN without a wire_s column),
-    above_wireT = commuT + migraT - wireT, neighborT, resolveT, rss_mb."""
+    syncT (mean over steps of the per-rank mean of syncT [s], the allreduce inside commuT; NaN
+    without a syncT column or with it empty, as serial and thread runs leave it), wireT (mean
+    over steps of the per-rank mean of wire_s [s]; NaN without a wire_s column), above_wireT =
+    commuT + migraT - syncT - wireT [s] (the software above the wire in the exchanges; commuT +
+    migraT - wireT when syncT is NaN; NaN when wireT is), neighborT, resolveT, rss_mb."""
     g = steps.groupby("step")
     total = g["totalT"].max()
     commu = g["commuT"].mean()
@@ -103,12 +109,15 @@ def module_times(steps):
     out["compuT"] = out["totalT"] - out["commuT"] - out["migraT"]
     # the wire under commuT + migraT (issue 11): absent from older steps.csv files
     import pandas as pd
-    wire = pd.to_numeric(steps["wire_s"], errors="coerce") if "wire_s" in steps else None
-    if wire is not None and wire.notna().any():
-        out["wireT"] = float(wire.groupby(steps["step"]).mean().mean())
-    else:
-        out["wireT"] = math.nan
-    out["above_wireT"] = out["commuT"] + out["migraT"] - out["wireT"]
+    # and the allreduce inside commuT (syncT): absent from older ones, empty without MPI
+    for col, key in (("wire_s", "wireT"), ("syncT", "syncT")):
+        v = pd.to_numeric(steps[col], errors="coerce") if col in steps else None
+        if v is not None and v.notna().any():
+            out[key] = float(v.groupby(steps["step"]).mean().mean())
+        else:
+            out[key] = math.nan
+    sync = out["syncT"] if math.isfinite(out["syncT"]) else 0.0  # older records: the old definition
+    out["above_wireT"] = out["commuT"] + out["migraT"] - sync - out["wireT"]
     out["neighborT"] = float(g["neighborT"].max().mean())
     out["resolveT"] = float(g["resolveT"].max().mean())
     out["rss_mb"] = float(steps["rss_mb"].max()) if "rss_mb" in steps else math.nan
@@ -147,8 +156,8 @@ def summarise(point, rep_dirs, ref_state, t1):
         state = dict(np.load(os.path.join(d, "state.npz")))
     for k in times[0]:
         row[k] = float(np.median([t[k] for t in times]))
-    if m.procs == 1:  # no MPI, no wire (a serial steps.csv may carry wire_s = 0)
-        row["wireT"] = row["above_wireT"] = math.nan
+    if m.procs == 1:  # no MPI, no wire, no allreduce (a serial steps.csv may carry wire_s = 0)
+        row["syncT"] = row["wireT"] = row["above_wireT"] = math.nan
     row["wall_s"] = float(np.median(walls))
     row["overhead_pct"] = 100.0 * (row["commuT"] + row["migraT"]) / row["totalT"] if row["totalT"] > 0 else math.nan
     if t1:

@@ -11,9 +11,11 @@ plot_sweep(DIR) writes, in DIR:
 - modules.png: per mapping (x axis ordered by cores, then procs; grouped by core count) stacked
   bars of compuT, commuT, migraT in ms/step (top) and as % of totalT (bottom), the paper's
   Figs. 19-21 in kind; where runs.csv has wireT (MPI points whose steps.csv has wire_s), a second
-  bar beside it stacks compuT, wireT (the modelled wire time of the bytes sent, modes/wire.py)
-  and above_wireT = commuT + migraT - wireT (the software above the wire); modules_figure(DIR)
-  returns that Figure unsaved;
+  bar beside it stacks compuT, syncT (the step's allreduce: waiting for the slowest rank + the
+  collective's latency; only where runs.csv has it), wireT (the modelled wire time of the bytes
+  sent, modes/wire.py) and above_wireT = commuT + migraT - syncT - wireT (the software above the
+  wire in the exchanges; commuT + migraT - wireT without syncT); modules_figure(DIR) returns that
+  Figure unsaved;
 - error_vs_time.png: err_max (final-position error against the serial run over the mean
   particle radius) against totalT [ms/step], log-log; zero errors (bit-identical modes) are
   drawn hollow on a dashed floor line a decade below the smallest non-zero error.
@@ -42,7 +44,7 @@ from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullForma
 
 RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores", "scheme", "neighbor", "scene",
                "particles", "steps", "repeats", "status", "reason", "totalT", "commuT", "migraT", "compuT",
-               "wireT", "above_wireT", "neighborT", "resolveT", "overhead_pct", "speedup", "efficiency", "edsf", "rss_mb", "err_max",
+               "syncT", "wireT", "above_wireT", "neighborT", "resolveT", "overhead_pct", "speedup", "efficiency", "edsf", "rss_mb", "err_max",
                "err_rms", "stable", "wall_s", "load_before", "load_after", "contact_method"]
 TEXT_COLUMNS = ("point", "mapping", "scheme", "neighbor", "scene", "status", "reason", "stable", "contact_method")
 NUMERIC_COLUMNS = [c for c in RUN_COLUMNS if c not in TEXT_COLUMNS]
@@ -50,10 +52,13 @@ FAMILY_STYLE = {"serial": ("k", "*"), "threads": ("C0", "o"), "MPI": ("C3", "s")
 FAMILY_ORDER = ("serial", "threads", "MPI", "hybrid")
 MODULES = (("compuT", "compuT (computation)", "C0"), ("commuT", "commuT (communication)", "C1"),
            ("migraT", "migraT (migration)", "C2"))
-# the overhead commuT + migraT split at the wire (issue 11): the second bar of an MPI point
+# the overhead commuT + migraT split at the wire (issue 11): the second bar of an MPI point, syncT
+# (the allreduce inside commuT) only where runs.csv has it
 WIRE_SPLIT = (("compuT", "compuT (computation)", "C0", None),
+              ("syncT", "syncT: waiting for the slowest rank + the step's allreduce", "C4", None),
               ("wireT", "wireT: wire time of the bytes sent (ping-pong alpha + n / beta)", "0.35", None),
-              ("above_wireT", "above_wireT: software above the wire = commuT + migraT - wireT", "C3", "////"))
+              ("above_wireT", "above_wireT: software above the wire = commuT + migraT - syncT - wireT", "C3", "////"))
+ABOVE_WIRE_OLD = "above_wireT: software above the wire = commuT + migraT - wireT"  # no syncT recorded
 SCHEME_ORDER = ("partition", "frogleap", "headtail", "static", "dynamic")
 PAPER_MAP = {"partitioning": "partition", "frog-leap": "frogleap", "head-tail": "headtail",
              "static": "static", "dynamic": "dynamic"}
@@ -405,14 +410,24 @@ def _plot_modules(done, skipped, ctx, path):
 def _modules_figure(done, skipped, ctx):
     """Stacked module times per mapping, grouped by core count (paper Figs. 19-21 in kind).
     Each point has one bar compuT + commuT + migraT; a point with a finite wireT has a second one
-    beside it, compuT + wireT + above_wireT (the same overhead split at the wire; above_wireT < 0,
-    better than the one-after-another model, is drawn as 0 and marked '<0'). Bar containers are
-    labelled by the runs.csv column they draw: 'compuT', 'commuT', 'migraT' (first bars), 'split
-    compuT', 'wireT', 'above_wireT' (second bars), in ms on the top axes and % of totalT below."""
+    beside it, compuT + syncT + wireT + above_wireT with above_wireT = commuT + migraT - syncT -
+    wireT (the same overhead split into the allreduce, waiting for the slowest rank included, the
+    wire, and the software above it; a point without syncT, older records, stacks compuT + wireT +
+    above_wireT = commuT + migraT - wireT), so both bars sum to compuT + commuT + migraT = totalT.
+    above_wireT is recomputed from the row's commuT, migraT, syncT and wireT by that rule (runs.csv's
+    above_wireT for one repeat; with --repeats, the medians combined, so the bar sums to what the
+    first one draws); above_wireT < 0, better than the one-after-another model or a
+    syncT above the rest, is drawn as 0 and marked '<0'. Bar containers are labelled by the runs.csv
+    column they draw: 'compuT', 'commuT', 'migraT' (first bars), 'split compuT', 'syncT' (only the
+    points with a finite syncT; no container when none has), 'wireT', 'above_wireT' (second bars),
+    in ms on the top axes and % of totalT below."""
     d = done[np.isfinite(done["cores"])].sort_values(["cores", "procs", "threads", "scheme", "neighbor"])
     n = len(d)
     wire = d["wireT"].to_numpy(dtype=float)
+    sync_all = d["syncT"].to_numpy(dtype=float)
     has = np.isfinite(wire)
+    hs = np.isfinite(sync_all[has])  # the split points with a syncT (not older records)
+    ns = int(hs.sum())
     nw = int(has.sum())
     width = max(6.4, 0.62 * n + 0.3 * nw + 2.0)
     fig, (ax, ax2) = plt.subplots(2, 1, figsize=(width, 6.4), sharex=True, gridspec_kw=dict(height_ratios=(3, 2)))
@@ -438,8 +453,10 @@ def _modules_figure(done, skipped, ctx):
         bottom += v
         bottom2 += pct(v)
     if nw:
-        above = (commu + migra - wire)[has]
-        split = {"compuT": vals["compuT"][has], "wireT": np.clip(wire[has], 0, None), "above_wireT": np.clip(above, 0, None)}
+        sync = np.where(hs, sync_all[has], 0.0)
+        above = (commu + migra)[has] - sync - wire[has]
+        split = {"compuT": vals["compuT"][has], "syncT": np.clip(sync, 0, None), "wireT": np.clip(wire[has], 0, None),
+                 "above_wireT": np.clip(above, 0, None)}
         xw = x[has] + half / 2 + 0.01
         tot = np.where(np.isfinite(total[has]), total[has], 0.0)
         pw = lambda v: np.where(tot > 0, 100.0 * v / np.where(tot > 0, tot, 1.0), 0.0)  # noqa: E731
@@ -447,10 +464,12 @@ def _modules_figure(done, skipped, ctx):
         bottom2 = np.zeros(nw)
         for key, _, color, hatch in WIRE_SPLIT:
             v = split[key]
+            on = hs if key == "syncT" else np.ones(nw, dtype=bool)  # syncT only where recorded (0 elsewhere)
             name = "split compuT" if key == "compuT" else key
             kw = dict(color=color, hatch=hatch, edgecolor="white" if hatch else None, lw=0.0)
-            ax.bar(xw, 1e3 * v, half, bottom=1e3 * bottom, label=name, **kw)
-            ax2.bar(xw, pw(v), half, bottom=bottom2, label=name, **kw)
+            if on.any():
+                ax.bar(xw[on], 1e3 * v[on], half, bottom=1e3 * bottom[on], label=name, **kw)
+                ax2.bar(xw[on], pw(v)[on], half, bottom=bottom2[on], label=name, **kw)
             bottom += v
             bottom2 += pw(v)
         for xi, a, b in zip(xw, above, 1e3 * bottom):
@@ -458,19 +477,21 @@ def _modules_figure(done, skipped, ctx):
                 ax.text(xi, b, "<0", ha="center", va="bottom", fontsize=FONT - 1.5, color="C3")
     top = max([1e3 * t for t in total if np.isfinite(t)] + [1e-9])
     if nw:
-        top = max(top, 1e3 * float(np.nanmax(vals["compuT"][has] + np.clip(wire[has], 0, None))))
+        top = max(top, 1e3 * float(np.nanmax(split["compuT"] + split["syncT"] + split["wireT"])))
     for xi, t in zip(x, total):
         ax.text(xi, 1e3 * t + 0.01 * top, f"{1e3 * t:.3g}" if t < 1 else f"{1e3 * t:.0f}", ha="center", va="bottom", fontsize=FONT - 1)
-    # communication + migration share printed on the lower panel (and the wire's part of it)
+    # communication + migration share printed on the lower panel (and the allreduce's and the wire's part of it)
     recorded = np.isfinite(d["commuT"].to_numpy()) | np.isfinite(d["migraT"].to_numpy())
-    for xi, c, m, t, rec, w in zip(x, commu, migra, total, recorded, wire):
+    for xi, c, m, t, rec, w, sy in zip(x, commu, migra, total, recorded, wire, sync_all):
         if t > 0:
             text = f"{100 * (c + m) / t:.1f}%" if rec else "n/a"
+            if np.isfinite(w) and np.isfinite(sy):
+                text += f"\nsync {100 * sy / t:.1f}%"
             if np.isfinite(w):
                 text += f"\nwire {100 * w / t:.1f}%"
             ax2.text(xi, 101, text, ha="center", va="bottom", fontsize=FONT - 1, color="C1")
     ax.set_ylim(0, 1.14 * top)
-    ax2.set_ylim(0, 124 if nw else 112)
+    ax2.set_ylim(0, 134 if ns else 124 if nw else 112)
     # core-count groups: separators and labels
     cores = d["cores"].to_numpy()
     starts = ([0] if n else []) + [i for i in range(1, n) if cores[i] != cores[i - 1]]
@@ -492,13 +513,16 @@ def _modules_figure(done, skipped, ctx):
     ax2.set_xticklabels(ticks, rotation=45 if n > 6 else 0, ha="right" if n > 6 else "center", fontsize=FONT)
     ax2.set_xlabel("mapping P-px-py-pz-T (ordered by cores, then processes)")
     ax.set_ylabel("time per step [ms]\n(totalT printed on top)")
-    ax2.set_ylabel("share of totalT [%]\n(commuT + migraT" + (" and wireT printed)" if nw else " printed)"))
+    ax2.set_ylabel("share of totalT [%]\n(commuT + migraT" + (", syncT, wireT printed)" if ns else " and wireT printed)"
+                                                             if nw else " printed)"))
     ax.set_title(f"Module times per mapping (paper Figs. 19-21 in kind)\n{ctx}", fontsize=9)
     handles = [Patch(color=c, label=lab) for _, lab, c in MODULES]
     if nw:
         handles.append(Patch(color="none", label="second bar of an MPI point: the same commuT + migraT split into"))
-        handles += [Patch(facecolor=c, hatch=h, edgecolor="white" if h else None, label=lab)
-                    for key, lab, c, h in WIRE_SPLIT if key != "compuT"]
+        labels = {"above_wireT": ABOVE_WIRE_OLD if not ns else
+                  WIRE_SPLIT[-1][1] + ("\n(points without syncT: commuT + migraT - wireT)" if ns < nw else "")}
+        handles += [Patch(facecolor=c, hatch=h, edgecolor="white" if h else None, label=labels.get(key, lab))
+                    for key, lab, c, h in WIRE_SPLIT if key != "compuT" and (key != "syncT" or ns)]
     ax.legend(handles=handles, fontsize=FONT, loc="upper left", bbox_to_anchor=(1.005, 1.0), borderaxespad=0.0)
     if n == 0:
         ax.set_xlim(-0.5, 0.5)

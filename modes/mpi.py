@@ -8,8 +8,10 @@ present; the steps between only forward the ghosts' moving fields (commuT). Then
 threaded, for hybrid) step runs on owned + ghost particles: pairs with a ghost are computed on
 both ranks from identical inputs and identical contact history, gravity and integration touch
 owned particles only, and walls are visited only by blocks that touch them. Whether the next
-step rebuilds is decided collectively, in the one allreduce a step makes (commuT), which also
-carries the stability guard's sums.
+step rebuilds is decided collectively, in the one allreduce a step makes, which also carries the
+stability guard's sums. It is part of commuT and recorded alone as syncT: a rank that finishes
+its step early waits there for the slowest, so syncT holds the ranks' imbalance, and the
+exchanges that follow it start in step (their time is the wire and the software around it).
 Timers use MPI.Wtime. Halo and migration live in halo.py, the geometry of blocks in
 decomposition.py, the ping-pong wire model in wire.py; this module only orchestrates.
 """
@@ -121,7 +123,9 @@ class _Blocks:
         d[1] = flag
         d[2] = ke
         d[3] = wg
+        t = self.clock()
         self.cart.Allreduce(self.mpi.IN_PLACE, d, op=self.mpi.SUM)
+        self.sync_time = self.clock() - t
         self.sums = (d[1], d[2], d[3])
         return bool(d[0] > 0.0) or self._refit_due(self.steps_done + 2)
 
@@ -132,6 +136,7 @@ class _Blocks:
         row["bytes_sent"] = h.bytes_sent
         row["msgs_sent"] = h.msgs_sent
         row["wire_s"] = h.wire_s
+        row["syncT"] = self.sync_time
         h.reset_counters()
         return row
 

@@ -55,7 +55,7 @@ class SerialMode:
         self.skin_fraction = DEFAULT_SKIN if skin is None else float(skin)
         self.skin = self.skin_fraction * 2.0 * float(self.state.rbound.max()) if self.state.n else 0.0
         self.max_overlap_ratio = 0.0
-        self.worst_contact = None
+        self.worst = ("pair", -1)
         self._fresh()
         return self
 
@@ -177,6 +177,17 @@ class SerialMode:
                             m.estar_w, m.gstar_w, m.zeta_w, m.mu_w, s.wall_hist, s.poly, self.oorg,
                             self.orot, self.ax6, self.kind == POLYS, p.ref, self.out)
 
+    @property
+    def worst_contact(self):
+        """The deepest contact of the last step by global ids: (i, j), (i, "wall") or None."""
+        what, k = self.worst
+        gid = self.state.gid
+        if k < 0:
+            return None
+        if what == "wall":
+            return int(gid[k]), "wall"
+        return int(gid[self.pairs.pi[k]]), int(gid[self.pairs.pj[k]])
+
     # --- contact detection alone (bench schemes: the paper's Table 1) --------------------------
     def neighbour_phase(self):
         """The neighbour estimate on the current positions into the pair list (with its history
@@ -226,10 +237,7 @@ class SerialMode:
         t4 = clock()
         commu += t4 - t3 if self.collective else 0.0
         s = self.state
-        self.worst_contact = (int(s.gid[self.pairs.pi[worst_k]]), int(s.gid[self.pairs.pj[worst_k]])) \
-            if worst_k >= 0 else None
-        if wall_worst > pair_worst:
-            self.worst_contact = (int(s.gid[wall_p]), "wall")
+        self.worst = ("wall", wall_p) if wall_worst > pair_worst else ("pair", worst_k)
         self.max_overlap_ratio = max(self.max_overlap_ratio, worst)
         total = t4 - t0
         return {"totalT": total, "commuT": commu, "migraT": migra, "compuT": total - commu - migra,

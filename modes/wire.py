@@ -36,13 +36,13 @@ rank sends in a step (count messages of 0 bytes cost alpha). It models the one-w
 message on its measured link, one message after another. It does not model contention (several
 ranks or messages sharing memory bandwidth or a network port makes the real wire slower) nor the
 overlap of concurrent non-blocking messages (which can make it faster), nor receive-side waits.
-The sum is the fair reference for commuT + migraT because those are one rank's wall time in the
+The sum is the fair reference for the exchanges, commuT - syncT + migraT (syncT: the step's one
+allreduce, where a rank waits for the slowest), because those are one rank's wall time in the
 exchange phases, during which that rank must at least inject every byte and pay every
 message's fixed cost once; the sum counts exactly that, whatever the software does around it.
-So commuT + migraT - wire (runs.csv `above_wireT`) is the time the harness spends above the
-wire: packing and unpacking rows, Python and mpi4py call overhead, request handling, and waiting
-for late neighbours (load imbalance shows up there too). A negative value means the messages
-overlapped better than one after another.
+So commuT + migraT - syncT - wire (runs.csv `above_wireT`) is the time the harness spends above
+the wire: packing and unpacking rows, Python and mpi4py call overhead, request handling. A
+negative value means the messages overlapped better than one after another.
 """
 import math
 

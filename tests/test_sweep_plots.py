@@ -25,9 +25,10 @@ def low_dpi(monkeypatch):
 
 
 def row(mapping, scheme="", status="done", reason="", totalT=None, commu=0.0, migra=0.0, err=0.0, rms=None,
-        scene="gas", particles=4000, steps=50, neighbor="linkcell", t1=T1, wire=None):
+        scene="gas", particles=4000, steps=50, neighbor="linkcell", t1=T1, wire=None, sync=None):
     """One runs.csv record as bench sweep writes it (derived columns from totalT and T(1); wireT
-    and above_wireT = commuT + migraT - wireT only when `wire` is given)."""
+    and above_wireT = commuT + migraT - syncT - wireT only when `wire` is given, syncT only when
+    `sync` is, else above_wireT = commuT + migraT - wireT as for older records)."""
     p, px, py, pz, t = (int(x) for x in mapping.split("-"))
     cores = p * t
     r = {c: math.nan for c in RUN_COLUMNS}
@@ -44,7 +45,9 @@ def row(mapping, scheme="", status="done", reason="", totalT=None, commu=0.0, mi
              err_max=err, err_rms=err / 3 if rms is None else rms, stable=True, wall_s=totalT * steps + 2.0,
              load_before=0.5, load_after=1.5)
     if wire is not None:
-        r.update(wireT=wire, above_wireT=commu + migra - wire)
+        r.update(wireT=wire, above_wireT=commu + migra - (sync or 0.0) - wire)
+    if sync is not None:
+        r.update(syncT=sync)
     return r
 
 
@@ -169,9 +172,11 @@ def test_degenerate_sweeps(tmp_path, case):
 
 
 # --- the wire under commuT + migraT (issue 11): runs.csv wireT / above_wireT and modules.png -----------
-def steps_frame(procs, commu, migra, wire=None, steps=3, totalT=0.01):
+def steps_frame(procs, commu, migra, wire=None, steps=3, totalT=0.01, sync=None):
     """A steps.csv of `procs` ranks x `steps` steps: commu[r][s], migra[r][s] and (optional)
-    wire[r][s] per rank r and step s [s]; the other columns constant."""
+    wire[r][s] and sync[r][s] (syncT; "" for an empty cell, as serial runs leave it) per rank r and
+    step s [s]; the other columns constant. totalT of rank r is totalT + 0.1 ms x r, so a step's
+    max over ranks is totalT + 0.1 ms x (procs - 1)."""
     rows = []
     for s in range(steps):
         for r in range(procs):
@@ -179,6 +184,8 @@ def steps_frame(procs, commu, migra, wire=None, steps=3, totalT=0.01):
                      compuT=totalT - commu[r][s] - migra[r][s], neighborT=1e-3, resolveT=2e-3, rss_mb=100.0)
             if wire is not None:
                 d.update(wire_s=wire[r][s], msgs_sent=52)
+            if sync is not None:
+                d.update(syncT=sync[r][s])
             rows.append(d)
     return pd.DataFrame(rows)
 
@@ -201,20 +208,26 @@ def write_point(d, mapping, steps):
     return p
 
 
-def sweep_folder(d, with_wire=True):
+def sweep_folder(d, with_wire=True, with_sync=False):
     """Serial, 2 and 4 ranks, summarised by bench.sweep.summarise from steps.csv files written here,
     runs.csv written by bench.sweep.write_runs. Numbers (ms): 2 ranks, 3 steps: commuT rank 0 =
     0.5, rank 1 = 0.7 every step (mean 0.6), migraT 0.1, wire_s rank 0 = 0.1, 0.2, 0.3 and rank 1 =
     0.3, 0.4, 0.5 (step means 0.2, 0.3, 0.4: wireT = 0.3), so above_wireT = 0.6 + 0.1 - 0.3 = 0.4;
     4 ranks: commuT 0.8, migraT 0.2, wire_s 0.25 everywhere: wireT 0.25, above_wireT 0.75. The
-    serial steps.csv carries wire_s = 0 (a serial mode may write it), which must still give NaN."""
+    serial steps.csv carries wire_s = 0 (a serial mode may write it), which must still give NaN.
+    with_sync adds steps.csv's syncT (else the files have no syncT column, as older records): 2
+    ranks: rank 0 = 0.2, 0.3, 0.4, rank 1 = 0.0, 0.1, 0.2 (the earlier rank waits longer; step
+    means 0.1, 0.2, 0.3: syncT = 0.2), so above_wireT = 0.6 + 0.1 - 0.2 - 0.3 = 0.2; 4 ranks: syncT
+    0.15 everywhere, above_wireT = 0.8 + 0.2 - 0.15 - 0.25 = 0.6; serial: syncT empty."""
     import bench.sweep as sw
     ms = 1e-3
-    serial = steps_frame(1, [[0.0] * 3], [[0.0] * 3], [[0.0] * 3] if with_wire else None, totalT=0.02)
+    serial = steps_frame(1, [[0.0] * 3], [[0.0] * 3], [[0.0] * 3] if with_wire else None, totalT=0.02,
+                         sync=[[""] * 3] if with_sync else None)
     two = steps_frame(2, [[0.5 * ms] * 3, [0.7 * ms] * 3], [[0.1 * ms] * 3] * 2,
-                      [[0.1 * ms, 0.2 * ms, 0.3 * ms], [0.3 * ms, 0.4 * ms, 0.5 * ms]] if with_wire else None)
+                      [[0.1 * ms, 0.2 * ms, 0.3 * ms], [0.3 * ms, 0.4 * ms, 0.5 * ms]] if with_wire else None,
+                      sync=[[0.2 * ms, 0.3 * ms, 0.4 * ms], [0.0, 0.1 * ms, 0.2 * ms]] if with_sync else None)
     four = steps_frame(4, [[0.8 * ms] * 3] * 4, [[0.2 * ms] * 3] * 4, [[0.25 * ms] * 3] * 4 if with_wire else None,
-                       totalT=0.006)
+                       totalT=0.006, sync=[[0.15 * ms] * 3] * 4 if with_sync else None)
     rows = []
     t1 = None
     for mapping, st in (("1-1-1-1-1", serial), ("2-2-1-1-1", two), ("4-2-2-1-1", four)):
@@ -235,10 +248,12 @@ def bars(ax):
 def test_runs_csv_wire_columns(tmp_path):
     """wireT = mean over steps of the per-rank mean of wire_s (like commuT): 0.3 ms for 2 ranks,
     0.25 ms for 4; above_wireT = commuT + migraT - wireT = 0.4 ms and 0.75 ms; empty (NaN) for the
-    serial point even though its steps.csv has wire_s = 0."""
+    serial point even though its steps.csv has wire_s = 0. These steps.csv files have no syncT
+    column (older records): syncT is empty everywhere and above_wireT keeps that old definition."""
     d = sweep_folder(tmp_path / "sw")
     runs = pd.read_csv(os.path.join(d, "runs.csv"))
     assert runs["mapping"].tolist() == ["1-1-1-1-1", "2-2-1-1-1", "4-2-2-1-1"]
+    assert runs["syncT"].isna().all()
     assert math.isnan(runs.loc[0, "wireT"]) and math.isnan(runs.loc[0, "above_wireT"])
     assert runs.loc[1, "commuT"] == pytest.approx(0.6e-3, rel=1e-12)
     assert runs.loc[1, "wireT"] == pytest.approx(0.3e-3, rel=1e-12)
@@ -259,6 +274,7 @@ def test_modules_figure_draws_the_wire(tmp_path):
     try:
         ax, ax2 = fig.axes[:2]
         h = bars(ax)
+        assert "syncT" not in h  # no syncT recorded: the old split, compuT + wireT + above_wireT
         for col in ("compuT", "commuT", "migraT"):
             assert h[col] == pytest.approx((1e3 * runs[col].clip(lower=0)).tolist(), rel=1e-12), col
         mpi = runs.iloc[1:]
@@ -290,7 +306,7 @@ def test_modules_figure_without_wire(tmp_path, old):
     runs = pd.read_csv(os.path.join(d, "runs.csv"))
     assert runs["wireT"].isna().all() and runs["above_wireT"].isna().all()
     if old == "runs_without_columns":
-        runs.drop(columns=["wireT", "above_wireT"]).to_csv(os.path.join(d, "runs.csv"), index=False)
+        runs.drop(columns=["syncT", "wireT", "above_wireT"]).to_csv(os.path.join(d, "runs.csv"), index=False)
     fig = modules_figure(d)
     try:
         h = bars(fig.axes[0])
@@ -310,6 +326,111 @@ def test_modules_figure_wire_above_overhead(tmp_path):
     try:
         h = bars(fig.axes[0])
         assert h["wireT"] == pytest.approx([1.5], rel=1e-12) and h["above_wireT"] == [0.0]
+        assert "<0" in [t.get_text() for t in fig.axes[0].texts]
+    finally:
+        sweep_plots.plt.close(fig)
+
+
+# --- the step's allreduce inside commuT: runs.csv syncT and its segment in the split bar ---------------
+def container(ax, label):
+    return next(c for c in ax.containers if c.get_label() == label)
+
+
+def test_runs_csv_sync_column(tmp_path):
+    """syncT = mean over steps of the per-rank mean of steps.csv's syncT (like commuT): 0.2 ms for 2
+    ranks (step means 0.1, 0.2, 0.3), 0.15 ms for 4; above_wireT = commuT + migraT - syncT - wireT
+    = 0.6 + 0.1 - 0.2 - 0.3 = 0.2 ms and 0.8 + 0.2 - 0.15 - 0.25 = 0.6 ms; wireT unchanged (0.3,
+    0.25 ms); the serial point (syncT cells empty, as serial runs leave them) has syncT,
+    wireT and above_wireT empty."""
+    d = sweep_folder(tmp_path / "sw", with_sync=True)
+    runs = pd.read_csv(os.path.join(d, "runs.csv"))
+    assert list(runs.columns) == RUN_COLUMNS
+    assert math.isnan(runs.loc[0, "syncT"]) and math.isnan(runs.loc[0, "above_wireT"])
+    assert runs.loc[1:, "syncT"].tolist() == pytest.approx([0.2e-3, 0.15e-3], rel=1e-9)
+    assert runs.loc[1:, "wireT"].tolist() == pytest.approx([0.3e-3, 0.25e-3], rel=1e-12)
+    assert runs.loc[1:, "above_wireT"].tolist() == pytest.approx([0.2e-3, 0.6e-3], rel=1e-9)
+
+
+def test_modules_figure_draws_sync(tmp_path):
+    """modules.png of that sweep: the second bar of each MPI point stacks compuT, syncT, wireT,
+    above_wireT at runs.csv's values. 2 ranks: totalT = 10 + 0.1 ms (max over ranks), compuT =
+    10.1 - 0.6 - 0.1 = 9.4 ms, then 0.2, 0.3, 0.2 ms; 4 ranks: totalT 6.3 ms, compuT 5.3 ms, then
+    0.15, 0.25, 0.6 ms. Each segment sits on the sum of those below it and the bar's top is
+    totalT (10.1 and 6.3 ms; 100 % on the lower panel): the split bar still sums to totalT. The
+    first bar (compuT, commuT, migraT) is unchanged; the legend names syncT."""
+    d = sweep_folder(tmp_path / "sw", with_sync=True)
+    runs = pd.read_csv(os.path.join(d, "runs.csv"))
+    mpi = runs.iloc[1:]
+    fig = modules_figure(d)
+    try:
+        ax, ax2 = fig.axes[:2]
+        h = bars(ax)
+        for col in ("compuT", "commuT", "migraT"):
+            assert h[col] == pytest.approx((1e3 * runs[col]).tolist(), rel=1e-12), col
+        order = ("split compuT", "syncT", "wireT", "above_wireT")
+        for name, col in zip(order, ("compuT", "syncT", "wireT", "above_wireT")):
+            assert h[name] == pytest.approx((1e3 * mpi[col]).tolist(), rel=1e-12), name
+        assert h["split compuT"] == pytest.approx([9.4, 5.3], rel=1e-9)
+        assert h["syncT"] == pytest.approx([0.2, 0.15], rel=1e-9)
+        assert h["wireT"] == pytest.approx([0.3, 0.25], rel=1e-9)
+        assert h["above_wireT"] == pytest.approx([0.2, 0.6], rel=1e-9)
+        below = [0.0, 0.0]
+        for name in order:
+            assert [p.get_y() for p in container(ax, name).patches] == pytest.approx(below, rel=1e-9, abs=1e-12), name
+            below = [b + v for b, v in zip(below, h[name])]
+        assert below == pytest.approx([10.1, 6.3], rel=1e-9)
+        assert below == pytest.approx((1e3 * mpi["totalT"]).tolist(), rel=1e-12)
+        h2 = bars(ax2)
+        assert [sum(h2[name][i] for name in order) for i in range(2)] == pytest.approx([100.0, 100.0], rel=1e-9)
+        assert h2["syncT"] == pytest.approx((100 * mpi["syncT"] / mpi["totalT"]).tolist(), rel=1e-12)
+        legend = [t.get_text() for t in ax.get_legend().get_texts()]
+        assert any(t.startswith("syncT") for t in legend)
+        assert any("commuT + migraT - syncT - wireT" in t for t in legend)
+        assert "<0" not in [t.get_text() for t in ax.texts]
+    finally:
+        sweep_plots.plt.close(fig)
+    assert_pngs(plot_sweep(d), SWEEP_PNGS)
+
+
+def test_modules_figure_sync_beside_older_point(tmp_path):
+    """A runs.csv mixing a point with syncT and an older one without (e.g. a resumed sweep): 2-2-1-1-1
+    totalT 104 ms, commuT 4, migraT 0.4, syncT 1.5, wireT 1.2 ms -> split compuT 99.6, syncT 1.5,
+    wireT 1.2, above_wireT 4.4 - 1.5 - 1.2 = 1.7 ms; 4-2-2-1-1 (no syncT) totalT 56, commuT 6,
+    migraT 0.6, wireT 1.5 -> compuT 49.4, wireT 1.5, above_wireT 6.6 - 1.5 = 5.1 ms, the old split
+    with wireT right on compuT. The syncT container holds the first point's bar only; both split
+    bars top out at totalT; the legend gives the older points' definition too."""
+    d = write_runs(tmp_path, [row("1-1-1-1-1", totalT=T1),
+                              row("2-2-1-1-1", totalT=0.104, commu=0.004, migra=0.0004, wire=0.0012, sync=0.0015),
+                              row("4-2-2-1-1", totalT=0.056, commu=0.006, migra=0.0006, wire=0.0015)])
+    fig = modules_figure(d)
+    try:
+        ax = fig.axes[0]
+        h = bars(ax)
+        assert h["split compuT"] == pytest.approx([99.6, 49.4], rel=1e-9)
+        assert h["syncT"] == pytest.approx([1.5], rel=1e-9)
+        assert h["wireT"] == pytest.approx([1.2, 1.5], rel=1e-9)
+        assert h["above_wireT"] == pytest.approx([1.7, 5.1], rel=1e-9)
+        assert [p.get_y() for p in container(ax, "syncT").patches] == pytest.approx([99.6], rel=1e-9)
+        assert [p.get_y() for p in container(ax, "wireT").patches] == pytest.approx([101.1, 49.4], rel=1e-9)
+        tops = [p.get_y() + p.get_height() for p in container(ax, "above_wireT").patches]
+        assert tops == pytest.approx([104.0, 56.0], rel=1e-9)
+        legend = [t.get_text() for t in ax.get_legend().get_texts()]
+        assert any("without syncT: commuT + migraT - wireT" in t for t in legend)
+    finally:
+        sweep_plots.plt.close(fig)
+
+
+def test_modules_figure_sync_above_overhead(tmp_path):
+    """syncT + wireT above the measured overhead: commuT 1, migraT 0.1, syncT 0.8, wireT 0.5 ms ->
+    above_wireT = 1.1 - 0.8 - 0.5 = -0.2 ms, drawn as a 0-high bar marked '<0'; syncT and wireT
+    at their values (0.8, 0.5 ms)."""
+    d = write_runs(tmp_path, [row("1-1-1-1-1", totalT=T1),
+                              row("2-2-1-1-1", totalT=0.104, commu=0.001, migra=0.0001, wire=0.0005, sync=0.0008)])
+    fig = modules_figure(d)
+    try:
+        h = bars(fig.axes[0])
+        assert h["syncT"] == pytest.approx([0.8], rel=1e-12) and h["wireT"] == pytest.approx([0.5], rel=1e-12)
+        assert h["above_wireT"] == [0.0]
         assert "<0" in [t.get_text() for t in fig.axes[0].texts]
     finally:
         sweep_plots.plt.close(fig)
