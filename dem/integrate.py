@@ -251,7 +251,7 @@ def derive_geometry_range(lo, hi, pos, rot, axes, shape, poly, orot, oorg, ax6):
         derive_poly_geometry(p, pos, rot, axes, shape, poly, orot, oorg, ax6)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def derive_all(lo, hi, pos, quat, angmom, inertia, axes, shape, poly, rot, omega, poly_scene, orot, oorg, ax6):
     """Derived quantities of particles lo..hi-1: rot, omega (derive_particle) and, when poly_scene,
     the octant geometry (derive_poly_geometry)."""

@@ -103,7 +103,7 @@ def _split(rows, fields):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def pack_moving(idx, pos, vel, angmom, quat, with_quat, buf):
     """buf[u] = (pos, vel, angmom[, quat]) of row idx[u] (buf [len(idx), 9 or 13])."""
     for u in range(idx.shape[0]):
@@ -117,7 +117,7 @@ def pack_moving(idx, pos, vel, angmom, quat, with_quat, buf):
                 buf[u, 9 + c] = quat[p, c]
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def unpack_moving(buf, g0, pos, vel, angmom, quat, with_quat):
     """Rows g0.. of the state take (pos, vel, angmom[, quat]) from buf (inverse of pack_moving)."""
     for u in range(buf.shape[0]):
