@@ -182,8 +182,9 @@ def resolve_threads(code, threads, offsets, kind, method, pi, pj, pos, vel, omeg
                     counter, red, busy):
     """Contact resolution of the pair list under a scheme. Explicit schemes: thread t resolves the pairs it
     found, offsets[t]..offsets[t+1]; static: prange over blocks of STATIC_BLOCK pairs; dynamic:
-    chunks of DYNAMIC_PAIRS from the atomic counter [1]. outs [T, OUT_LEN], n0s [T, 3] are
-    per-thread scratch, red [T, RED_LEN] per-thread reductions, busy [T] cycles.
+    chunks of DYNAMIC_PAIRS from the atomic counter [1]. outs [T, >= OUT_LEN], n0s [T, >= 3] are
+    per-thread scratch, red [T, >= RED_LEN] per-thread reductions, busy [T, >= 1] cycles (column
+    0); rows padded apart so that no two threads write one cache line.
     Returns dem.forces.RESOLVED over all threads."""
     m = offsets[threads]
     red[:, :] = 0.0
@@ -197,7 +198,7 @@ def resolve_threads(code, threads, offsets, kind, method, pi, pj, pos, vel, omeg
                               shape, mass, material, estar, gstar, mu, zeta, dt, hist, on, pf, oorg,
                               orot, ax6, outs[t], n0s[t])
             _fold_resolved(red, t, r)
-            busy[t] += cycle_counter() - c0
+            busy[t, 0] += cycle_counter() - c0
     else:
         counter[0] = 0
         for t in prange(threads):
@@ -216,7 +217,7 @@ def resolve_threads(code, threads, offsets, kind, method, pi, pj, pos, vel, omeg
                 _fold_resolved(red, t, r)
                 if code != DYNAMIC:
                     break
-            busy[t] += cycle_counter() - c0
+            busy[t, 0] += cycle_counter() - c0
     nc = 0
     calls = 0
     worst = 0.0
@@ -246,7 +247,7 @@ def finish_threads(threads, n, spheres, adj_start, adj_items, on, pf, near, pos,
                    force, torque, rot, omega, gx, gy, gz, has_gravity, dt, wall_m, wall_d, estar_w, gstar_w, zeta_w,
                    mu_w, wall_hist, poly, oorg, orot, ax6, poly_scene, ref, outs, fin):
     """dem.forces.finish_range of the owned particles 0..n-1 in T contiguous blocks (particles are
-    independent in this pass: each reads only its own pairs' results). fin [T, FIN_LEN] holds the
+    independent in this pass: each reads only its own pairs' results). fin [T, >= FIN_LEN] holds the
     per-thread results, combined here in thread order. Returns dem.forces.FINISHED."""
     for t in prange(threads):
         r = finish_range((t * n) // threads, ((t + 1) * n) // threads, spheres, adj_start, adj_items, on, pf, near, pos, vel, quat, angmom,
