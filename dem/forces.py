@@ -234,9 +234,29 @@ def _poly_pair(k, i, j, pos, vel, omega, mass, material, estar, gstar, mu, zeta,
                         hist, on, dt, pf)
 
 
+@njit(cache=True, inline="always")
+def _accumulate(k, i, j, pf, force, torque, n_owned):
+    """Add touching pair k's forces to its owned ends: force[i] -= F, torque[i] += T_i,
+    force[j] += F, torque[j] += T_j (the single-threaded strategy; see resolve_range)."""
+    if i < n_owned:
+        force[i, 0] -= pf[k, PF_F]
+        force[i, 1] -= pf[k, PF_F + 1]
+        force[i, 2] -= pf[k, PF_F + 2]
+        torque[i, 0] += pf[k, PF_TI]
+        torque[i, 1] += pf[k, PF_TI + 1]
+        torque[i, 2] += pf[k, PF_TI + 2]
+    if j < n_owned:
+        force[j, 0] += pf[k, PF_F]
+        force[j, 1] += pf[k, PF_F + 1]
+        force[j, 2] += pf[k, PF_F + 2]
+        torque[j, 0] += pf[k, PF_TJ]
+        torque[j, 1] += pf[k, PF_TJ + 1]
+        torque[j, 2] += pf[k, PF_TJ + 2]
+
+
 @njit(cache=True, _nrt=False)
 def _resolve_spheres(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt, hist, on,
-                     pf):
+                     pf, accumulate, force, torque, n_owned):
     """The sphere loop: no solver in it, so a sphere scene neither runs nor carries one."""
     nc = 0
     worst = 0.0
@@ -246,6 +266,8 @@ def _resolve_spheres(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, esta
         r = _sphere_pair(k, pi[k], pj[k], pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt,
                          hist, on, pf)
         if r >= 0.0:
+            if accumulate:
+                _accumulate(k, pi[k], pj[k], pf, force, torque, n_owned)
             nc += 1
             rsum += r
             if r > worst:
@@ -256,7 +278,8 @@ def _resolve_spheres(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, esta
 
 @njit(cache=True, _nrt=False)
 def _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar, gstar,
-                        mu, zeta, dt, method, hist, on, pf, oorg, orot, ax6, poly_scene, out, n0):
+                        mu, zeta, dt, method, hist, on, pf, oorg, orot, ax6, poly_scene, out, n0, accumulate, force,
+                        torque, n_owned):
     """The loop of a scene with ellipsoids (and poly-ellipsoids when poly_scene): closed form for
     two spheres, the bounding-sphere test, then the solver of the pair's shapes."""
     nc = 0
@@ -282,6 +305,8 @@ def _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shap
             r = _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, estar, gstar, mu, zeta, dt,
                                 method, hist, on, out, n0, pf)
         if r >= 0.0:
+            if accumulate:
+                _accumulate(k, i, j, pf, force, torque, n_owned)
             nc += 1
             rsum += r
             if r > worst:
@@ -292,21 +317,32 @@ def _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shap
 
 @njit(cache=True, _nrt=False)
 def resolve_range(kind, method, k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass, material,
-                  estar, gstar, mu, zeta, dt, hist, on, pf, oorg, orot, ax6, out, n0):
+                  estar, gstar, mu, zeta, dt, hist, on, pf, oorg, orot, ax6, out, n0, accumulate, force, torque,
+                  n_owned):
     """Resolve pairs k0..k1-1 of the pair list: geometry (closed form for two spheres; otherwise the
     ellipsoid method CONTACT_METHODS[method]: EXACT = PW + Newton on S^2, PW = Perram-Wertheim depth
     only, SEXTIC = Yan 2010; poly-ellipsoids by the octant active set), then the contact law.
     Updates hist [m, HIST_LEN] and on [m] in place (on[k] = 1: touching; its history is valid) and
-    writes the forces of the touching pairs into pf [m, PF_LEN]. kind (SPHERES, ELLIPSOIDS, POLYS) picks the loop, so a scene pays only for the
+    writes the forces of the touching pairs into pf [m, PF_LEN]. accumulate (one thread, pairs in
+    ascending (gid_i, gid_j): dem.pairs.PairList.set(by_gid=True)) also sums them into force,
+    torque [n, 3] of the owned particles 0..n_owned-1 as it goes (zeroed first), as LAMMPS does:
+    in that order each particle receives its contributions in ascending partner gid, the order of
+    the gather (finish_range), so both strategies give the same bits; it spares the gather's
+    second pass over the pairs. Threads leave it False (their pairs are resolved concurrently). kind (SPHERES, ELLIPSOIDS, POLYS) picks the loop, so a scene pays only for the
     solvers its shapes use. out [OUT_LEN], n0 [3] are scratch; oorg [n,3], orot [n,3,3], ax6 [n,6]
     the octant geometry (empty outside POLYS). Returns RESOLVED: (contacts, solver calls, largest
     depth ratio = depth over the smaller minimum semi-axis, its pair or -1, sum of the depth ratios)."""
+    if accumulate:
+        for p in range(n_owned):
+            for c in range(3):
+                force[p, c] = 0.0
+                torque[p, c] = 0.0
     if kind == SPHERES:
         return _resolve_spheres(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt,
-                                hist, on, pf)
+                                hist, on, pf, accumulate, force, torque, n_owned)
     return _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar,
                                gstar, mu, zeta, dt, method, hist, on, pf, oorg, orot, ax6,
-                               kind == POLYS, out, n0)
+                               kind == POLYS, out, n0, accumulate, force, torque, n_owned)
 
 
 @njit(cache=True, _nrt=False)
@@ -414,6 +450,14 @@ def wall_candidates(n_owned, pos, reach, wall_m, wall_d, wall_hist, near):
 
 
 @njit(cache=True, inline="always")
+def _pair_sums(p, gathered, adj_start, adj_items, on, pf, force, torque):
+    """Particle p's pair force and torque: already summed (gathered) or gathered now."""
+    if gathered:
+        return force[p, 0], force[p, 1], force[p, 2], torque[p, 0], torque[p, 1], torque[p, 2]
+    return _gather(p, adj_start, adj_items, on, pf)
+
+
+@njit(cache=True, inline="always")
 def _put(p, force, torque, fx, fy, fz, tx, ty, tz):
     force[p, 0] = fx
     force[p, 1] = fy
@@ -454,12 +498,13 @@ def _fold(acc, p, touching, worst, ke, wg, bad, d2):
 
 
 @njit(cache=True, _nrt=False)
-def finish_range(p0, p1, spheres, adj_start, adj_items, on, pf, near, pos, vel, quat, angmom, mass, inertia, shape, axes,
+def finish_range(p0, p1, spheres, gathered, adj_start, adj_items, on, pf, near, pos, vel, quat, angmom, mass, inertia, shape, axes,
                  rbound, material, force, torque, rot, omega, gx, gy, gz, has_gravity, dt, wall_m, wall_d, estar_w,
                  gstar_w, zeta_w, mu_w, wall_hist, poly, oorg, orot, ax6, poly_scene, ref, out):
     """The rest of the step for owned particles p0..p1-1, one particle at a time:
     1. gather: sum the forces and torques of particle p's touching pairs in ascending partner gid
-       (adjacency adj_start [n_owned+1], adj_items = 2 k + (1 if p is pair k's j end));
+       (adjacency adj_start [n_owned+1], adj_items = 2 k + (1 if p is pair k's j end)), or, when
+       gathered, take force[p], torque[p] as resolve_range(accumulate=True) left them;
     2. walls in wall order for the particles of the wall list near [n_owned] (wall_candidates, at
        each rebuild), giving force[p], torque[p];
     3. integration (dem.integrate: leapfrog, symplectic rotation, gravity (gx, gy, gz) [m/s^2]);
@@ -479,7 +524,7 @@ def finish_range(p0, p1, spheres, adj_start, adj_items, on, pf, near, pos, vel, 
     # ellipsoid rotation (numba inlines, LLVM prunes the branch)
     if spheres:
         for p in range(p0, p1):
-            fx, fy, fz, tx, ty, tz = _gather(p, adj_start, adj_items, on, pf)
+            fx, fy, fz, tx, ty, tz = _pair_sums(p, gathered, adj_start, adj_items, on, pf, force, torque)
             touching, worst = 0, 0.0
             if near[p]:
                 fx, fy, fz, tx, ty, tz, touching, worst = _wall_particle(
@@ -493,7 +538,7 @@ def finish_range(p0, p1, spheres, adj_start, adj_items, on, pf, near, pos, vel, 
             acc = _fold(acc, p, touching, worst, ke, wg, bad, d2)
         return acc
     for p in range(p0, p1):
-        fx, fy, fz, tx, ty, tz = _gather(p, adj_start, adj_items, on, pf)
+        fx, fy, fz, tx, ty, tz = _pair_sums(p, gathered, adj_start, adj_items, on, pf, force, torque)
         touching, worst = 0, 0.0
         if near[p]:
             fx, fy, fz, tx, ty, tz, touching, worst = _wall_particle(

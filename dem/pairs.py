@@ -157,11 +157,16 @@ class PairList:
             self._alloc(int(m * 1.25) + 64)
         return self._pi, self._pj
 
-    def set(self, m, gid, n_owned, hist_start, hist_partner, hist_val, pos):
+    def set(self, m, gid, n_owned, hist_start, hist_partner, hist_val, pos, by_gid=False):
         """Adopt the m pairs written into buffers(): history from the per-particle CSR, the
-        adjacency, the reference positions."""
+        adjacency, the reference positions. by_gid: first sort the pairs by (gid_i, gid_j), the
+        order in which one thread can sum each particle's forces as it resolves them."""
         self.m = m
         self._views(m)
+        if by_gid and m > 1:
+            order = np.argsort(gid[self.pi] * (int(gid.max()) + 1) + gid[self.pj], kind="stable")
+            self.pi[:] = self.pi[order]
+            self.pj[:] = self.pj[order]
         self.adj_start, self.adj_items = pair_adjacency(self.pi, self.pj, gid, n_owned)
         history_from_csr(self.pi, self.pj, gid, n_owned, hist_start, hist_partner, hist_val, self.hist, self.on)
         self.ref = pos[:n_owned].copy()

@@ -196,7 +196,7 @@ def resolve_threads(code, threads, offsets, kind, method, pi, pj, pos, vel, omeg
             k = b * STATIC_BLOCK
             r = resolve_range(kind, method, k, min(m, k + STATIC_BLOCK), pi, pj, pos, vel, omega, rot, axes, rbound,
                               shape, mass, material, estar, gstar, mu, zeta, dt, hist, on, pf, oorg,
-                              orot, ax6, outs[t], n0s[t])
+                              orot, ax6, outs[t], n0s[t], False, pos, pos, 0)
             _fold_resolved(red, t, r)
             busy[t, 0] += cycle_counter() - c0
     else:
@@ -213,7 +213,7 @@ def resolve_threads(code, threads, offsets, kind, method, pi, pj, pos, vel, omeg
                     k1 = min(m, k0 + DYNAMIC_PAIRS)
                 r = resolve_range(kind, method, k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass,
                                   material, estar, gstar, mu, zeta, dt, hist, on, pf, oorg, orot,
-                                  ax6, outs[t], n0s[t])
+                                  ax6, outs[t], n0s[t], False, pos, pos, 0)
                 _fold_resolved(red, t, r)
                 if code != DYNAMIC:
                     break
@@ -243,14 +243,14 @@ def derive_threads(threads, lo, hi, pos, quat, angmom, inertia, axes, shape, pol
 
 
 @njit(parallel=True, cache=True)
-def finish_threads(threads, n, spheres, adj_start, adj_items, on, pf, near, pos, vel, quat, angmom, mass, inertia, shape, axes, rbound, material,
+def finish_threads(threads, n, spheres, gathered, adj_start, adj_items, on, pf, near, pos, vel, quat, angmom, mass, inertia, shape, axes, rbound, material,
                    force, torque, rot, omega, gx, gy, gz, has_gravity, dt, wall_m, wall_d, estar_w, gstar_w, zeta_w,
                    mu_w, wall_hist, poly, oorg, orot, ax6, poly_scene, ref, outs, fin):
     """dem.forces.finish_range of the owned particles 0..n-1 in T contiguous blocks (particles are
     independent in this pass: each reads only its own pairs' results). fin [T, >= FIN_LEN] holds the
     per-thread results, combined here in thread order. Returns dem.forces.FINISHED."""
     for t in prange(threads):
-        r = finish_range((t * n) // threads, ((t + 1) * n) // threads, spheres, adj_start, adj_items, on, pf, near, pos, vel, quat, angmom,
+        r = finish_range((t * n) // threads, ((t + 1) * n) // threads, spheres, gathered, adj_start, adj_items, on, pf, near, pos, vel, quat, angmom,
                          mass, inertia, shape, axes, rbound, material, force, torque, rot, omega, gx, gy, gz,
                          has_gravity, dt, wall_m, wall_d, estar_w, gstar_w, zeta_w, mu_w, wall_hist, poly, oorg, orot,
                          ax6, poly_scene, ref, outs[t])

@@ -32,6 +32,7 @@ class SerialMode:
     clock = staticmethod(time.perf_counter)
     collective = False   # whether decide() communicates (its time is then commuT)
     guard_overlap = 0.05  # the stability guard's overlap limit (bench.guard sets it)
+    accumulate = True     # one thread sums the pair forces as it resolves them (dem.forces.resolve_range)
 
     def setup(self, scene, dt, neighbor="linkcell", skin=None, contact_method="exact", **options):
         if options:
@@ -111,10 +112,16 @@ class SerialMode:
         s.hist_start, s.hist_partner, s.hist_val = self.pairs.history(s.gid, s.n_owned)
 
     def reorder(self):
-        """With a skin, re-sort the owned particles in space at each rebuild (memory order never
-        changes results: DESIGN.md, Determinism)."""
+        """With a skin, re-sort the owned particles at each rebuild, for locality (memory order never
+        changes results: DESIGN.md, Determinism): by global id where one thread resolves the pairs
+        in gid order (accumulate), else in space (cell order)."""
         s = self.state
-        if self.skin > 0 and s.n == s.n_owned and s.n > 1:
+        if self.skin <= 0 or s.n != s.n_owned or s.n < 2:
+            return
+        if self.accumulate:
+            if np.any(s.gid[1:] < s.gid[:-1]):
+                s.permute(np.argsort(s.gid, kind="stable"))
+        else:
             s.permute(cell_order(s.pos, 2.0 * float(s.rbound.max())))
 
     def find_pairs(self, radii):
@@ -131,7 +138,7 @@ class SerialMode:
         self.derive(0, s.n)
         reach = s.rbound + 0.5 * self.skin if self.skin > 0 else s.rbound
         m = self.find_pairs(reach)
-        self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos)
+        self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos, by_gid=self.accumulate)
         self.pairs.near = np.zeros(s.n_owned, dtype=np.int8)
         wall_candidates(s.n_owned, s.pos, reach, *self.walls(), s.wall_hist, self.pairs.near)
 
@@ -156,7 +163,7 @@ class SerialMode:
         return resolve_range(self.kind, self.method, 0, p.m, p.pi, p.pj, s.pos, s.vel, self.omega, self.rot,
                              s.axes, s.rbound, s.shape, s.mass, s.material, m.estar, m.gstar, m.mu, m.zeta, self.dt,
                              p.hist, p.on, p.pf, self.oorg, self.orot, self.ax6, self.out,
-                             self.n0)
+                             self.n0, self.accumulate, s.force, s.torque, s.n_owned)
 
     @property
     def has_walls(self):
@@ -171,7 +178,7 @@ class SerialMode:
     def finish(self):
         """Gather, walls, integration, derived quantities and guard sums; returns dem.forces.FINISHED."""
         s, m, p, g = self.state, self.scene.materials, self.pairs, self.g
-        return finish_range(0, s.n_owned, self.kind == SPHERES, p.adj_start, p.adj_items, p.on, p.pf, p.near, s.pos, s.vel, s.quat,
+        return finish_range(0, s.n_owned, self.kind == SPHERES, self.accumulate, p.adj_start, p.adj_items, p.on, p.pf, p.near, s.pos, s.vel, s.quat,
                             s.angmom, s.mass, s.inertia, s.shape, s.axes, s.rbound, s.material, s.force, s.torque,
                             self.rot, self.omega, g[0], g[1], g[2], self.has_gravity, self.dt, *self.walls(),
                             m.estar_w, m.gstar_w, m.zeta_w, m.mu_w, s.wall_hist, s.poly, self.oorg,

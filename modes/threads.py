@@ -32,6 +32,8 @@ class ThreadsMode(SerialMode):
     """options: threads T, scheme (partition | frogleap | headtail | static | dynamic),
     threaded ("step": every phase; "detection": only neighbour estimate + resolution)."""
 
+    accumulate = False   # pairs resolved concurrently: each particle gathers its own (dem.forces)
+
     def setup(self, scene, dt, threads=2, scheme="dynamic", threaded="step", **kw):
         if scheme not in par.SCHEMES:
             raise ModeError(f"unknown scheme {scheme!r} (schemes: {', '.join(par.SCHEMES)})")
@@ -126,7 +128,7 @@ class ThreadsMode(SerialMode):
         if self.threaded != "step":
             return super().finish()
         s, m, p, g = self.state, self.scene.materials, self.pairs, self.g
-        return par.finish_threads(self.threads, s.n_owned, self.kind == SPHERES, p.adj_start, p.adj_items, p.on, p.pf, p.near, s.pos, s.vel,
+        return par.finish_threads(self.threads, s.n_owned, self.kind == SPHERES, False, p.adj_start, p.adj_items, p.on, p.pf, p.near, s.pos, s.vel,
                                   s.quat, s.angmom, s.mass, s.inertia, s.shape, s.axes, s.rbound, s.material, s.force,
                                   s.torque, self.rot, self.omega, g[0], g[1], g[2], self.has_gravity, self.dt,
                                   *self.walls(), m.estar_w, m.gstar_w, m.zeta_w, m.mu_w, s.wall_hist,
