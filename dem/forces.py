@@ -497,6 +497,30 @@ def _fold(acc, p, touching, worst, ke, wg, bad, d2):
             max(disp2, d2))
 
 
+@njit(cache=True, inline="always")
+def _finish_particle(p, spheres, gathered, pairs, bodies, walls, polys, gx, gy, gz, has_gravity, dt, poly_scene, ref,
+                     out, acc):
+    """finish_range's work for particle p, folded into the running FINISHED tuple acc."""
+    adj_start, adj_items, on, pf, near = pairs
+    pos, vel, quat, angmom, mass, inertia, shape, axes, rbound, material, force, torque, rot, omega = bodies
+    wall_m, wall_d, estar_w, gstar_w, zeta_w, mu_w, wall_hist = walls
+    poly, oorg, orot, ax6 = polys
+    fx, fy, fz, tx, ty, tz = _pair_sums(p, gathered, adj_start, adj_items, on, pf, force, torque)
+    touching, worst = 0, 0.0
+    if near[p]:
+        fx, fy, fz, tx, ty, tz, touching, worst = _wall_particle(
+            p, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar_w, gstar_w,
+            zeta_w, mu_w, wall_hist, dt, oorg, orot, ax6, out, fx, fy, fz, tx, ty, tz)
+    _put(p, force, torque, fx, fy, fz, tx, ty, tz)
+    integrate_particle(p, pos, vel, quat, angmom, mass, inertia, shape, force, torque, gx, gy, gz, has_gravity, dt,
+                       spheres)
+    derive_particle(p, quat, angmom, inertia, shape, rot, omega, False, spheres)
+    if poly_scene:
+        derive_poly_geometry(p, pos, rot, axes, shape, poly, orot, oorg, ax6)
+    ke, wg, bad, d2 = _guard_terms(p, pos, vel, mass, omega, angmom, gx, gy, gz, dt, ref)
+    return _fold(acc, p, touching, worst, ke, wg, bad, d2)
+
+
 @njit(cache=True, _nrt=False)
 def finish_range(p0, p1, spheres, gathered, adj_start, adj_items, on, pf, near, pos, vel, quat, angmom, mass, inertia, shape, axes,
                  rbound, material, force, torque, rot, omega, gx, gy, gz, has_gravity, dt, wall_m, wall_d, estar_w,
@@ -519,37 +543,19 @@ def finish_range(p0, p1, spheres, gathered, adj_start, adj_items, on, pf, near, 
     (nothing is allocated). Returns FINISHED: (wall contacts, largest wall depth ratio, its
     particle or -1, kinetic energy, gravity work, number of non-finite particles, the first of
     them or -1, largest squared displacement)."""
+    # the arrays travel in tuples (free without numba's runtime; an inlined call takes at most 30
+    # arguments), and the loop is written twice only so that `spheres` is a literal in each
     acc = (0, 0.0, -1, 0.0, 0.0, 0, -1, 0.0)
-    # the same per-particle work twice: with the literal `spheres` True the compiled loop holds no
-    # ellipsoid rotation (numba inlines, LLVM prunes the branch)
+    pairs = (adj_start, adj_items, on, pf, near)
+    bodies = (pos, vel, quat, angmom, mass, inertia, shape, axes, rbound, material, force, torque, rot, omega)
+    walls = (wall_m, wall_d, estar_w, gstar_w, zeta_w, mu_w, wall_hist)
+    polys = (poly, oorg, orot, ax6)
     if spheres:
         for p in range(p0, p1):
-            fx, fy, fz, tx, ty, tz = _pair_sums(p, gathered, adj_start, adj_items, on, pf, force, torque)
-            touching, worst = 0, 0.0
-            if near[p]:
-                fx, fy, fz, tx, ty, tz, touching, worst = _wall_particle(
-                    p, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar_w, gstar_w,
-                    zeta_w, mu_w, wall_hist, dt, oorg, orot, ax6, out, fx, fy, fz, tx, ty, tz)
-            _put(p, force, torque, fx, fy, fz, tx, ty, tz)
-            integrate_particle(p, pos, vel, quat, angmom, mass, inertia, shape, force, torque, gx, gy, gz,
-                               has_gravity, dt, True)
-            derive_particle(p, quat, angmom, inertia, shape, rot, omega, False, True)
-            ke, wg, bad, d2 = _guard_terms(p, pos, vel, mass, omega, angmom, gx, gy, gz, dt, ref)
-            acc = _fold(acc, p, touching, worst, ke, wg, bad, d2)
-        return acc
-    for p in range(p0, p1):
-        fx, fy, fz, tx, ty, tz = _pair_sums(p, gathered, adj_start, adj_items, on, pf, force, torque)
-        touching, worst = 0, 0.0
-        if near[p]:
-            fx, fy, fz, tx, ty, tz, touching, worst = _wall_particle(
-                p, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar_w, gstar_w,
-                zeta_w, mu_w, wall_hist, dt, oorg, orot, ax6, out, fx, fy, fz, tx, ty, tz)
-        _put(p, force, torque, fx, fy, fz, tx, ty, tz)
-        integrate_particle(p, pos, vel, quat, angmom, mass, inertia, shape, force, torque, gx, gy, gz,
-                           has_gravity, dt, False)
-        derive_particle(p, quat, angmom, inertia, shape, rot, omega, False, False)
-        if poly_scene:
-            derive_poly_geometry(p, pos, rot, axes, shape, poly, orot, oorg, ax6)
-        ke, wg, bad, d2 = _guard_terms(p, pos, vel, mass, omega, angmom, gx, gy, gz, dt, ref)
-        acc = _fold(acc, p, touching, worst, ke, wg, bad, d2)
+            acc = _finish_particle(p, True, gathered, pairs, bodies, walls, polys, gx, gy, gz, has_gravity, dt,
+                                   False, ref, out, acc)
+    else:
+        for p in range(p0, p1):
+            acc = _finish_particle(p, False, gathered, pairs, bodies, walls, polys, gx, gy, gz, has_gravity, dt,
+                                   poly_scene, ref, out, acc)
     return acc
