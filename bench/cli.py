@@ -145,17 +145,24 @@ def build_parser():
 
     pf = sub.add_parser("perf", help="speed figures (per pair, per particle-step; --what comm: MPI ping-pong)")
     pf.add_argument("--particles", type=_positive_int, default=10000)
-    pf.add_argument("--steps", type=_positive_int, default=20)
-    pf.add_argument("--what", default="all", choices=["all", "pairs", "ellipsoids", "spheres", "comm", "overhead"],
+    pf.add_argument("--steps", type=_positive_int, default=None,
+                    help="timed steps (default 20; --what skin: steps per round, default 100)")
+    pf.add_argument("--what", default="all",
+                    choices=["all", "pairs", "ellipsoids", "spheres", "comm", "overhead", "skin"],
                     help="comm: OSU-style ping-pong between neighbour ranks (latency, bandwidth, fitted "
                          "alpha/beta); overhead: the fixed cost of a step (48 particles) and 2 ranks against "
-                         "serial with commuT + migraT against the wire (neither is part of all)")
+                         "serial with commuT + migraT against the wire; skin: the cost of a step against the "
+                         "Verlet skin (none of these is part of all)")
     pf.add_argument("--repeats", type=_positive_int, default=3,
-                    help="--what overhead: alternating runs per configuration, medians (default 3)")
+                    help="--what overhead: alternating runs per configuration; --what skin: round-robin "
+                         "rounds; medians (default 3)")
     pf.add_argument("--procs", type=_positive_int, default=None,
                     help="--what comm: ranks, on the most cubic grid (default: the mapping's)")
     pf.add_argument("--mapping", default=None,
                     help="--what comm: P-px-py-pz-T block grid of the ranks (default 2-2-1-1-1; T ignored)")
+    pf.add_argument("--patterns", action="store_true",
+                    help="--what comm: also time the forward exchange's MPI patterns (Isend/Irecv, persistent, "
+                         "Neighbor_alltoallv) at 104, 12480 and 52000 B a message")
     pf.add_argument("--timeout", type=_positive_int, default=120,
                     help="--what comm: seconds before the ranks are killed (default 120)")
     pf.add_argument("--threads", type=_positive_int, default=1,
@@ -321,6 +328,11 @@ def cmd_perf(args):
         return _one_line(perf_comm)(args)
     from bench.threads_env import configure_threads
     configure_threads(f"1-1-1-1-{args.threads}")  # before numba starts
+    if args.what == "skin":
+        from bench.perf_skin import perf_skin
+        return _one_line(perf_skin)(args)
+    if args.steps is None:
+        args.steps = 20
     from bench.perf import perf
     return perf(args)
 

@@ -10,7 +10,9 @@ fitted t(n) = alpha + n / beta (Hockney). With --out DIR, DIR/perf.json holds th
 rank's partner table ({"<rank>": {"latency_s", "bandwidth_Bps", ...}}, the form run.json's
 "wire" entry takes) and a summary. T of the mapping is ignored (ranks only, no threads).
 More ranks than usable CPUs run (correctness), with a one-line warning: the latency then
-measures the scheduler, not the wire.
+measures the scheduler, not the wire. `--patterns` also times the forward exchange's candidate
+MPI patterns (new Isend/Irecv, persistent requests, Neighbor_alltoallv) on the same grid: the
+measurement behind modes.halo's choice.
 """
 import json
 import os
@@ -101,6 +103,13 @@ def print_table(report, file=sys.stdout):
             pr(f"  {n:<10d}{1e6 * t:>16.2f}{(n / t / 1e6 if t > 0 else float('nan')):>20.2f}{k:>12d}")
         pr(f"# fit t(n) = alpha + n / beta: alpha = {1e6 * q['latency_s']:.3f} us, "
            f"beta = {q['bandwidth_Bps'] / 1e6:.1f} MB/s")
+    if "patterns" in report:
+        sizes = list(next(iter(report["patterns"].values())))
+        pr("# forward exchange, every rank with all its neighbours at once (modes.wire.exchange_patterns): "
+           "time per exchange, slowest rank, best of 2")
+        pr(f"# {'pattern':<20s}" + "".join(f"{n + ' B':>12s}" for n in sizes))
+        for name, v in report["patterns"].items():
+            pr(f"  {name:<20s}" + "".join(f"{1e6 * v[n]:>10.2f}us" for n in sizes))
     s = report["summary"]
     if s["latency_s"]:
         pr(f"# over {s['pairs']} pairs: alpha {1e6 * s['latency_s']['min']:.3f} / "
@@ -134,6 +143,8 @@ def perf_comm(args):
         raw = os.path.join(tmp, "ranks.json")
         cmd = [exe, "-n", str(m.procs), sys.executable, "-m", "mpi4py", "-m", "bench.perf_comm_rank",
                "--dims", str(m.px), str(m.py), str(m.pz), "--json", raw]
+        if getattr(args, "patterns", False):
+            cmd.append("--patterns")
         try:
             proc = subprocess.Popen(cmd, start_new_session=True)
             rc = proc.wait(timeout=timeout)
@@ -157,6 +168,8 @@ def perf_comm(args):
               "pairs": pairs, "summary": _summary(pairs),
               "ranks": {str(r["rank"]): {"coords": r["coords"], "host": r["host"], "directions": r["directions"],
                                          "partners": r["partners"]} for r in doc["ranks"]}}
+    if "patterns" in doc:
+        report["patterns"] = doc["patterns"]
     print_table(report)
     if out:
         with open(os.path.join(out, "perf.json"), "w") as fh:

@@ -4,7 +4,9 @@
 The ranks sit on the non-periodic Cartesian grid PX x PY x PZ (rank order as bench.mpi_run's
 `Create_cart(..., reorder=False)`), each pings its up to 26 neighbour blocks (the directions of
 modes.decomposition, as the halo exchange sends to them) with modes.wire.pingpong, and rank 0
-writes every rank's record to FILE as JSON. No physics, no numba.
+writes every rank's record to FILE as JSON; with --patterns the ranks then time the forward
+exchange's MPI patterns with all their neighbours at once (modes.wire.exchange_patterns). No
+physics, no numba.
 """
 import argparse
 import json
@@ -28,10 +30,11 @@ def main(argv):
     p.add_argument("--sizes", default=None, help="comma-separated message sizes [B]")
     p.add_argument("--time-per-size", type=float, default=2e-3)
     p.add_argument("--json", required=True)
+    p.add_argument("--patterns", action="store_true", help="also time the forward exchange's MPI patterns")
     args = p.parse_args(argv)
     from mpi4py import MPI
     from modes.decomposition import BlockGrid
-    from modes.wire import DEFAULT_SIZES, pingpong
+    from modes.wire import DEFAULT_SIZES, exchange_patterns, pingpong
     comm = MPI.COMM_WORLD
     px, py, pz = args.dims
     if comm.Get_size() != px * py * pz:
@@ -44,6 +47,7 @@ def main(argv):
     cart.Barrier()
     t0 = MPI.Wtime()
     res = pingpong(cart, sorted(neigh), sizes=sizes, time_per_size=args.time_per_size)
+    patterns = exchange_patterns(cart, sorted(neigh)) if args.patterns else None
     wall = cart.allreduce(MPI.Wtime() - t0, op=MPI.MAX)
     rec = {"rank": cart.Get_rank(), "coords": coords, "host": MPI.Get_processor_name(),
            "directions": {str(r): ks for r, ks in sorted(neigh.items())},
@@ -54,6 +58,8 @@ def main(argv):
                "time_per_size_s": args.time_per_size, "wall_s": wall,
                "mpi_library": MPI.Get_library_version().splitlines()[0].strip(),
                "mpi_wtick_s": MPI.Wtick(), "ranks": recs}
+        if patterns is not None:
+            doc["patterns"] = {name: {str(n): t for n, t in v.items()} for name, v in patterns.items()}
         with open(args.json, "w") as fh:
             json.dump(doc, fh, indent=1)
     cart.Free()

@@ -48,17 +48,20 @@ def _median(rows, key):
     return statistics.median(r[key] for r in rows)
 
 
-def measure(repeats, log):
+def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES):
+    """Run the figures above (scenes: (scene, particles, steps) of the MPI comparison); returns the
+    report (perf.json): targets, small, mpi [one row per scene], load averages."""
     report = {"targets": TARGETS, "load_start": os.getloadavg()}
     with tempfile.TemporaryDirectory(prefix="bench-overhead-") as tmp:
         # the fixed cost of a step
-        small = [_run("pluviation", 48, 2000, "1-1-1-1-1", os.path.join(tmp, f"small{r}")) for r in range(repeats)]
-        report["small"] = {"particles": 48, "steps": 2000, "us_per_step": 1e6 * _median(small, "totalT"),
+        small = [_run("pluviation", 48, small_steps, "1-1-1-1-1", os.path.join(tmp, f"small{r}"))
+                 for r in range(repeats)]
+        report["small"] = {"particles": 48, "steps": small_steps, "us_per_step": 1e6 * _median(small, "totalT"),
                            "wall_us_per_step": 1e6 * _median(small, "wall_per_step")}
         log(f"48 particles (pluviation), serial: {report['small']['us_per_step']:.1f} us/step "
             f"(wall {report['small']['wall_us_per_step']:.1f} us/step); target <= {TARGETS['small_us_per_step']:g}")
         report["mpi"] = []
-        for scene, n, steps in MPI_SCENES:
+        for scene, n, steps in scenes:
             one, two = [], []
             for r in range(repeats):  # alternating: serial, 2 ranks, serial, 2 ranks, ...
                 one.append(_run(scene, n, steps, "1-1-1-1-1", os.path.join(tmp, f"{scene}-1-{r}")))

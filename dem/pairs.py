@@ -10,10 +10,13 @@ the adjacency adj_start [n_owned+1], adj_items: its pairs in ascending partner g
 summation order of DESIGN.md's determinism rule, each entry 2 k + (1 if the particle is pair
 k's j end), so the gather needs no other lookup.
 
-Across a rebuild the history travels through the state's per-particle CSR (dem.state: rows
-keyed by partner gid, the form that migrates with a particle and is saved in caches):
-history_to_csr writes it from the old list, history_from_csr reads it into the new one (from the
-pair's owned end; both ends hold identical rows). This is LAMMPS' fix neigh/history in kind.
+Across a rebuild the history is carried from the old list to the new one by the pair's global
+ids (carry_history_sorted merges two lists sorted by (gid_i, gid_j); carry_history_rows searches
+the owned end's old adjacency row), so memory order may change in between. Where particles
+migrate (MPI) it travels through the state's per-particle CSR instead (dem.state: rows keyed by
+partner gid, the form that moves with a particle and is saved in caches): history_to_csr writes
+it from the old list, history_from_csr reads it into the new one (from the pair's owned end;
+both ends hold identical rows). This is LAMMPS' fix neigh/history in kind.
 """
 import numpy as np
 from numba import njit
@@ -72,6 +75,34 @@ def pair_adjacency(pi, pj, gid, n_owned):
 
 
 @njit(cache=True)
+def _counting_sort(key, n, a, b, a_out, b_out):
+    """(a, b) [m] stably sorted by key [m] (integers in 0..n-1) into a_out, b_out: O(m + n)."""
+    count = np.zeros(n + 1, dtype=np.int64)
+    for k in range(key.shape[0]):
+        count[key[k] + 1] += 1
+    for r in range(n):
+        count[r + 1] += count[r]
+    for k in range(key.shape[0]):
+        r = key[k]
+        a_out[count[r]] = a[k]
+        b_out[count[r]] = b[k]
+        count[r] += 1
+
+
+@njit(cache=True)
+def sort_by_gid(pi, pj, gid, pi_out, pj_out):
+    """The pairs (pi, pj) [m] in ascending (gid[pi], gid[pj]) order, into pi_out, pj_out: two stable
+    counting sorts over the gid ranks of the n local particles, by j then by i, O(m + n log n)."""
+    n = gid.shape[0]
+    rank = np.empty(n, dtype=np.int64)
+    rank[np.argsort(gid)] = np.arange(n)
+    tmp_i = np.empty_like(pi)
+    tmp_j = np.empty_like(pj)
+    _counting_sort(rank[pj], n, pi, pj, tmp_i, tmp_j)
+    _counting_sort(rank[tmp_i], n, tmp_i, tmp_j, pi_out, pj_out)
+
+
+@njit(cache=True)
 def history_to_csr(adj_start, adj_items, pi, pj, gid, on, hist, n_owned):
     """The per-particle contact history of the touching pairs: (hist_start [n_owned+1],
     hist_partner [nnz] partner gid, ascending per particle, hist_val [nnz, HIST_LEN])."""
@@ -95,14 +126,18 @@ def history_to_csr(adj_start, adj_items, pi, pj, gid, on, hist, n_owned):
     return start, partner, val
 
 
+@njit(inline="always")
+def _owned_end(i, j, gid, n_owned):
+    """(the pair's owned end, the other end's gid): the end whose rows hold the pair's history."""
+    own = i if i < n_owned else j
+    return own, (gid[j] if own == i else gid[i])
+
+
 @njit(cache=True)
 def history_from_csr(pi, pj, gid, n_owned, hist_start, hist_partner, hist_val, hist, on):
     """Give each pair the history row of its owned end (on[k] = 1), or none (on[k] = 0)."""
     for k in range(pi.shape[0]):
-        i = pi[k]
-        j = pj[k]
-        own = i if i < n_owned else j
-        partner = gid[j] if own == i else gid[i]
+        own, partner = _owned_end(pi[k], pj[k], gid, n_owned)
         on[k] = 0
         for r in range(hist_start[own], hist_start[own + 1]):
             g = hist_partner[r]
@@ -115,65 +150,156 @@ def history_from_csr(pi, pj, gid, n_owned, hist_start, hist_partner, hist_val, h
                 break
 
 
+@njit(cache=True, _nrt=False)
+def carry_history_sorted(pi, pj, gid, opi, opj, ogid, oon, ohist, hist, on):
+    """History of the new pairs (pi, pj [m], ascending (gid[pi], gid[pj])) from the old list
+    (opi, opj [m_old] in the same order over the old ids ogid, on flags oon, rows ohist): one merge
+    of the two sorted key sequences, O(m + m_old). A pair new to the list starts without history."""
+    u = 0
+    mo = opi.shape[0]
+    for k in range(pi.shape[0]):
+        a = gid[pi[k]]
+        b = gid[pj[k]]
+        on[k] = 0
+        while u < mo and (ogid[opi[u]] < a or (ogid[opi[u]] == a and ogid[opj[u]] < b)):
+            u += 1
+        if u < mo and ogid[opi[u]] == a and ogid[opj[u]] == b and oon[u]:
+            for h in range(HIST_LEN):
+                hist[k, h] = ohist[u, h]
+            on[k] = 1
+
+
+@njit(cache=True)
+def carry_history_rows(pi, pj, gid, n_owned, oadj_start, oadj_items, opi, opj, ogid, oon, ohist, hist, on):
+    """History of the new pairs (pi, pj [m], any order) from the old list over the old ids ogid [n_old]
+    (particles in any memory order): the owned end's old row of the old adjacency (oadj_start,
+    oadj_items: ascending partner gid) is searched for the partner's gid. A pair new to the list
+    starts without history."""
+    top = 0
+    for p in range(ogid.shape[0]):
+        top = max(top, ogid[p])
+    for p in range(gid.shape[0]):
+        top = max(top, gid[p])
+    where = np.full(top + 1, -1, dtype=np.int64)
+    for p in range(oadj_start.shape[0] - 1):
+        where[ogid[p]] = p
+    for k in range(pi.shape[0]):
+        own, partner = _owned_end(pi[k], pj[k], gid, n_owned)
+        on[k] = 0
+        o = where[gid[own]]
+        if o < 0:
+            continue
+        for u in range(oadj_start[o], oadj_start[o + 1]):
+            e = oadj_items[u]
+            kk = e >> 1
+            g = ogid[opi[kk]] if e & 1 else ogid[opj[kk]]
+            if g == partner:
+                if oon[kk]:
+                    for h in range(HIST_LEN):
+                        hist[k, h] = ohist[kk, h]
+                    on[k] = 1
+                break
+            if g > partner:
+                break
+
+
 class PairList:
     """Candidate pairs of the current neighbour list and their records (see the module docstring).
 
-    pi, pj [m] int64, hist [m, HIST_LEN], pf [m, PF_LEN] and on [m] int8 are views of buffers that
-    grow by 25 % when a rebuild needs more (steps between rebuilds allocate nothing); adj_start,
-    adj_items the adjacency; near [n_owned] int8 the wall list (dem.forces.wall_candidates); ref
-    [n_owned, 3] the owned positions at the rebuild [m]; offsets [T+1]
-    the pairs each thread found (thread schemes resolve their own pairs); rebuilds counts the
-    builds."""
+    pi, pj [m] int64, hist [m, HIST_LEN], on [m] int8 and pf [m, PF_LEN] are views of buffers that
+    grow by 25 % when a rebuild needs more (steps between rebuilds allocate nothing). pi, pj, hist
+    and on are double-buffered: a scan writes the next list into the spare set (buffers()) while
+    the current one still holds the history to carry over. adj_start, adj_items the adjacency
+    (built on demand where nothing gathers: sorted lists sum as they resolve); near [n_owned] int8
+    the wall list (dem.forces.wall_candidates); ref [n_owned, 3] the owned positions at the
+    rebuild [m]; gid the local particles' global ids at the rebuild [n]; offsets [T+1] the pairs
+    each thread found (thread schemes resolve their own pairs); rebuilds counts the builds."""
 
     def __init__(self, capacity=1024):
-        self._alloc(capacity)
+        self._cur = self._alloc(capacity)
+        self._spare = self._alloc(capacity)
+        self._pf = np.zeros((capacity, PF_LEN))
         self.m = 0
+        self.sorted = False
         self._views(0)
         self.offsets = np.zeros(2, dtype=np.int64)
-        self.adj_start = np.zeros(1, dtype=np.int64)
-        self.adj_items = np.zeros(0, dtype=np.int64)
+        self._adj = (np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64))
+        self.gid = np.zeros(0, dtype=np.int64)
+        self.n_owned = 0
         self.ref = np.zeros((0, 3))
         self.near = np.zeros(0, dtype=np.int8)
         self.rebuilds = 0
 
-    def _alloc(self, cap):
-        self._pi = np.zeros(cap, dtype=np.int64)
-        self._pj = np.zeros(cap, dtype=np.int64)
-        self._hist = np.zeros((cap, HIST_LEN))
-        self._pf = np.zeros((cap, PF_LEN))
-        self._on = np.zeros(cap, dtype=np.int8)
+    @staticmethod
+    def _alloc(cap):
+        return (np.zeros(cap, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros((cap, HIST_LEN)),
+                np.zeros(cap, dtype=np.int8))
 
     def _views(self, m):
-        self.pi, self.pj, self.hist, self.pf, self.on = (self._pi[:m], self._pj[:m], self._hist[:m], self._pf[:m],
-                                                         self._on[:m])
+        pi, pj, hist, on = self._cur
+        self.pi, self.pj, self.hist, self.on, self.pf = pi[:m], pj[:m], hist[:m], on[:m], self._pf[:m]
 
     @property
     def capacity(self):
-        return self._pi.shape[0]
+        return self._spare[0].shape[0]
 
     def buffers(self, m):
-        """pi, pj buffers of at least m entries for a neighbour scan to write into."""
+        """pi, pj buffers (the spare set) of at least m entries for a neighbour scan to write into."""
         if m > self.capacity:
-            self._alloc(int(m * 1.25) + 64)
-        return self._pi, self._pj
+            self._spare = self._alloc(int(m * 1.25) + 64)
+        return self._spare[0], self._spare[1]
 
-    def set(self, m, gid, n_owned, hist_start, hist_partner, hist_val, pos, by_gid=False):
-        """Adopt the m pairs written into buffers(): history from the per-particle CSR, the
-        adjacency, the reference positions. by_gid: first sort the pairs by (gid_i, gid_j), the
-        order in which one thread can sum each particle's forces as it resolves them."""
+    @property
+    def adj_start(self):
+        return self.adjacency()[0]
+
+    @property
+    def adj_items(self):
+        return self.adjacency()[1]
+
+    def adjacency(self):
+        """(adj_start [n_owned+1], adj_items): each owned particle's pairs in ascending partner gid."""
+        if self._adj is None:
+            self._adj = pair_adjacency(self.pi, self.pj, self.gid, self.n_owned)
+        return self._adj
+
+    def set(self, m, gid, n_owned, hist_start, hist_partner, hist_val, pos, by_gid=False, carry=False):
+        """Adopt the m pairs written into buffers(), with their history: carry=True takes it from
+        the current list (the same particles, in any memory order: gid identifies them; a serial
+        or thread run), else from the per-particle CSR (hist_start, hist_partner, hist_val: a
+        first build, or particles that migrated). by_gid: first sort the pairs by (gid_i, gid_j),
+        the order in which one thread can sum each particle's forces as it resolves them; the
+        adjacency is then built only on demand."""
+        old, old_m, old_gid, old_sorted = self._cur, self.m, self.gid, self.sorted
+        merge = carry and by_gid and old_sorted
+        old_adj = self.adjacency() if carry and not merge else None
+        self._cur, self._spare = self._spare, old
+        if self._pf.shape[0] < self._cur[0].shape[0]:
+            self._pf = np.zeros((self._cur[0].shape[0], PF_LEN))
         self.m = m
         self._views(m)
         if by_gid and m > 1:
-            order = np.argsort(gid[self.pi] * (int(gid.max()) + 1) + gid[self.pj], kind="stable")
-            self.pi[:] = self.pi[order]
-            self.pj[:] = self.pj[order]
-        self.adj_start, self.adj_items = pair_adjacency(self.pi, self.pj, gid, n_owned)
-        history_from_csr(self.pi, self.pj, gid, n_owned, hist_start, hist_partner, hist_val, self.hist, self.on)
+            sort_by_gid(self.pi.copy(), self.pj.copy(), gid, self.pi, self.pj)
+        self.gid = gid.copy()
+        self.n_owned = n_owned
+        self.sorted = by_gid
+        self._adj = None if by_gid else pair_adjacency(self.pi, self.pj, gid, n_owned)
+        opi, opj, ohist, oon = (a[:old_m] for a in old)
+        if not carry:
+            history_from_csr(self.pi, self.pj, gid, n_owned, hist_start, hist_partner, hist_val, self.hist, self.on)
+        elif merge:
+            carry_history_sorted(self.pi, self.pj, gid, opi, opj, old_gid, oon, ohist, self.hist, self.on)
+        else:
+            carry_history_rows(self.pi, self.pj, gid, n_owned, old_adj[0], old_adj[1], opi, opj, old_gid, oon,
+                               ohist, self.hist, self.on)
         self.ref = pos[:n_owned].copy()
         self.rebuilds += 1
 
     def history(self, gid, n_owned):
         """The per-particle CSR (hist_start, hist_partner, hist_val) of the touching pairs."""
-        if self.adj_start.shape[0] != n_owned + 1:  # never built for these particles
+        if self.rebuilds == 0:
             return np.zeros(n_owned + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, HIST_LEN))
-        return history_to_csr(self.adj_start, self.adj_items, self.pi, self.pj, gid, self.on, self.hist, n_owned)
+        if self.n_owned != n_owned or not np.array_equal(self.gid[:n_owned], gid[:n_owned]):
+            raise ValueError("pair list history read for particles other than those it was built for")
+        adj_start, adj_items = self.adjacency()
+        return history_to_csr(adj_start, adj_items, self.pi, self.pj, gid, self.on, self.hist, n_owned)

@@ -32,6 +32,7 @@ class _Blocks:
     """Mixin: decomposition + halo around a step driver's step()."""
 
     collective = True
+    migrates = True
 
     def setup(self, scene, dt, cart=None, skin=None, halo="26", update_grid=0, wire=True, **kw):
         from mpi4py import MPI

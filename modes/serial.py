@@ -33,6 +33,7 @@ class SerialMode:
     collective = False   # whether decide() communicates (its time is then commuT)
     guard_overlap = 0.05  # the stability guard's overlap limit (bench.guard sets it)
     accumulate = True     # one thread sums the pair forces as it resolves them (dem.forces.resolve_range)
+    migrates = False      # particles change rank at rebuilds (MPI): history then travels through the state
 
     def setup(self, scene, dt, neighbor="linkcell", skin=None, contact_method="exact", **options):
         if options:
@@ -138,7 +139,11 @@ class SerialMode:
         self.derive(0, s.n)
         reach = s.rbound + 0.5 * self.skin if self.skin > 0 else s.rbound
         m = self.find_pairs(reach)
-        self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos, by_gid=self.accumulate)
+        # the first build takes the state's own (loaded) history; later ones carry the list's own
+        # unless particles migrated (their rows came through the state)
+        carry = bool(self.pairs.rebuilds) and not self.migrates
+        self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos, by_gid=self.accumulate,
+                       carry=carry)
         self.pairs.near = np.zeros(s.n_owned, dtype=np.int8)
         wall_candidates(s.n_owned, s.pos, reach, *self.walls(), s.wall_hist, self.pairs.near)
 
@@ -214,7 +219,7 @@ class SerialMode:
         migra = commu = 0.0
         sent = 0
         if rebuild:
-            if self.pairs.rebuilds:  # the first build takes the state's own (loaded) history
+            if self.pairs.rebuilds and self.migrates:  # history rows travel with migrants
                 self.sync_history()
             ta = clock()
             sent = self.migrate()

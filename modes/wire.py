@@ -236,6 +236,73 @@ def pingpong(comm, partners, sizes=DEFAULT_SIZES, time_per_size=2e-3, warmup=(10
     return out
 
 
+
+PATTERN_SIZES = (104, 12480, 52000)  # a ghost's forward record; ~120 and ~500 ghosts a neighbour
+PATTERNS = ("isend", "persistent", "neighbor_alltoallv")
+
+
+def exchange_patterns(comm, partners, sizes=PATTERN_SIZES, iters=1000, repeats=2, warmup=100):
+    """The forward exchange's candidate MPI patterns, timed on the same messages (collective over
+    `comm`; `partners` symmetric as for pingpong): every rank sends one message of n bytes to and
+    receives one from each partner per exchange, all at once, as modes.halo.Halo.forward does:
+
+    - isend: new Irecv/Isend requests each exchange, then Waitall;
+    - persistent: Recv_init/Send_init once, then Startall + Waitall each exchange;
+    - neighbor_alltoallv: one Neighbor_alltoallv on a distributed-graph communicator of the
+      same partners (MPI-3 neighbourhood collective).
+
+    Each timing is `iters` exchanges between barriers after `warmup` untimed ones, the patterns
+    alternating `repeats` times; returns {pattern: {n: seconds per exchange}}, the smallest mean
+    over the repeats and the slowest rank (allreduce MAX), the same on every rank."""
+    from mpi4py import MPI
+    mine = sorted({int(q) for q in partners})
+    wc = comm.Dup()
+    graph = wc.Create_dist_graph_adjacent(mine, mine, reorder=False)
+    best = {p: {} for p in PATTERNS}
+    try:
+        for n in sizes:
+            k = max(1, (int(n) + 7) // 8)
+            send = [np.full(k, float(q)) for q in mine]
+            recv = [np.zeros(k) for _ in mine]
+            sb = np.concatenate(send) if mine else np.zeros(0)
+            rb = np.zeros_like(sb)
+            counts = [k] * len(mine)
+            displ = [i * k for i in range(len(mine))]
+            smsg, rmsg = [sb, (counts, displ), MPI.DOUBLE], [rb, (counts, displ), MPI.DOUBLE]
+            preq = ([wc.Recv_init(r, source=q, tag=TAG) for r, q in zip(recv, mine)]
+                    + [wc.Send_init(b, dest=q, tag=TAG) for b, q in zip(send, mine)])
+
+            def isend():
+                MPI.Request.Waitall([wc.Irecv(r, source=q, tag=TAG + 1) for r, q in zip(recv, mine)]
+                                    + [wc.Isend(b, dest=q, tag=TAG + 1) for b, q in zip(send, mine)])
+
+            def persistent():
+                MPI.Prequest.Startall(preq)
+                MPI.Request.Waitall(preq)
+
+            def neighbor_alltoallv():
+                graph.Neighbor_alltoallv(smsg, rmsg)
+
+            run = {"isend": isend, "persistent": persistent, "neighbor_alltoallv": neighbor_alltoallv}
+            for _ in range(repeats):
+                for name in PATTERNS:
+                    fn = run[name]
+                    for _ in range(warmup):
+                        fn()
+                    wc.Barrier()
+                    t0 = MPI.Wtime()
+                    for _ in range(iters):
+                        fn()
+                    t = wc.allreduce((MPI.Wtime() - t0) / iters, op=MPI.MAX)
+                    best[name][int(n)] = min(best[name].get(int(n), math.inf), t)
+            for r in preq:
+                r.Free()
+    finally:
+        graph.Free()
+        wc.Free()
+    return best
+
+
 # --- the model (no MPI) -----------------------------------------------------------------------------
 class WireModel:
     """cost(partner, n) = alpha_p + n / beta_p [s] for one message of n bytes to `partner`.

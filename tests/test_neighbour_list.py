@@ -6,7 +6,7 @@ import pytest
 
 from bench.prepare import load_prepared
 from bench.run import choose_dt
-from dem.pairs import DEFAULT_SKIN, history_from_csr, pair_adjacency
+from dem.pairs import DEFAULT_SKIN, PairList, history_from_csr, pair_adjacency
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 
@@ -113,6 +113,61 @@ def test_adjacency_sorted_by_partner_gid(rng):
         partners = [gid[pi[e >> 1]] if e & 1 else gid[pj[e >> 1]] for e in es]
         assert partners == sorted(partners)
         assert len(es) == int(np.sum(pi == q) + np.sum(pj == q))
+
+
+
+def _random_pairs(rng, n, m, gid):
+    a, b = rng.integers(0, n, m), rng.integers(0, n, m)
+    keep = a != b
+    pairs = sorted({(x, y) if gid[x] < gid[y] else (y, x) for x, y in zip(a[keep], b[keep])})
+    return np.array([q[0] for q in pairs], dtype=np.int64), np.array([q[1] for q in pairs], dtype=np.int64)
+
+
+@pytest.mark.parametrize("by_gid", [True, False])
+def test_history_carried_by_gid_across_a_permutation(rng, by_gid):
+    """A rebuild carries each surviving touching pair's history row to the new list by the pair's
+    global ids, whatever happened to memory order in between: the particles are permuted, a third
+    of the old pairs are dropped and new ones appear. The result must equal, bit for bit, the path
+    through the per-particle CSR (history_to_csr then history_from_csr) that migration uses; a
+    pair new to the list, or one that was not touching, starts without history (on = 0)."""
+    n = 60
+    gid = rng.permutation(500)[:n].astype(np.int64)
+    pos = np.zeros((n, 3))
+    old = PairList(16)
+    pi, pj = _random_pairs(rng, n, 400, gid)
+    bi, bj = old.buffers(len(pi))
+    bi[:len(pi)], bj[:len(pi)] = pi, pj
+    empty = (np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, 8)))
+    old.set(len(pi), gid, n, *empty, pos, by_gid=by_gid)
+    old.hist[:] = rng.standard_normal(old.hist.shape)
+    old.on[:] = rng.integers(0, 2, old.m)
+    csr = old.history(gid, n)
+    # the particles move in memory; the new list keeps 2/3 of the old pairs (by ids) and adds others
+    perm = rng.permutation(n)
+    gid2 = gid[perm]
+    inv = np.argsort(perm)
+    keep = rng.random(old.m) < 2 / 3
+    qi, qj = inv[old.pi[keep]], inv[old.pj[keep]]
+    ri, rj = _random_pairs(rng, n, 100, gid2)
+    both = {(int(x), int(y)) for x, y in zip(qi, qj)} | {(int(x), int(y)) for x, y in zip(ri, rj)}
+    new = np.array(sorted(both), dtype=np.int64)
+    new = new[rng.permutation(len(new))]
+    m = len(new)
+    bi, bj = old.buffers(m)
+    bi[:m], bj[:m] = new[:, 0], new[:, 1]
+    # the CSR path over the permuted particles: rows follow their particle
+    counts = np.diff(csr[0])[perm]
+    hs = np.zeros(n + 1, dtype=np.int64)
+    hs[1:] = np.cumsum(counts)
+    rows = np.concatenate([np.arange(csr[0][q], csr[0][q + 1]) for q in perm]).astype(np.int64)
+    hp, hv = csr[1][rows], csr[2][rows]
+    hist_csr = np.zeros((m, 8))
+    on_csr = np.zeros(m, dtype=np.int8)
+    old.set(m, gid2, n, *empty, pos, by_gid=by_gid, carry=True)
+    history_from_csr(old.pi, old.pj, gid2, n, hs, hp, hv, hist_csr, on_csr)
+    assert 0 < on_csr.sum() < m
+    assert np.array_equal(old.on, on_csr)
+    assert np.array_equal(old.hist[on_csr == 1], hist_csr[on_csr == 1])
 
 
 ALLOCATION_PROBE = """

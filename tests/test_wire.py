@@ -217,6 +217,22 @@ def test_perf_comm_default_grid(tmp_path):
         assert [l for l in res.stderr.splitlines() if "oversubscribes" in l][0].startswith("bench: warning:")
 
 
+@needs_mpi
+def test_perf_comm_patterns(tmp_path):
+    """--patterns times the forward exchange's three MPI patterns (modes.halo's choice) at the
+    three message sizes of modes.wire.PATTERN_SIZES (a ghost's 104-byte forward record, and 120 and
+    500 of them): every pattern and size present in perf.json with a positive finite time, and one
+    table row per pattern on stdout."""
+    from modes.wire import PATTERN_SIZES, PATTERNS
+    res = bench("perf", "--what", "comm", "--procs", "2", "--patterns", "--out", str(tmp_path), timeout=180)
+    assert res.returncode == 0, res.stderr
+    pat = json.loads((tmp_path / "perf.json").read_text())["patterns"]
+    assert sorted(pat) == sorted(PATTERNS) and PATTERN_SIZES == (104, 12480, 52000)
+    for name in PATTERNS:
+        assert sorted(int(n) for n in pat[name]) == list(PATTERN_SIZES)
+        assert all(0 < t < 1e-2 and math.isfinite(t) for t in pat[name].values())
+        assert sum(1 for l in res.stdout.splitlines() if l.split()[:1] == [name]) == 1
+
 @pytest.mark.parametrize("argv,words", [
     (["--procs", "0"], ["--procs"]),
     (["--mapping", "2-2-1"], ["malformed mapping"]),
