@@ -1,6 +1,6 @@
 """`bench schemes`: Table 1 in kind, the contact-detection speedup of each thread scheme.
 
-Yan & Regueiro (§4.2, Table 1; /work/shared/paper/table1_thread_schemes.csv) time contact
+Yan & Regueiro (§4.2, Table 1; bench/paper/table1_thread_schemes.csv) time contact
 detection alone (neighbour estimate + contact resolution) on 2.5k packed ellipsoids at rest,
 with 12 threads, relative to the serial n-by-n search. Here the same is done on the packed
 scene (bench.prepare, cached) for: serial all-pairs, serial link-cell, and each of the five
@@ -58,13 +58,10 @@ COLUMNS = ["family", "method", "neighbor", "threads", "particles", "shape", "rep
 NEIGHBORS = ("allpairs", "linkcell")
 
 
-def repo_root():
-    return os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
 def paper_table_path():
-    """The paper's Table 1 as CSV, beside the repository: ../shared/paper/table1_thread_schemes.csv."""
-    return os.path.join(repo_root(), "..", "shared", "paper", "table1_thread_schemes.csv")
+    """The paper's Table 1 as CSV (package data: bench/paper/table1_thread_schemes.csv)."""
+    from bench.paper import table_path
+    return table_path("table1_thread_schemes.csv")
 
 
 def read_paper_table(path=None):

@@ -69,13 +69,10 @@ FONT = 7
 
 
 # --- records --------------------------------------------------------------------------------------------
-def repo_root():
-    """The repository root: the parent of the bench/ package folder."""
-    return os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
 def paper_path(name):
-    return os.path.join(repo_root(), "..", "shared", "paper", name)
+    """The paper's table `name` (package data: bench/paper/, with its source)."""
+    from bench.paper import table_path
+    return table_path(name)
 
 
 def read_runs(directory):
@@ -724,7 +721,7 @@ def _plot_paper_table4(directory):
                       f"normalised by its {pwhat} = {1e3 * pref:.3g} ms/step", fontsize=8)
         axp.legend(fontsize=FONT, loc="upper right", framealpha=0.9)
     else:
-        _empty(axp, "paper table 4 not found\n(../shared/paper/table4_mappings_one_node.csv)")
+        _empty(axp, "paper table 4 not found\n(bench/paper/table4_mappings_one_node.csv)")
         axp.set_title("paper (Yan & Regueiro, Table 4)", fontsize=8)
         if len(done):
             ax.legend(fontsize=FONT, loc="upper right", framealpha=0.9)

@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-PAPER = os.path.join(ROOT, "..", "shared", "paper", "table1_thread_schemes.csv")
+PAPER = os.path.join(ROOT, "bench", "paper", "table1_thread_schemes.csv")  # the paper's Table 1, package data
 SCHEMES = ("partition", "frogleap", "headtail", "static", "dynamic")
 N, T = 300, 2
 
@@ -61,16 +61,15 @@ def test_schemes_command(tmp_path):
             "partitioning": ("partition", "allpairs"), "frog-leap": ("frogleap", "allpairs"),
             "head-tail": ("headtail", "allpairs"), "static": ("static", "allpairs"),
             "dynamic": ("dynamic", "allpairs")}
-    if os.path.exists(PAPER):
-        with open(PAPER, newline="") as fh:
-            paper = list(csv.DictReader(l for l in fh if l.strip() and not l.startswith("#")))
-        assert len(paper) == 7
-        for p in paper:
-            r = got[ours[p["method"]]]
-            assert math.isclose(float(r["paper_speedup"]), float(p["speedup"]), rel_tol=1e-9), p
-            threads = 1 if p["family"] == "serial" else 12
-            assert math.isclose(float(r["paper_efficiency"]), float(p["speedup"]) / threads, rel_tol=1e-5), p
-        assert float(got[("dynamic", "allpairs")]["paper_speedup"]) == 11.15
+    with open(PAPER, newline="") as fh:
+        paper = list(csv.DictReader(l for l in fh if l.strip() and not l.startswith("#")))
+    assert len(paper) == 7
+    for p in paper:
+        r = got[ours[p["method"]]]
+        assert math.isclose(float(r["paper_speedup"]), float(p["speedup"]), rel_tol=1e-9), p
+        threads = 1 if p["family"] == "serial" else 12
+        assert math.isclose(float(r["paper_efficiency"]), float(p["speedup"]) / threads, rel_tol=1e-5), p
+    assert float(got[("dynamic", "allpairs")]["paper_speedup"]) == 11.15
     for s in SCHEMES:
         assert math.isnan(float(got[(s, "linkcell")]["paper_speedup"]))
         assert math.isnan(float(got[(s, "linkcell")]["paper_efficiency"]))
