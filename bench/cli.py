@@ -146,7 +146,7 @@ def build_parser():
     pf = sub.add_parser("perf", help="speed figures (per pair, per particle-step; --what comm: MPI ping-pong)")
     pf.add_argument("--particles", type=_positive_int, default=10000)
     pf.add_argument("--steps", type=_positive_int, default=None,
-                    help="timed steps (default 20; --what skin: steps per round, default 100)")
+                    help="timed steps (default 20; --what skin: steps per round, default 1000)")
     pf.add_argument("--what", default="all",
                     choices=["all", "pairs", "ellipsoids", "spheres", "comm", "overhead", "skin"],
                     help="comm: OSU-style ping-pong between neighbour ranks (latency, bandwidth, fitted "

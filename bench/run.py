@@ -164,6 +164,7 @@ def execute(args, scene, mapping, scheme, mode, out, dts, comm=None):
     finally:
         writer.close()
     wall = time.perf_counter() - t_wall
+    mode.release()  # MPI: complete the exchange the last step started, free its requests
     snap = mode.snapshot()
     worst = mode.max_overlap_ratio if comm is None else comm.allreduce(mode.max_overlap_ratio, op=_max_op())
     energy = guard.balance()

@@ -108,6 +108,7 @@ class _Blocks:
         return self.update_grid and step % self.update_grid == 0
 
     def migrate(self):
+        self.halo.free()  # a rebuild: the exchange started at the end of the last step is not needed
         if self._refit_due(self.steps_done + 1):
             return self.refit_grid()
         return self.halo.migrate(self.state)[0]
@@ -117,6 +118,10 @@ class _Blocks:
             self.halo.build(self.state, self.width, self.all_spheres)
         else:
             self.halo.forward(self.state)
+
+    def start_forward(self):
+        if self.skin > 0:  # with a skin the next step may be a forward step: its messages leave now
+            self.halo.forward_start(self.state)
 
     def decide(self, max_disp2, flag, ke, wg):
         d = self.decision

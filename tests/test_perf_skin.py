@@ -10,7 +10,7 @@ def test_skin_study_figures():
     contact (the reach grows by half the skin on each side); each cost is relative to the best skin
     of its round, so no figure is below 1, and the chosen skin has the smallest worst figure."""
     from bench.perf_skin import measure
-    rep = measure(30, 2, lambda msg: None, skins=(0.0, 0.1), scenes=(("gas", 300, None),))
+    rep = measure(30, 2, lambda msg: None, skins=(0.0, 0.1), scenes=(("gas", 300, None, 5),))
     zero, tenth = rep["rows"]
     assert (zero["skin"], tenth["skin"]) == (0.0, 0.1)
     assert zero["steps_per_rebuild"] == 1.0 and tenth["steps_per_rebuild"] > 1.0
