@@ -1,6 +1,6 @@
 """`bench perf`: serial speed figures of the DEM core against the targets of issue 2.
 
-Targets (this 2-core machine, serial, N = 10k): ellipsoid contact resolution <= 2 us per pair
+Targets (serial, N = 10k, set on a 2-core development machine): ellipsoid contact resolution <= 2 us per pair
 (the paper's code: 42.7 us); packed ellipsoids <= 5 us per particle-step; packed spheres
 <= 0.15 us per particle-step (LAMMPS granular: 0.08 with Verlet lists and a skin).
 Per-step figures are medians over timed steps after a warm-up (JIT compile excluded).

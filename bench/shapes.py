@@ -30,7 +30,7 @@ ellipsoid's about 50x a sphere's).
     (resolve time per candidate pair and per touching contact, us per particle-step) against
     the paper's 6x, 300x and 50x (`ratios` in shapes.json, printed).
 
-Machine noise on this shared machine is about +-50 % between runs: only ratios measured within one
+Noise on a shared 2-core machine was about +-50 % between runs: only ratios measured within one
 run (interleaved as above) are meaningful; absolute figures are indicative. shapes.png is drawn
 afterwards from shapes.csv and shapes.json only (plotting reads records). Schema:
 results/README.md.
@@ -71,7 +71,7 @@ PAPER_RATIOS = {"poly_over_ellipsoid": 6.0, "poly_over_sphere": 300.0, "ellipsoi
 PAPER_NSF = {("sphere", "allpairs"): 0.747, ("sphere", "linkcell"): 0.208,
              ("ellipsoid", "allpairs"): 0.132, ("ellipsoid", "linkcell"): 0.029,
              ("polyellipsoid", "allpairs"): 0.040, ("polyellipsoid", "linkcell"): 0.007}
-NOISE_NOTE = ("machine noise is about +-50 % between runs on this shared machine: only ratios measured "
+NOISE_NOTE = ("on a shared machine the noise between runs can reach +-50 %: only ratios measured "
               "within one run (interleaved passes and rounds) are meaningful; absolute times are indicative")
 COLUMNS = ["shape", "neighbor", "particles", "steps", "repeats", "dt", "us_per_particle_step",
            "neighbor_us_per_particle", "resolve_us_per_particle", "other_us_per_particle", "candidates",

@@ -1,7 +1,7 @@
 import os
 import sys
 
-# before numba starts: room for 3 threads (more than this 2-core machine has: correctness only),
+# before numba starts: room for 3 threads (more than a 2-core machine has: correctness only),
 # and passive waiting so oversubscribed OpenMP threads do not spin
 os.environ.setdefault("NUMBA_NUM_THREADS", "3")
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
