@@ -139,6 +139,14 @@ def _owned_end(i, j, gid, n_owned):
     return own, (gid[j] if own == i else gid[i])
 
 
+@njit(inline="always")
+def _take_row(hist, on, k, src, r):
+    """Pair k takes history row r of src (and is marked as having one)."""
+    for h in range(HIST_LEN):
+        hist[k, h] = src[r, h]
+    on[k] = 1
+
+
 @njit(cache=True)
 def history_from_csr(pi, pj, gid, n_owned, hist_start, hist_partner, hist_val, hist, on):
     """Give each pair the history row of its owned end (on[k] = 1), or none (on[k] = 0)."""
@@ -148,9 +156,7 @@ def history_from_csr(pi, pj, gid, n_owned, hist_start, hist_partner, hist_val, h
         for r in range(hist_start[own], hist_start[own + 1]):
             g = hist_partner[r]
             if g == partner:
-                for h in range(HIST_LEN):
-                    hist[k, h] = hist_val[r, h]
-                on[k] = 1
+                _take_row(hist, on, k, hist_val, r)
                 break
             if g > partner:
                 break
@@ -170,9 +176,7 @@ def carry_history_sorted(pi, pj, gid, opi, opj, ogid, oon, ohist, hist, on):
         while u < mo and (ogid[opi[u]] < a or (ogid[opi[u]] == a and ogid[opj[u]] < b)):
             u += 1
         if u < mo and ogid[opi[u]] == a and ogid[opj[u]] == b and oon[u]:
-            for h in range(HIST_LEN):
-                hist[k, h] = ohist[u, h]
-            on[k] = 1
+            _take_row(hist, on, k, ohist, u)
 
 
 @njit(cache=True)
@@ -201,9 +205,7 @@ def carry_history_rows(pi, pj, gid, n_owned, oadj_start, oadj_items, opi, opj, o
             g = ogid[opi[kk]] if e & 1 else ogid[opj[kk]]
             if g == partner:
                 if oon[kk]:
-                    for h in range(HIST_LEN):
-                        hist[k, h] = ohist[kk, h]
-                    on[k] = 1
+                    _take_row(hist, on, k, ohist, kk)
                 break
             if g > partner:
                 break

@@ -132,7 +132,8 @@ class SerialMode:
         return find_pairs(self.neighbor, s.pos, radii, s.gid, s.n_owned, self.pairs.buffers)
 
     def build_list(self):
-        """The neighbour list: pairs within r_i + r_j + skin, their history from the state's rows, and
+        """The neighbour list: pairs within r_i + r_j + skin, their history (carried from the last
+        list, or from the state's rows on a first build and where particles migrate), and
         the wall list (the particles within their bounding radius plus half the skin of a wall)."""
         s = self.state
         self.ensure_derived()

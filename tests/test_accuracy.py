@@ -1,6 +1,6 @@
 """Selectable ellipsoid contact methods in every mode, and `bench accuracy` (issue 7 items 3-4).
 
-Sources of the expected behaviour: /work/shared/reference/contact-mechanics.md
+Sources of the expected behaviour: docs/contact-mechanics.md
   §1.2: Yan's sextic is not the penetration depth: its error is definitional (10-30 % of the depth
         for needles), so it does not shrink with the time step;
   §1.3: Perram-Wertheim depth alone errs by O(delta/a): also a dt-independent floor, far smaller;

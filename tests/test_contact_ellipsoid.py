@@ -1,7 +1,7 @@
 """Exact ellipsoid contact geometry (dem.contact.ellipsoid) and elliptical-Hertz factor
 (dem.contact.hertz_factor).
 
-Oracles are those of the contact-mechanics reference (/work/shared/reference/contact-mechanics.md):
+Oracles are those of the contact-mechanics reference (docs/contact-mechanics.md):
 §1.4 (support-function penetration depth, wall closed form), §1.6 (constructed-depth pairs),
 §3.1 (Johnson's curvature sums, f_H table) and the §5 test table (T5-T9, T11, T12).
 

@@ -1,7 +1,7 @@
 """Alternative ellipsoid contact methods (dem.contact.methods): Perram-Wertheim only (pw_contact)
 and Yan, Regueiro & Sture (2010) sextic (sextic_contact), against the exact solver.
 
-Oracles: /work/shared/reference/contact-mechanics.md
+Oracles: docs/contact-mechanics.md
   §1.6 constructed-depth pairs: c2 = c1 + Q1 n/h1(n) + Q2 n/h2(n) - delta n gives penetration
        depth delta and normal n exactly (for delta below the Minkowski curvature radius);
   §1.2 table (Yan's sextic: sphere exact to the float floor; 1:0.8:0.6 median |delta/PD - 1| 1.5-2.8 %,

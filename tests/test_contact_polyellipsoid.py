@@ -1,6 +1,6 @@
 """Poly-ellipsoid mass properties and contact geometry (dem.contact.polyellipsoid).
 
-Oracles are those of the contact-mechanics reference (/work/shared/reference/contact-mechanics.md):
+Oracles are those of the contact-mechanics reference (docs/contact-mechanics.md):
 §2.2 (poly-ellipsoid support function, octant active set, mass properties with the worked example),
 §1.4 (support-function penetration depth, wall closed form) and §1.6 (constructed-depth pairs, here
 with poly-ellipsoid support maps).

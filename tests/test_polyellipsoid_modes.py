@@ -5,7 +5,7 @@ The kernel-level checks (constructed-depth pairs on the kernel, quadrature mass 
 ellipsoid limit, invariances) live in tests/test_contact_polyellipsoid.py; here the same oracles are
 driven through the scene files and the harness.
 
-Oracles: /work/shared/reference/contact-mechanics.md §2 (poly-ellipsoid support function, centroid
+Oracles: docs/contact-mechanics.md §2 (poly-ellipsoid support function, centroid
 offset (3/8)(a+ - a-, b+ - b-, c+ - c-), worked example a+- = (1, 0.6), b+- = (0.7, 0.4),
 c+- = (0.5, 0.5): V = 0.92153, centroid (0.15, 0.1125, 0), I_c/rho), §1.6 (constructed-depth pairs)
 and §4.2 (the rotation splitting: |L| kept to round-off, energy error O(dt^2)); DESIGN.md

@@ -2,7 +2,7 @@
 dem.contact.ellipsoid.ellipsoid_contact, so that a caller can select them by name
 ``exact | pw | sextic``; see METHODS).
 
-Reference notes: /work/shared/reference/contact-mechanics.md (§1.2, §1.3, §1.5, §1.6).
+Reference notes: docs/contact-mechanics.md (§1.2, §1.3, §1.5, §1.6).
 
 pw_contact (@njit, allocation free)
     Perram-Wertheim (1985) / Donev et al. (2005) only, no refinement on S^2.  Overlap test
