@@ -5,6 +5,6 @@ Python API: ``runs, steps = bench.load(DIR)`` reads a sweep folder into pandas D
 
 
 def load(path):
-    """(runs, steps) DataFrames of a sweep folder (see bench.sweep.load)."""
-    from bench.sweep import load as _load
+    """(runs, steps) DataFrames of a sweep folder (see bench.sweep.records.load)."""
+    from bench.sweep.records import load as _load
     return _load(path)

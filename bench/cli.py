@@ -1,10 +1,19 @@
-"""The `bench` command line: run, contacts, scenes, perf.
+"""The `bench` command line: run, sweep, plot, collect, contacts, scenes, schemes, perf, shapes,
+accuracy.
 
-Every bad input ends with one line `bench: error: ...` on stderr and exit status 2.
+Every bad input ends with one line `bench: error: ...` on stderr and exit status 2. Each command
+imports its module when it runs, after it has set the thread variables that numba reads when it
+starts (bench.run.threads_env): that is why the imports below sit inside the commands, and the
+only reason. Arrows run one way: cli -> studies -> sweep -> run -> modes -> dem.
 """
 import argparse
 import json
+import os
 import sys
+
+from bench.run.options import (CONTACT_METHOD_CHOICES, NEIGHBOR_CHOICES, SHAPE_CHOICES, add_run_arguments,
+                               nonneg_int, positive_int, skin_fraction)
+from bench.run.threads_env import configure_threads
 
 EXIT_USAGE = 2
 
@@ -18,76 +27,12 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(f"{self.prog}: {message}")
 
 
-def _positive_int(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return v
-
-
-def _nonneg_int(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
-    return v
-
-
-def _skin(text):
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-    if not (0.0 <= v <= 10.0):
-        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 10], got {text!r}")
-    return v
-
-
 def build_parser():
     p = _Parser(prog="bench", description="DEM harness: MPI x threads mappings for particle simulation.")
     sub = p.add_subparsers(dest="command", parser_class=_Parser)
     sub.required = True
 
-    r = sub.add_parser("run", help="run one scene with one mapping")
-    r.add_argument("--scene", required=True, help="built-in scene name or a .toml file")
-    r.add_argument("--particles", type=_positive_int, help="override the generated particle count")
-    r.add_argument("--shape", choices=["sphere", "ellipsoid", "polyellipsoid"], help="override the generated shape")
-    r.add_argument("--seed", type=_nonneg_int, help="override the generator seed")
-    r.add_argument("--steps", type=_nonneg_int, help="override the scene's step count")
-    r.add_argument("--warmup", type=_nonneg_int, default=0, metavar="W",
-                   help="untimed steps before the timed ones (after JIT compilation, which is never timed)")
-    r.add_argument("--dt", type=float, help="time step [s] (default: the scene's, usually auto)")
-    r.add_argument("--mapping", default="1-1-1-1-1", help="P-px-py-pz-T (default 1-1-1-1-1)")
-    r.add_argument("--scheme", default=None, help="thread scheme: partition, frogleap, headtail, static, "
-                                                  "dynamic (default dynamic; mappings with T > 1)")
-    r.add_argument("--threaded", choices=["step", "detection"], default="step",
-                   help="thread the whole step (default) or only contact detection (the paper's code)")
-    r.add_argument("--pin", action="store_true", help="pin threads to cores (OMP_PROC_BIND/OMP_PLACES)")
-    r.add_argument("--neighbor", choices=["allpairs", "linkcell"], default="linkcell")
-    r.add_argument("--contact-method", choices=["exact", "pw", "sextic"], default="exact",
-                   help="ellipsoid contact geometry: exact (PW + Newton, default), pw (Perram-Wertheim depth, "
-                        "error O(depth/size)), sextic (the paper's Yan 2010 method, a known error)")
-    r.add_argument("--skin", type=_skin, default=None, metavar="F",
-                   help="neighbour-list skin, fraction of the largest bounding diameter (default 0.1; "
-                        "0: estimate neighbours every step, the paper's way)")
-    r.add_argument("--snapshot-every", type=_nonneg_int, default=0, metavar="K",
-                   help="write VTK + npz snapshots every K steps")
-    r.add_argument("--plot", action="store_true", help="draw DIR/run.png (timings, contacts, energy)")
-    r.add_argument("--out", default=None, help="output folder (default results/run-<scene>)")
-    r.add_argument("--guard-overlap", type=float, default=0.05, metavar="F",
-                   help="stop when a contact overlaps more than F of the smaller body's smallest semi-axis (default 0.05)")
-    r.add_argument("--halo", choices=["26", "6"], default="26",
-                   help="ghost exchange: 26 direct messages (default, the paper's) or 3 sweeps of 6")
-    r.add_argument("--update-grid", type=_nonneg_int, default=0, metavar="K",
-                   help="re-fit the block grid to the particles' extent every K steps (the paper's "
-                        "updateGrid; default 0: off)")
-    r.add_argument("--timeout", type=_positive_int, default=3600, help="seconds before MPI ranks are killed")
-    r.add_argument("--quiet", action="store_true")
+    add_run_arguments(sub.add_parser("run", help="run one scene with one mapping"))
 
     c = sub.add_parser("contacts", help="print the contacts of a configuration as JSON")
     c.add_argument("scene", help="scene .toml file (or built-in name)")
@@ -99,17 +44,17 @@ def build_parser():
     sw.add_argument("--file", help="sweep file (TOML, a [sweep] table with the same fields) instead of options")
     sw.add_argument("--schemes", help="comma-separated thread schemes for mappings with T > 1 (default dynamic)")
     sw.add_argument("--scene")
-    sw.add_argument("--particles", type=_positive_int)
-    sw.add_argument("--shape", choices=["sphere", "ellipsoid", "polyellipsoid"])
-    sw.add_argument("--steps", type=_positive_int)
-    sw.add_argument("--warmup", type=_nonneg_int, default=0, help="untimed steps before the timed ones")
-    sw.add_argument("--repeats", type=_positive_int, default=1, help="runs per point (medians recorded)")
-    sw.add_argument("--neighbor", choices=["allpairs", "linkcell"], default="linkcell")
-    sw.add_argument("--contact-method", choices=["exact", "pw", "sextic"], default="exact",
+    sw.add_argument("--particles", type=positive_int)
+    sw.add_argument("--shape", choices=SHAPE_CHOICES)
+    sw.add_argument("--steps", type=positive_int)
+    sw.add_argument("--warmup", type=nonneg_int, default=0, help="untimed steps before the timed ones")
+    sw.add_argument("--repeats", type=positive_int, default=1, help="runs per point (medians recorded)")
+    sw.add_argument("--neighbor", choices=NEIGHBOR_CHOICES, default="linkcell")
+    sw.add_argument("--contact-method", choices=CONTACT_METHOD_CHOICES, default="exact",
                     help="ellipsoid contact geometry of every point (default exact)")
     sw.add_argument("--halo", choices=["26", "6"], default="26")
     sw.add_argument("--pin", action="store_true")
-    sw.add_argument("--timeout", type=_positive_int, default=1800, help="seconds per point run")
+    sw.add_argument("--timeout", type=positive_int, default=1800, help="seconds per point run")
     sw.add_argument("--launcher", choices=["local", "slurm"], default="local")
     sw.add_argument("--dry-run", action="store_true", help="print every command and environment, run nothing")
     sw.add_argument("--resume", action="store_true", help="skip the points already done in OUT/runs.csv")
@@ -117,13 +62,14 @@ def build_parser():
 
     ac = sub.add_parser("accuracy", help="work-precision study: error against run time per contact method and dt")
     ac.add_argument("--scene", required=True, help="built-in scene name or a .toml file")
-    ac.add_argument("--particles", type=_positive_int)
-    ac.add_argument("--shape", choices=["sphere", "ellipsoid", "polyellipsoid"])
-    ac.add_argument("--seed", type=_nonneg_int)
-    ac.add_argument("--steps", type=_positive_int, help="steps at dt_base (sets the simulated time; default the scene's)")
+    ac.add_argument("--particles", type=positive_int)
+    ac.add_argument("--shape", choices=SHAPE_CHOICES)
+    ac.add_argument("--seed", type=nonneg_int)
+    ac.add_argument("--steps", type=positive_int, help="steps at dt_base (sets the simulated time; default the scene's)")
     ac.add_argument("--dt", type=float, help="dt_base [s] (default: the scene's, usually auto)")
     ac.add_argument("--dt-factors", default="1,0.5,0.25", help="comma-separated multiples of dt_base (default 1,0.5,0.25)")
-    ac.add_argument("--methods", default="exact,pw,sextic", help="comma-separated contact methods (default all)")
+    ac.add_argument("--methods", default=",".join(CONTACT_METHOD_CHOICES),
+                    help="comma-separated contact methods (default all)")
     ac.add_argument("--ref-factor", type=float, default=None,
                     help="dt of the exact reference run as a multiple of dt_base (default half the smallest factor)")
     ac.add_argument("--out", required=True)
@@ -136,16 +82,16 @@ def build_parser():
     co.add_argument("dir")
 
     sc = sub.add_parser("schemes", help="Table 1 in kind: contact-detection speedup of each thread scheme")
-    sc.add_argument("--particles", type=_positive_int, default=2500)
-    sc.add_argument("--threads", type=_positive_int, default=2)
+    sc.add_argument("--particles", type=positive_int, default=2500)
+    sc.add_argument("--threads", type=positive_int, default=2)
     sc.add_argument("--shape", choices=["sphere", "ellipsoid"], default="ellipsoid")
-    sc.add_argument("--repeats", type=_positive_int, default=41,
+    sc.add_argument("--repeats", type=positive_int, default=41,
                     help="timed repetitions, median reported (default 41: single runs are noisy on shared machines)")
     sc.add_argument("--out", default="results/schemes", help="folder for schemes.csv and schemes.png")
 
     pf = sub.add_parser("perf", help="speed figures (per pair, per particle-step; --what comm: MPI ping-pong)")
-    pf.add_argument("--particles", type=_positive_int, default=10000)
-    pf.add_argument("--steps", type=_positive_int, default=None,
+    pf.add_argument("--particles", type=positive_int, default=10000)
+    pf.add_argument("--steps", type=positive_int, default=None,
                     help="timed steps (default 20; --what skin: steps per round, default 1000)")
     pf.add_argument("--what", default="all",
                     choices=["all", "pairs", "ellipsoids", "spheres", "comm", "overhead", "skin"],
@@ -153,29 +99,29 @@ def build_parser():
                          "alpha/beta); overhead: the fixed cost of a step (48 particles) and 2 ranks against "
                          "serial with commuT + migraT against the wire; skin: the cost of a step against the "
                          "Verlet skin (none of these is part of all)")
-    pf.add_argument("--repeats", type=_positive_int, default=3,
+    pf.add_argument("--repeats", type=positive_int, default=3,
                     help="--what overhead: alternating runs per configuration; --what skin: round-robin "
                          "rounds; medians (default 3)")
-    pf.add_argument("--procs", type=_positive_int, default=None,
+    pf.add_argument("--procs", type=positive_int, default=None,
                     help="--what comm: ranks, on the most cubic grid (default: the mapping's)")
     pf.add_argument("--mapping", default=None,
                     help="--what comm: P-px-py-pz-T block grid of the ranks (default 2-2-1-1-1; T ignored)")
     pf.add_argument("--patterns", action="store_true",
                     help="--what comm: also time the forward exchange's MPI patterns (Isend/Irecv, persistent, "
                          "Neighbor_alltoallv) at 104, 12480 and 52000 B a message")
-    pf.add_argument("--timeout", type=_positive_int, default=120,
+    pf.add_argument("--timeout", type=positive_int, default=120,
                     help="--what comm: seconds before the ranks are killed (default 120)")
-    pf.add_argument("--threads", type=_positive_int, default=1,
+    pf.add_argument("--threads", type=positive_int, default=1,
                     help="also time each thread scheme at T threads (packed ellipsoids)")
-    pf.add_argument("--skin", type=_skin, default=0.1, metavar="F",
+    pf.add_argument("--skin", type=skin_fraction, default=0.1, metavar="F",
                     help="Verlet skin for the second set of packed figures (default 0.1)")
     pf.add_argument("--out", default=None, help="write perf.json here")
 
     sh = sub.add_parser("shapes", help="per-contact / per-step cost and NSF of spheres, ellipsoids, poly-ellipsoids")
-    sh.add_argument("--particles", type=_positive_int, default=2000, help="packed scene size (default 2000)")
-    sh.add_argument("--steps", type=_positive_int, default=20, help="timed steps per round (default 20)")
-    sh.add_argument("--repeats", type=_positive_int, default=5, help="round-robin rounds, medians (default 5)")
-    sh.add_argument("--pairs", type=_positive_int, default=20000,
+    sh.add_argument("--particles", type=positive_int, default=2000, help="packed scene size (default 2000)")
+    sh.add_argument("--steps", type=positive_int, default=20, help="timed steps per round (default 20)")
+    sh.add_argument("--repeats", type=positive_int, default=5, help="round-robin rounds, medians (default 5)")
+    sh.add_argument("--pairs", type=positive_int, default=20000,
                     help="constructed overlapping pairs per shape for the kernel timing (default 20000)")
     sh.add_argument("--out", default="results/shapes", help="folder for shapes.csv, shapes.json, shapes.png")
     return p
@@ -196,7 +142,7 @@ def main(argv=None):
 
 
 def _usage_errors():
-    from dem.scene import SceneError
+    from dem.scene import SceneError   # numba starts with these: only once the command runs
     from modes.base import ModeError
     return (SceneError, ModeError)
 
@@ -222,16 +168,15 @@ def cmd_scenes(args):
 @_one_line
 def cmd_contacts(args):
     from dem.scene import load_scene
-    from bench.contacts import scene_contacts
+    from bench.studies.contacts import scene_contacts
     print(json.dumps(scene_contacts(load_scene(args.scene)), indent=1))
     return 0
 
 
 @_one_line
 def cmd_run(args):
-    from bench.threads_env import configure_threads
     configure_threads(args.mapping, args.pin)  # before numba starts
-    from bench.run import run
+    from bench.run.driver import run
     return run(args)
 
 
@@ -275,21 +220,22 @@ def cmd_sweep(args):
     for need in ("mappings", "scene", "out"):
         if not getattr(args, need):
             raise UsageError(f"bench sweep: --{need} is required (or set it in the sweep file)")
-    if args.neighbor not in ("allpairs", "linkcell") or args.halo not in ("26", "6") or \
-            args.launcher not in ("local", "slurm") or args.contact_method not in ("exact", "pw", "sextic"):
-        raise UsageError("bench sweep: neighbor must be allpairs|linkcell, halo 26|6, launcher local|slurm, "
-                         "contact_method exact|pw|sextic")
-    from bench.sweep import sweep
+    from bench.sweep.driver import sweep
+    from bench.sweep.launchers import LAUNCHERS
+    if args.neighbor not in NEIGHBOR_CHOICES or args.halo not in ("26", "6") or \
+            args.launcher not in LAUNCHERS or args.contact_method not in CONTACT_METHOD_CHOICES:
+        raise UsageError(f"bench sweep: neighbor must be {'|'.join(NEIGHBOR_CHOICES)}, halo 26|6, launcher "
+                         f"{'|'.join(LAUNCHERS)}, contact_method {'|'.join(CONTACT_METHOD_CHOICES)}")
     from dem.scene import load_scene
     load_scene(args.scene, particles=args.particles, shape=args.shape)  # a bad scene fails here, once
     return sweep(args)
 
 
 def cmd_plot(args):
-    import os
     if not os.path.exists(os.path.join(args.dir, "runs.csv")):
         raise UsageError(f"bench plot: {args.dir} has no runs.csv (not a sweep folder)")
-    from bench.sweep_plots import plot_paper, plot_sweep
+    from bench.studies.paper_figures import plot_paper
+    from bench.sweep.figures import plot_sweep
     figs = plot_sweep(args.dir) + (plot_paper(args.dir) if args.paper else [])
     print("\n".join(figs))
     return 0
@@ -297,57 +243,53 @@ def cmd_plot(args):
 
 @_one_line
 def cmd_collect(args):
-    from bench.slurm import collect
+    from bench.sweep.collect import collect
     return collect(args)
 
 
 @_one_line
 def cmd_schemes(args):
-    from bench.threads_env import configure_threads
     configure_threads(f"1-1-1-1-{args.threads}")  # before numba starts
-    from bench.schemes import schemes
+    from bench.studies.schemes import schemes
     return schemes(args)
 
 
 def cmd_perf(args):
     if args.what == "overhead":
-        from bench.perf_overhead import measure
+        from bench.studies.perf_overhead import measure
         try:
             report = measure(args.repeats, print)
         except RuntimeError as e:  # a run of the benchmark failed: its own one line
             print(f"bench: error: {e}", file=sys.stderr)
             return 1
         if args.out:
-            import os
-            from bench.records import write_json
+            from bench.run.records import write_json
             os.makedirs(args.out, exist_ok=True)
             write_json(os.path.join(args.out, "perf.json"), report)
         return 0
     if args.what == "comm":
-        from bench.perf_comm import perf_comm
+        from bench.studies.perf_comm import perf_comm
         return _one_line(perf_comm)(args)
-    from bench.threads_env import configure_threads
     configure_threads(f"1-1-1-1-{args.threads}")  # before numba starts
     if args.what == "skin":
-        from bench.perf_skin import perf_skin
+        from bench.studies.perf_skin import perf_skin
         return _one_line(perf_skin)(args)
     if args.steps is None:
         args.steps = 20
-    from bench.perf import perf
+    from bench.studies.perf import perf
     return perf(args)
 
 
 @_one_line
 def cmd_shapes(args):
-    from bench.threads_env import configure_threads
     configure_threads("1-1-1-1-1")  # before numba starts: serial figures
-    from bench.shapes import shapes
+    from bench.studies.shapes import shapes
     return shapes(args)
 
 
 @_one_line
 def cmd_accuracy(args):
-    from bench.accuracy import accuracy
+    from bench.studies.accuracy import accuracy
     return accuracy(args)
 
 

@@ -5,10 +5,13 @@ the modules whose kernels it calls, so an edit to one kernel can leave stale mac
 callers' caches (seen here: a threaded driver kept an old derive_particle). The cache therefore
 lives in a folder keyed by a hash of every source file of dem/ and modes/:
 $NUMBA_CACHE_DIR when the user set it, else ~/.cache/dem-mapping-bench/numba/<hash>. This runs
-before any kernel is defined (modes/ and bench/ import dem first).
+before any kernel is defined (modes/ and bench/ import dem first). It does not import numba
+(through the variable, read when numba starts), so that a command can import dem's plain names
+before it sets the thread variables numba reads at import (bench.run.threads_env).
 """
 import hashlib
 import os
+import sys
 
 
 def _source_key(root=None):
@@ -29,6 +32,8 @@ def _source_key(root=None):
 
 
 if "NUMBA_CACHE_DIR" not in os.environ:
-    import numba
-    numba.config.CACHE_DIR = os.path.join(os.path.expanduser("~"), ".cache", "dem-mapping-bench", "numba",
-                                          _source_key())
+    _cache = os.path.join(os.path.expanduser("~"), ".cache", "dem-mapping-bench", "numba", _source_key())
+    if "numba" in sys.modules:  # numba started before dem: tell its config directly
+        sys.modules["numba"].config.CACHE_DIR = _cache
+    else:
+        os.environ["NUMBA_CACHE_DIR"] = _cache

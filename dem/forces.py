@@ -24,14 +24,15 @@ import numpy as np
 from numba import njit
 
 from dem.contact.ellipsoid import (ellipsoid_contact, ellipsoid_wall_contact, OUT_DEPTH, OUT_NX, OUT_NY,
-                                   OUT_NZ, OUT_XCX, OUT_XCY, OUT_XCZ, OUT_RE, OUT_KRATIO, OUT_LAM)
+                                   OUT_NZ, OUT_XCX, OUT_XCY, OUT_XCZ, OUT_RE, OUT_KRATIO, OUT_LAM, OUT_LEN)
 from dem.contact.hertz_factor import hertz_factor
 from dem.contact.law import hertz_mindlin
 from dem.contact.methods import pw_contact, sextic_contact
 from dem.contact.polyellipsoid import polyellipsoid_contact, polyellipsoid_wall_contact
 from dem.contact.sphere import sphere_contact, sphere_wall_contact
 from dem.integrate import derive_particle, derive_poly_geometry, integrate_particle
-from dem.state import SPHERE, POLY, H_FT, H_A, H_LAM, H_N
+from dem.shapes import ELLIPSOID, POLY, SPHERE
+from dem.state import H_FT, H_A, H_LAM, H_N
 
 # a pair's forces: pf [m, PF_LEN]
 PF_F = 0       # force on j [3] [N] (i gets the exact negation)
@@ -39,11 +40,8 @@ PF_TI = 3      # torque on i about its mass centre [3] [N m]
 PF_TJ = 6      # torque on j [3] [N m]
 PF_LEN = 9
 
-# ellipsoid contact methods (issue 7; dem/contact/methods.py): index = the `method` argument
-CONTACT_METHODS = ("exact", "pw", "sextic")
+# ellipsoid contact methods (dem.contact.CONTACT_METHODS; dem/contact/methods.py): index = the `method` argument
 EXACT, PW, SEXTIC = 0, 1, 2
-# scene kinds: which pair loop a scene needs (it pays only for the solvers its shapes use)
-SPHERES, ELLIPSOIDS, POLYS = 0, 1, 2
 
 # what resolve_range returns, in this order
 RESOLVED = ("n_contacts", "ellipsoid_calls", "worst_ratio", "worst_pair", "ratio_sum")
@@ -53,10 +51,12 @@ FINISHED = ("n_wall_contacts", "wall_worst_ratio", "wall_worst_particle", "kinet
 
 
 def scene_kind(shape, has_poly):
-    """SPHERES when every particle is a sphere, POLYS when the scene has poly-ellipsoids, else ELLIPSOIDS."""
+    """The scene's kind, which picks its pair loop (a scene pays only for the solvers its shapes
+    use): the most general shape code it holds, SPHERE when every particle is a sphere, POLY when
+    it has poly-ellipsoids, else ELLIPSOID."""
     if has_poly:
-        return POLYS
-    return SPHERES if bool(np.all(shape == SPHERE)) else ELLIPSOIDS
+        return POLY
+    return SPHERE if bool(np.all(shape == SPHERE)) else ELLIPSOID
 
 
 @njit(cache=True, inline="always")
@@ -202,10 +202,37 @@ def _solved_pair(hit, k, i, j, out, amin_i, amin_j, pos, vel, omega, mass, mater
 
 
 @njit(cache=True, inline="always")
-def _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, estar, gstar, mu, zeta, dt, method,
-                    hist, on, out, n0, pf):
-    """Ellipsoid (or sphere-ellipsoid) pair k = (i, j) by CONTACT_METHODS[method], then the law."""
-    lam0 = _warm_start(hist, k, on[k] == 1, n0)
+def pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, oorg, orot, ax6, lam0, n0, out):
+    """The contact geometry of the pair (i, j) by the pair's shapes: the one shape dispatch of a
+    pair, used by the step (resolve_range) and by `bench contacts` (pair_contacts). Two spheres:
+    closed form; a poly-ellipsoid on either side (in a scene with them, poly_scene): the octant
+    active set on the octant geometry oorg, orot, ax6; else the ellipsoid method
+    CONTACT_METHODS[method] (warm start lam0, n0 [3]; lam0 < 0 and n0 = 0: none). Fills out
+    [OUT_LEN] (OUT_* layout: depth, normal from i to j, contact points, R_e, kappa ratio, lambda)
+    on contact. Returns (hit, smallest semi-axis of i, of j [m], 1 when a solver ran)."""
+    if shape[i] == SPHERE and shape[j] == SPHERE:
+        hit, depth, nx, ny, nz, xcx, xcy, xcz, r_e = sphere_contact(
+            pos[i, 0], pos[i, 1], pos[i, 2], axes[i, 0], pos[j, 0], pos[j, 1], pos[j, 2], axes[j, 0])
+        if hit:
+            out[OUT_DEPTH] = depth
+            out[OUT_NX] = nx
+            out[OUT_NY] = ny
+            out[OUT_NZ] = nz
+            out[OUT_XCX] = xcx
+            out[OUT_XCY] = xcy
+            out[OUT_XCZ] = xcz
+            out[OUT_RE] = r_e
+            out[OUT_KRATIO] = 1.0
+            out[OUT_LAM] = 0.0
+        return 1 if hit else 0, axes[i, 0], axes[j, 0], 0
+    if poly_scene and (shape[i] == POLY or shape[j] == POLY):
+        hit = polyellipsoid_contact(oorg[i], orot[i], ax6[i], oorg[j], orot[j], ax6[j], n0, out)
+        ai = ax6[i, 0]
+        aj = ax6[j, 0]
+        for c in range(1, 6):
+            ai = min(ai, ax6[i, c])
+            aj = min(aj, ax6[j, c])
+        return hit, ai, aj, 1
     if method == EXACT:
         hit = ellipsoid_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
     elif method == PW:
@@ -214,24 +241,25 @@ def _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, estar, 
         hit = sextic_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
     ai = min(axes[i, 0], min(axes[i, 1], axes[i, 2]))
     aj = min(axes[j, 0], min(axes[j, 1], axes[j, 2]))
-    return _solved_pair(hit, k, i, j, out, ai, aj, pos, vel, omega, mass, material, estar, gstar, zeta, mu,
-                        hist, on, dt, pf)
+    return hit, ai, aj, 1
 
 
-@njit(cache=True, inline="always")
-def _poly_pair(k, i, j, pos, vel, omega, mass, material, estar, gstar, mu, zeta, dt, hist, on, oorg, orot, ax6,
-               out, n0, pf):
-    """Pair k = (i, j) with a poly-ellipsoid: the octant active-set solver (the other body as a
-    poly-ellipsoid with equal halves) on the octant geometry; lever arms refer to the mass centres."""
-    _warm_start(hist, k, on[k] == 1, n0)
-    hit = polyellipsoid_contact(oorg[i], orot[i], ax6[i], oorg[j], orot[j], ax6[j], n0, out)
-    ai = ax6[i, 0]
-    aj = ax6[j, 0]
-    for c in range(1, 6):
-        ai = min(ai, ax6[i, c])
-        aj = min(aj, ax6[j, c])
-    return _solved_pair(hit, k, i, j, out, ai, aj, pos, vel, omega, mass, material, estar, gstar, zeta, mu,
-                        hist, on, dt, pf)
+@njit(cache=True)
+def pair_contacts(pi, pj, pos, rot, axes, shape, method, poly_scene, oorg, orot, ax6, rows):
+    """The contacts of candidate pairs (pi[k], pj[k]) without history (no warm start), through
+    pair_geometry: rows [m, 8] = (hit, depth [m], normal i -> j [3], contact point [3] [m])."""
+    out = np.zeros(OUT_LEN)
+    n0 = np.zeros(3)
+    for k in range(pi.shape[0]):
+        n0[0] = n0[1] = n0[2] = 0.0
+        hit, _, _, _ = pair_geometry(pi[k], pj[k], pos, rot, axes, shape, method, poly_scene, oorg, orot, ax6,
+                                     -1.0, n0, out)
+        rows[k, 0] = hit
+        if hit:
+            rows[k, 1] = out[OUT_DEPTH]
+            for c in range(3):
+                rows[k, 2 + c] = out[OUT_NX + c]
+                rows[k, 5 + c] = out[OUT_XCX + c]
 
 
 @njit(cache=True, inline="always")
@@ -296,14 +324,13 @@ def _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shap
         elif _apart(i, j, pos, rbound):
             on[k] = 0
             r = -1.0
-        elif poly_scene and (shape[i] == POLY or shape[j] == POLY):
-            calls += 1
-            r = _poly_pair(k, i, j, pos, vel, omega, mass, material, estar, gstar, mu, zeta, dt, hist, on,
-                           oorg, orot, ax6, out, n0, pf)
         else:
-            calls += 1
-            r = _ellipsoid_pair(k, i, j, pos, vel, omega, rot, axes, mass, material, estar, gstar, mu, zeta, dt,
-                                method, hist, on, out, n0, pf)
+            lam0 = _warm_start(hist, k, on[k] == 1, n0)
+            hit, ai, aj, solver = pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, oorg, orot, ax6,
+                                                lam0, n0, out)
+            calls += solver
+            r = _solved_pair(hit, k, i, j, out, ai, aj, pos, vel, omega, mass, material, estar, gstar, zeta, mu,
+                             hist, on, dt, pf)
         if r >= 0.0:
             if accumulate:
                 _accumulate(k, i, j, pf, force, torque, n_owned)
@@ -328,21 +355,21 @@ def resolve_range(kind, method, k0, k1, pi, pj, pos, vel, omega, rot, axes, rbou
     torque [n, 3] of the owned particles 0..n_owned-1 as it goes (zeroed first), as LAMMPS does:
     in that order each particle receives its contributions in ascending partner gid, the order of
     the gather (finish_range), so both strategies give the same bits; it spares the gather's
-    second pass over the pairs. Threads leave it False (their pairs are resolved concurrently). kind (SPHERES, ELLIPSOIDS, POLYS) picks the loop, so a scene pays only for the
+    second pass over the pairs. Threads leave it False (their pairs are resolved concurrently). kind (SPHERE, ELLIPSOID, POLY) picks the loop, so a scene pays only for the
     solvers its shapes use. out [OUT_LEN], n0 [3] are scratch; oorg [n,3], orot [n,3,3], ax6 [n,6]
-    the octant geometry (empty outside POLYS). Returns RESOLVED: (contacts, solver calls, largest
+    the octant geometry (empty outside POLY). Returns RESOLVED: (contacts, solver calls, largest
     depth ratio = depth over the smaller minimum semi-axis, its pair or -1, sum of the depth ratios)."""
     if accumulate:
         for p in range(n_owned):
             for c in range(3):
                 force[p, c] = 0.0
                 torque[p, c] = 0.0
-    if kind == SPHERES:
+    if kind == SPHERE:
         return _resolve_spheres(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt,
                                 hist, on, pf, accumulate, force, torque, n_owned)
     return _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar,
                                gstar, mu, zeta, dt, method, hist, on, pf, oorg, orot, ax6,
-                               kind == POLYS, out, n0, accumulate, force, torque, n_owned)
+                               kind == POLY, out, n0, accumulate, force, torque, n_owned)
 
 
 @njit(cache=True, _nrt=False)

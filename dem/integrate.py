@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from dem.state import SPHERE, POLY, P_AX, P_OFF, P_ROT
+from dem.shapes import SPHERE, POLY, P_AX, P_OFF, P_ROT
 
 
 # Taylor coefficients of sin x / x and cos x in x^2 (|x| <= HALF_ANGLE_SERIES: the first term left

@@ -33,8 +33,8 @@ import numpy as np
 
 from dem.materials import Material, MaterialTable
 from dem.quaternion import quat_to_matrices, random_quaternions
-from dem.state import (POLY, POLY_LEN, SHAPE_CODES, SPHERE, State, mass_properties, octant_pose,
-                       poly_from_octant)
+from dem.shapes import POLY, POLY_LEN, SHAPE_CODES, SPHERE
+from dem.state import State, mass_properties, octant_pose, poly_from_octant
 
 WALL_FACES = {"x-": (0, +1), "x+": (0, -1), "y-": (1, +1), "y+": (1, -1), "z-": (2, +1), "z+": (2, -1)}
 BUILTIN_DIR = os.path.join(os.path.dirname(__file__), "scenes")

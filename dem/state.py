@@ -13,21 +13,13 @@ the adjacency that the force gather builds each step, so it costs nnz x 64 bytes
 rewritten, never searched for free slots.
 """
 import math
+
 import numpy as np
 
-SPHERE = 0
-ELLIPSOID = 1
-POLY = 2
-SHAPE_CODES = {"sphere": SPHERE, "ellipsoid": ELLIPSOID, "polyellipsoid": POLY}
-
-# poly-ellipsoid record, State.poly [n, POLY_LEN] (POLY_LEN columns only in a scene that has
-# poly-ellipsoids, else 0). Internally a poly-ellipsoid is a rigid body at its mass centre (pos)
-# in its principal frame (quat), so the integrator sees diagonal inertia; the record maps that
-# frame back to the octant geometry: octant frame R_oct = R W, octant origin o = pos + R off.
-P_AX = 0        # six semi-axes [a+, a-, b+, b-, c+, c-] [m]
-P_OFF = 6       # octant origin minus mass centre, principal frame [3] [m]
-P_ROT = 9       # W = principal -> octant frame rotation [3, 3], row-major
-POLY_LEN = 18
+from dem.contact.polyellipsoid import mass_properties_poly
+from dem.integrate import angular_velocity
+from dem.quaternion import quat_to_matrices
+from dem.shapes import P_AX, P_OFF, P_ROT, POLY, POLY_LEN, SPHERE
 
 # contact-history record (per pair, per particle): stored tangential spring [3], contact radius,
 # PW lambda and normal [3] (warm start of the ellipsoid solver)
@@ -64,7 +56,6 @@ def poly_body(axes6, density):
     columns are the principal axes in the octant frame (dem.contact.polyellipsoid.
     mass_properties_poly), W = V^T and off = -V^T centroid. The principal frame is R = R_oct V.
     """
-    from dem.contact.polyellipsoid import mass_properties_poly
     m, cen, moments, v = mass_properties_poly(axes6, density)
     rec = np.zeros(POLY_LEN)
     rec[P_AX:P_AX + 6] = axes6
@@ -77,7 +68,6 @@ def poly_from_octant(axes6, density, origin, quat_oct):
     """Internal state of a poly-ellipsoid given as DESIGN.md's octant origin [3] and octant-frame
     quaternion [4]: (axes [3] = largest semi-axis per octant-frame axis, mass, principal moments [3],
     mass centre [3], principal-frame quaternion [4], record [POLY_LEN])."""
-    from dem.quaternion import quat_to_matrices
     a6 = np.asarray(axes6, dtype=np.float64)
     m, moments, rec, v = poly_body(a6, density)
     quat = quat_of_matrix(quat_to_matrices(quat_oct)[0] @ v)
@@ -211,7 +201,6 @@ class State:
 
     def omega(self):
         """Angular velocity in the world frame [n, 3]: omega = R diag(1/I) R^T L."""
-        from dem.integrate import angular_velocity
         out = np.empty((self.n, 3))
         angular_velocity(self.quat, self.angmom, self.inertia, self.shape, out)
         return out
@@ -247,7 +236,6 @@ class State:
 def octant_pose(pos, quat, rec):
     """Octant origin [3] and octant-frame quaternion [4] of a poly-ellipsoid at mass centre pos in
     principal frame quat (record rec [POLY_LEN]): o = pos + R off, R_oct = R W."""
-    from dem.quaternion import quat_to_matrices
     r = quat_to_matrices(quat)[0]
     o = pos + r @ rec[P_OFF:P_OFF + 3]
     return o, quat_of_matrix(r @ rec[P_ROT:P_ROT + 9].reshape(3, 3))

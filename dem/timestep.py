@@ -9,18 +9,62 @@ Stability of central difference needs dt < t_c/2.015 (isolated Hertz contact); w
   dt_critical = min(dt_R, t_c / 2.015)
 and dt = "auto" takes min(0.2 dt_R, t_c / 50) (50 steps per contact keeps the restitution of
 velocity Verlet within 4e-5, §4.3).
+
+The policy of a run is choose_time_step(scene, user_dt): computed once per run, from the built
+scene, by the process that starts it (MPI ranks receive it, bench.run.rank).
 """
 import math
+from dataclasses import asdict, dataclass
+
 import numpy as np
 
 from dem.contact.hertz_factor import hertz_factor
+from dem.materials import hertz_contact_time, rayleigh_time
+from dem.scene import SceneError
+from dem.shapes import SPHERE
+from dem.state import smallest_semi_axes
+
+
+@dataclass(frozen=True)
+class TimeStep:
+    """The time step of a run [s], its bounds dt_auto and dt_critical [s] (time_step_bounds) and
+    their details (Rayleigh time, contact time, impact speed, ...)."""
+    dt: float
+    auto: float
+    critical: float
+    details: dict
+
+    def as_dict(self):
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d):
+        return cls(float(d["dt"]), float(d["auto"]), float(d["critical"]), dict(d["details"]))
+
+
+def choose_time_step(scene, user_dt=None):
+    """The run's TimeStep: user_dt [s] (or "auto") when given, else the scene's dt; "auto" is
+    dt_auto. Refused (SceneError, one line) when not a positive finite number or above
+    dt_critical."""
+    s = scene.state
+    dt_auto, dt_crit, info = time_step_bounds(s.axes, s.shape, s.mass, s.material, scene.materials,
+                                              scene.walls, scene.gravity, scene.box, s.vel, s.poly)
+    dt = user_dt if user_dt is not None else scene.dt
+    if dt == "auto":
+        dt = dt_auto
+    dt = float(dt)
+    if not (dt > 0 and np.isfinite(dt)):
+        raise SceneError(f"time step must be positive, got {dt}")
+    if dt > dt_crit:
+        raise SceneError(f"time step {dt:.3g} s exceeds the critical step {dt_crit:.3g} s "
+                         f"(Rayleigh {info['dt_rayleigh']:.3g} s, contact {info['t_contact']:.3g} s / 2.015); "
+                         f"use dt = \"auto\" ({dt_auto:.3g} s) or smaller")
+    return TimeStep(dt, dt_auto, dt_crit, info)
 
 
 def time_step_bounds(axes, shape, mass, material, materials, walls, gravity, box, vel, poly=None):
     """Return (dt_auto, dt_critical, details dict) for the given particles and scene
     (poly [n, POLY_LEN]: poly-ellipsoid records, whose smallest of six semi-axes counts)."""
-    from dem.materials import rayleigh_time, hertz_contact_time
-    from dem.state import SPHERE, smallest_semi_axes
     cmin = smallest_semi_axes(axes, shape, np.zeros((len(axes), 0)) if poly is None else poly)
     dt_r = np.inf
     for k, mat in enumerate(materials.materials):

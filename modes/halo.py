@@ -49,7 +49,8 @@ sends row counts first, then the rows.
 import numpy as np
 from numba import njit
 
-from dem.state import HIST_LEN, POLY_LEN, SPHERE, bounding_radii, csr_rows
+from dem.shapes import POLY_LEN, SPHERE
+from dem.state import HIST_LEN, bounding_radii, csr_rows
 from modes.decomposition import DIRECTIONS, OPPOSITE, direction_of, send_masks
 
 GHOST_SPHERE = ("gid", "material", "mass", "axes0", "inertia0", "pos", "vel", "angmom")

@@ -15,7 +15,9 @@ import time
 import numpy as np
 
 from dem.contact.ellipsoid import OUT_LEN
-from dem.forces import CONTACT_METHODS, POLYS, SPHERES, finish_range, resolve_range, scene_kind, wall_candidates
+from dem.shapes import POLY, SPHERE
+from dem.contact import CONTACT_METHODS
+from dem.forces import finish_range, resolve_range, scene_kind, wall_candidates
 from dem.integrate import derive_all
 from dem.neighbor import cell_order, find_pairs
 from dem.pairs import DEFAULT_SKIN, PairList
@@ -27,11 +29,11 @@ class SerialMode:
     """Reference step driver. options: neighbor ('allpairs' | 'linkcell'); skin: the neighbour
     list's skin as a fraction of the largest bounding diameter (None: dem.pairs.DEFAULT_SKIN; 0:
     estimate neighbours every step, the paper's way); contact_method: ellipsoid contact geometry,
-    one of dem.forces.CONTACT_METHODS."""
+    one of dem.contact.CONTACT_METHODS."""
 
     clock = staticmethod(time.perf_counter)
     collective = False   # whether decide() communicates (its time is then commuT)
-    guard_overlap = 0.05  # the stability guard's overlap limit (bench.guard sets it)
+    guard_overlap = 0.05  # the stability guard's overlap limit (bench.run.guard sets it)
     accumulate = True     # one thread sums the pair forces as it resolves them (dem.forces.resolve_range)
     migrates = False      # particles change rank at rebuilds (MPI): history then travels through the state
 
@@ -94,7 +96,7 @@ class SerialMode:
         if self.rot is None or self.rot.shape[0] != n:
             self.rot = np.zeros((n, 3, 3))
             self.omega = np.zeros((n, 3))
-            g = n if self.kind == POLYS else 0
+            g = n if self.kind == POLY else 0
             self.oorg = np.zeros((g, 3))
             self.orot = np.zeros((g, 3, 3))
             self.ax6 = np.zeros((g, 6))
@@ -104,7 +106,7 @@ class SerialMode:
         forward exchange)."""
         s = self.state
         derive_all(lo, hi, s.pos, s.quat, s.angmom, s.inertia, s.axes, s.shape, s.poly, self.rot, self.omega,
-                   self.kind == POLYS, self.orot, self.oorg, self.ax6)
+                   self.kind == POLY, self.orot, self.oorg, self.ax6)
 
     def sync_history(self):
         """Write the pair list's contact history into the state's per-particle rows (the form that
@@ -187,11 +189,11 @@ class SerialMode:
     def finish(self):
         """Gather, walls, integration, derived quantities and guard sums; returns dem.forces.FINISHED."""
         s, m, p, g = self.state, self.scene.materials, self.pairs, self.g
-        return finish_range(0, s.n_owned, self.kind == SPHERES, self.accumulate, p.adj_start, p.adj_items, p.on, p.pf, p.near, s.pos, s.vel, s.quat,
+        return finish_range(0, s.n_owned, self.kind == SPHERE, self.accumulate, p.adj_start, p.adj_items, p.on, p.pf, p.near, s.pos, s.vel, s.quat,
                             s.angmom, s.mass, s.inertia, s.shape, s.axes, s.rbound, s.material, s.force, s.torque,
                             self.rot, self.omega, g[0], g[1], g[2], self.has_gravity, self.dt, *self.walls(),
                             m.estar_w, m.gstar_w, m.zeta_w, m.mu_w, s.wall_hist, s.poly, self.oorg,
-                            self.orot, self.ax6, self.kind == POLYS, p.ref, self.out)
+                            self.orot, self.ax6, self.kind == POLY, p.ref, self.out)
 
     @property
     def worst_contact(self):

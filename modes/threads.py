@@ -10,7 +10,7 @@ import numpy as np
 import numba
 
 from dem.contact.ellipsoid import OUT_LEN
-from dem.forces import POLYS, SPHERES
+from dem.shapes import POLY, SPHERE
 from dem.neighbor import CellGrid
 from modes.base import ModeError, register
 from modes import parallel as par
@@ -120,7 +120,7 @@ class ThreadsMode(SerialMode):
         if self.threaded == "step" and hi > lo:
             s = self.state
             par.derive_threads(self.threads, lo, hi, s.pos, s.quat, s.angmom, s.inertia, s.axes, s.shape, s.poly,
-                               self.rot, self.omega, self.kind == POLYS, self.orot, self.oorg, self.ax6)
+                               self.rot, self.omega, self.kind == POLY, self.orot, self.oorg, self.ax6)
         else:
             super().derive(lo, hi)
 
@@ -128,11 +128,11 @@ class ThreadsMode(SerialMode):
         if self.threaded != "step":
             return super().finish()
         s, m, p, g = self.state, self.scene.materials, self.pairs, self.g
-        return par.finish_threads(self.threads, s.n_owned, self.kind == SPHERES, False, p.adj_start, p.adj_items, p.on, p.pf, p.near, s.pos, s.vel,
+        return par.finish_threads(self.threads, s.n_owned, self.kind == SPHERE, False, p.adj_start, p.adj_items, p.on, p.pf, p.near, s.pos, s.vel,
                                   s.quat, s.angmom, s.mass, s.inertia, s.shape, s.axes, s.rbound, s.material, s.force,
                                   s.torque, self.rot, self.omega, g[0], g[1], g[2], self.has_gravity, self.dt,
                                   *self.walls(), m.estar_w, m.gstar_w, m.zeta_w, m.mu_w, s.wall_hist,
-                                  s.poly, self.oorg, self.orot, self.ax6, self.kind == POLYS, p.ref, self.outs,
+                                  s.poly, self.oorg, self.orot, self.ax6, self.kind == POLY, p.ref, self.outs,
                                   self.fin)
 
     def step(self):

@@ -1,0 +1,8 @@
+"""Contact geometry and laws: spheres (closed form), ellipsoids (Perram-Wertheim + Newton),
+poly-ellipsoids (octant active set), the Hertz factor and the Hertz-Mindlin law.
+
+CONTACT_METHODS names the ellipsoid contact geometries, in the order of the code the kernels
+take (dem.forces): exact (PW + Newton on S^2), pw (Perram-Wertheim depth), sextic (Yan 2010).
+Plain names, importable before numba starts.
+"""
+CONTACT_METHODS = ("exact", "pw", "sextic")

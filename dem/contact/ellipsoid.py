@@ -172,9 +172,27 @@ def _hertz_radius(k11, k12, k22):
     return 1.0 / np.sqrt(det), big / small
 
 
+@njit(cache=True, inline="always")
+def _oct_axes(rot, a6, nx, ny, nz):
+    """Octant semi-axes (tuple) selected by the sign pattern of R^T n (0 counts as +)."""
+    m0 = rot[0, 0] * nx + rot[1, 0] * ny + rot[2, 0] * nz
+    m1 = rot[0, 1] * nx + rot[1, 1] * ny + rot[2, 1] * nz
+    m2 = rot[0, 2] * nx + rot[1, 2] * ny + rot[2, 2] * nz
+    # indices, not constant subscripts: _newton_s2 also types this with an ellipsoid's 3-tuple
+    # (where octants is False and it never runs), and a constant a6[3] would not type there
+    i = 0 if m0 >= 0.0 else 1
+    j = 2 if m1 >= 0.0 else 3
+    k = 4 if m2 >= 0.0 else 5
+    return a6[i], a6[j], a6[k]
+
+
 @njit(cache=True, _nrt=False)
-def _sphere_newton(rot1, ax1, rot2, ax2, rx, ry, rz, rn, nx, ny, nz, maxit, deep_maxit):
+def _newton_s2(rot1, a1, rot2, a2, octants, rx, ry, rz, rn, nx, ny, nz, maxit, deep_maxit):
     """Minimise phi(n) = h1(n) + h2(n) - n.R on S^2 from the unit normal (nx, ny, nz).
+
+    Ellipsoids (octants False): a1, a2 [3] semi-axes. Poly-ellipsoids (octants True): a1, a2 [6]
+    = [a+, a-, b+, b-, c+, c-], and each evaluation re-chooses the octant ellipsoid that faces n
+    (body 2 faces -n), phi then being phi_P of the octant active set (polyellipsoid.py).
 
     rn = |R| sets the round-off scale of phi.  At most maxit evaluations of phi (each followed
     by a step unless stopped), raised to deep_maxit once the Riemannian Hessian is found
@@ -193,6 +211,12 @@ def _sphere_newton(rot1, ax1, rot2, ax2, rx, ry, rz, rn, nx, ny, nz, maxit, deep
     it = 0
     while True:
         it += 1
+        if octants:
+            ax1 = _oct_axes(rot1, a1, nx, ny, nz)
+            ax2 = _oct_axes(rot2, a2, -nx, -ny, -nz)
+        else:
+            ax1 = (a1[0], a1[1], a1[2])
+            ax2 = (a2[0], a2[1], a2[2])
         h1, u0, u1, u2 = _hq(rot1, ax1, nx, ny, nz)
         h2, w0, w1, w2 = _hq(rot2, ax2, nx, ny, nz)
         phi = h1 + h2 - (nx * rx + ny * ry + nz * rz)
@@ -420,8 +444,8 @@ def ellipsoid_contact(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out):
     nn = n0[0] * n0[0] + n0[1] * n0[1] + n0[2] * n0[2]
     if nn > 0.0:
         sc = 1.0 / np.sqrt(nn)
-        nx, ny, nz, phi, nit, status = _sphere_newton(
-            rot1, ax1, rot2, ax2, rx, ry, rz, rn, n0[0] * sc, n0[1] * sc, n0[2] * sc,
+        nx, ny, nz, phi, nit, status = _newton_s2(
+            rot1, ax1, rot2, ax2, False, rx, ry, rz, rn, n0[0] * sc, n0[1] * sc, n0[2] * sc,
             NEWTON_WARM_MAXIT, NEWTON_WARM_MAXIT)
         if status < 0:
             return 0
@@ -464,8 +488,8 @@ def ellipsoid_contact(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out):
         nx = rot1[0, k]
         ny = rot1[1, k]
         nz = rot1[2, k]
-    nx, ny, nz, phi, nit, status = _sphere_newton(
-        rot1, ax1, rot2, ax2, rx, ry, rz, rn, nx, ny, nz, NEWTON_MAXIT, NEWTON_DEEP_MAXIT)
+    nx, ny, nz, phi, nit, status = _newton_s2(
+        rot1, ax1, rot2, ax2, False, rx, ry, rz, rn, nx, ny, nz, NEWTON_MAXIT, NEWTON_DEEP_MAXIT)
     if status < 0 or not (phi > 0.0):
         return 0
     if _fill(c1, rot1, ax1, c2, rot2, ax2, nx, ny, nz, rx, ry, rz,

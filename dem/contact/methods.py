@@ -43,6 +43,7 @@ need SciPy's LAPACK at run time, which the project does not depend on)
 import numpy as np
 from numba import njit
 
+from dem.contact import CONTACT_METHODS
 from dem.contact.ellipsoid import (_basis, _curv, _h, _hertz_radius,
                                    _hq, _shape_matrix, _write_out, ellipsoid_contact, pw_maximise)
 from dem.contact.roots import poly_roots
@@ -346,4 +347,4 @@ def sextic_contact(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out, minoverlap=MINOV
     return 1
 
 
-METHODS = {"exact": ellipsoid_contact, "pw": pw_contact, "sextic": sextic_contact}
+METHODS = dict(zip(CONTACT_METHODS, (ellipsoid_contact, pw_contact, sextic_contact)))  # in their code order

@@ -46,8 +46,8 @@ from numba import njit
 
 from dem.contact.ellipsoid import (
     OUT_NX, OUT_NY, OUT_NZ, OUT_LAM, OUT_PW_ITERS, OUT_NEWTON_ITERS,
-    OUT_LEN, NEWTON_DEEP_MAXIT, NEWTON_TOL, TRUST_RADIUS,
-    ellipsoid_contact, _basis, _curv, _hertz_radius, _write_out, _hq)
+    OUT_LEN, NEWTON_DEEP_MAXIT,
+    ellipsoid_contact, _basis, _curv, _hertz_radius, _newton_s2, _oct_axes, _write_out, _hq)
 
 __all__ = ["mass_properties_poly", "poly_support", "polyellipsoid_contact",
            "polyellipsoid_wall_contact", "new_out", "OUT_SWITCHES", "POLY_OUT_LEN",
@@ -120,17 +120,6 @@ def mass_properties_poly(axes6, density):
 
 # ------------------------------------------------------------------ support function
 
-@njit(cache=True, inline="always")
-def _oct_axes(rot, a6, nx, ny, nz):
-    """Octant semi-axes (tuple) selected by the sign pattern of R^T n (0 counts as +)."""
-    m0 = rot[0, 0] * nx + rot[1, 0] * ny + rot[2, 0] * nz
-    m1 = rot[0, 1] * nx + rot[1, 1] * ny + rot[2, 1] * nz
-    m2 = rot[0, 2] * nx + rot[1, 2] * ny + rot[2, 2] * nz
-    return (a6[0] if m0 >= 0.0 else a6[1],
-            a6[2] if m1 >= 0.0 else a6[3],
-            a6[4] if m2 >= 0.0 else a6[5])
-
-
 @njit(cache=True, _nrt=False)
 def poly_support(o, rot, axes6, nx, ny, nz):
     """Support function and support point of a poly-ellipsoid in direction n (world frame).
@@ -196,82 +185,6 @@ def _min_curv_radius6(a6):
 
 
 # ------------------------------------------------------------------ direct Newton on phi_P
-
-@njit(cache=True, _nrt=False)
-def _poly_newton(rot1, a1, rot2, a2, rx, ry, rz, rn, nx, ny, nz, maxit, deep_maxit):
-    """Trust-region Newton on S^2 for phi_P (octants re-chosen at every evaluation).
-
-    Same scheme and return convention as ellipsoid._sphere_newton: (nx, ny, nz, phi, evals,
-    status), status 1 converged, 0 not certified, -1 phi < 0 found (separating axis).
-    """
-    bx, by, bz = nx, ny, nz
-    best = np.inf
-    radius = TRUST_RADIUS
-    status = 1
-    deep = False
-    it = 0
-    while True:
-        it += 1
-        ax1 = _oct_axes(rot1, a1, nx, ny, nz)
-        ax2 = _oct_axes(rot2, a2, -nx, -ny, -nz)
-        h1, u0, u1, u2 = _hq(rot1, ax1, nx, ny, nz)
-        h2, w0, w1, w2 = _hq(rot2, ax2, nx, ny, nz)
-        phi = h1 + h2 - (nx * rx + ny * ry + nz * rz)
-        if phi < 0.0:
-            return nx, ny, nz, phi, it, -1
-        if phi > best + 1e-14 * (h1 + h2 + rn):
-            status = 0
-            nx, ny, nz = bx, by, bz
-            radius *= 0.25
-            if it >= maxit:
-                break
-            continue
-        best = phi
-        bx, by, bz = nx, ny, nz
-        if it >= maxit:
-            status = 0
-            break
-        t1x, t1y, t1z, t2x, t2y, t2z = _basis(nx, ny, nz)
-        gx = u0 / h1 + w0 / h2 - rx
-        gy = u1 / h1 + w1 / h2 - ry
-        gz = u2 / h1 + w2 / h2 - rz
-        g1 = t1x * gx + t1y * gy + t1z * gz
-        g2 = t2x * gx + t2y * gy + t2z * gz
-        k1 = _curv(rot1, ax1, h1, t1x, t1y, t1z, t2x, t2y, t2z)
-        k2 = _curv(rot2, ax2, h2, t1x, t1y, t1z, t2x, t2y, t2z)
-        e1 = 1.0 / (k1[0] * k1[2] - k1[1] * k1[1])
-        e2 = 1.0 / (k2[0] * k2[2] - k2[1] * k2[1])
-        h11 = k1[2] * e1 + k2[2] * e2 - phi
-        h12 = -(k1[1] * e1 + k2[1] * e2)
-        h22 = k1[0] * e1 + k2[0] * e2 - phi
-        det = h11 * h22 - h12 * h12
-        if not (h11 > 0.0 and det > 0.0):
-            if not deep:
-                deep = True
-                maxit = max(maxit, deep_maxit)
-            status = 0
-            h11 += phi
-            h22 += phi
-            det = h11 * h22 - h12 * h12
-        v1 = (h12 * g2 - h22 * g1) / det
-        v2 = (h12 * g1 - h11 * g2) / det
-        vn = np.sqrt(v1 * v1 + v2 * v2)
-        converged = vn < NEWTON_TOL
-        if vn > radius:
-            sc = radius / vn
-            v1 *= sc
-            v2 *= sc
-        nx = nx + v1 * t1x + v2 * t2x
-        ny = ny + v1 * t1y + v2 * t2y
-        nz = nz + v1 * t1z + v2 * t2z
-        sc = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
-        nx *= sc
-        ny *= sc
-        nz *= sc
-        if converged:
-            return nx, ny, nz, best, it, status
-    return bx, by, bz, best, it, status
-
 
 # ------------------------------------------------------------------ pair contact
 
@@ -374,8 +287,8 @@ def polyellipsoid_contact(o1, rot1, ax6_1, o2, rot2, ax6_2, n0, out):
         # 4. fallback: Newton directly on phi_P from the best normal seen
         if best < np.inf:
             nx, ny, nz = bx, by, bz
-        nx, ny, nz, phi, nit, status = _poly_newton(
-            rot1, ax6_1, rot2, ax6_2, rx, ry, rz, rn, nx, ny, nz,
+        nx, ny, nz, phi, nit, status = _newton_s2(
+            rot1, ax6_1, rot2, ax6_2, True, rx, ry, rz, rn, nx, ny, nz,
             POLY_NEWTON_MAXIT, max(POLY_NEWTON_MAXIT, NEWTON_DEEP_MAXIT))
         nw_tot += nit
         if status < 0:

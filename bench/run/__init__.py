@@ -1,0 +1,8 @@
+"""One run: a scene under one mapping (`bench run`).
+
+options (the run's options and the mode options they give), driver (validate, build, choose the
+time step once, run the timed loop: run(), execute()), launch (mpiexec for P > 1) and rank (one
+MPI rank), prepare (scene build stages, cached), guard (stability checks), records (run.json,
+steps.csv, state.npz), snapshots (VTK + npz), figure (run.png), threads_env (thread variables
+set before numba starts). Imports: modes and dem only, never sweep or studies.
+"""

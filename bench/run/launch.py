@@ -1,0 +1,102 @@
+"""Launching a P > 1 mapping: `mpiexec -n P python -m mpi4py -m bench.run.rank ...`.
+
+The parent process has already validated the inputs, built the scene's cache, chosen the time
+step (handed to the ranks, which do not choose it again) and created the output folder; here it
+refuses a decomposition that cannot work (one line), compiles numba's
+cache once so that P ranks do not compile at the same time, and runs mpiexec with a timeout
+(`python -m mpi4py` aborts every rank when one raises). Environment: NUMBA_NUM_THREADS = T;
+more ranks x threads than usable CPUs get a one-line warning and OMP_WAIT_POLICY=PASSIVE.
+--pin binds each rank to T cores: Hydra (MPICH) `-bind-to core:T`; the Open MPI equivalent is
+`--map-by slot:PE=T --bind-to core`, and Slurm's `srun --cpus-per-task=T --cpu-bind=cores`.
+"""
+import copy
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+
+from bench.run.threads_env import usable_cpus
+from modes.base import ModeError
+from modes.decomposition import BlockGrid, DecompositionError, border_width, fit_skin
+from modes.halo import compile_kernels
+from modes.serial import SerialMode
+from modes.threads import ThreadsMode
+
+
+def mpiexec_path():
+    here = os.path.join(os.path.dirname(sys.executable), "mpiexec")
+    return here if os.path.exists(here) else shutil.which("mpiexec")
+
+
+def warm_cache(scene, mapping, args, dt):
+    """Compile (and cache on disk) every kernel the ranks will run, on a copy of the scene."""
+    twin = copy.deepcopy(scene)
+    if mapping.threads > 1:
+        ThreadsMode().setup(twin, dt=dt, neighbor=args.neighbor, threads=mapping.threads,
+                            scheme=args.scheme or "dynamic", threaded=args.threaded,
+                            contact_method=args.contact_method).warmup()
+    else:
+        SerialMode().setup(twin, dt=dt, neighbor=args.neighbor, contact_method=args.contact_method).warmup()
+    compile_kernels()
+
+
+def launch_mpi(args, mapping, scene, out, ts):
+    """Run the ranks of `mapping` on the built scene with the run's TimeStep ts; returns the exit
+    status (3: killed at the timeout)."""
+    try:
+        grid = BlockGrid(scene.box, (mapping.px, mapping.py, mapping.pz))
+        width = border_width(float(scene.state.rbound.max()))
+        grid.check_width(width)
+        if args.skin is not None:
+            fit_skin(grid, width, args.skin * 2.0 * float(scene.state.rbound.max()), explicit=True)
+    except DecompositionError as e:
+        raise ModeError(str(e)) from None
+    exe = mpiexec_path()
+    if exe is None:
+        raise ModeError("mapping with P > 1 needs mpiexec (pip install mpich, or a system MPI)")
+    warm_cache(scene, mapping, args, ts.dt)
+    env = dict(os.environ, NUMBA_NUM_THREADS=str(mapping.threads))
+    cpus = usable_cpus()
+    if mapping.procs * mapping.threads > cpus:
+        env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+        print(f"bench: warning: {mapping.procs} ranks x {mapping.threads} threads on {cpus} usable CPUs "
+              f"oversubscribes them (MPI busy-polls): fine for correctness, not for timings", file=sys.stderr)
+    cmd = [exe, "-n", str(mapping.procs)]
+    if args.pin:
+        cmd += ["-bind-to", f"core:{mapping.threads}"]
+    cmd += [sys.executable, "-m", "mpi4py", "-m", "bench.run.rank"] + _run_argv(args, out)
+    cmd += ["--time-step", json.dumps(ts.as_dict())]
+    try:
+        proc = subprocess.Popen(cmd, env=env, start_new_session=True)
+        rc = proc.wait(timeout=args.timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+        print(f"bench: error: {mapping.procs} MPI ranks did not finish within {args.timeout} s; killed", file=sys.stderr)
+        return 3
+    if rc == 0:
+        try:
+            with open(os.path.join(out, "run.json")) as fh:
+                if json.load(fh).get("stable") is False:
+                    return 1  # rank 0 printed the reason
+        except (OSError, ValueError):
+            pass
+    return rc
+
+
+def _run_argv(args, out):
+    """The bench-run options the ranks need (the same run, with the resolved output folder)."""
+    argv = ["--scene", args.scene, "--mapping", args.mapping, "--neighbor", args.neighbor, "--out", out,
+            "--threaded", args.threaded, "--snapshot-every", str(args.snapshot_every), "--halo", args.halo,
+            "--guard-overlap", str(args.guard_overlap), "--update-grid", str(args.update_grid),
+            "--contact-method", args.contact_method]
+    for name in ("particles", "shape", "seed", "steps", "dt", "scheme", "warmup", "skin"):
+        v = getattr(args, name)
+        if v is not None:
+            argv += [f"--{name}", str(v)]
+    for flag in ("plot", "quiet", "pin"):
+        if getattr(args, flag):
+            argv.append(f"--{flag}")
+    return argv

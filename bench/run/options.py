@@ -1,0 +1,93 @@
+"""The options of one run (`bench run` and each MPI rank of it) and the mode options they give.
+
+Every bad value ends as one line through the parser's error (bench.cli); the mode refuses an
+option it lacks (modes.base.ModeError).
+"""
+import argparse
+
+from dem.contact import CONTACT_METHODS  # plain names: numba has not started yet
+
+CONTACT_METHOD_CHOICES = list(CONTACT_METHODS)
+NEIGHBOR_CHOICES = ["allpairs", "linkcell"]
+SHAPE_CHOICES = ["sphere", "ellipsoid", "polyellipsoid"]
+
+
+def positive_int(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return v
+
+
+def nonneg_int(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
+    return v
+
+
+def skin_fraction(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not (0.0 <= v <= 10.0):
+        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 10], got {text!r}")
+    return v
+
+
+def add_run_arguments(r):
+    """The `bench run` options on parser r."""
+    r.add_argument("--scene", required=True, help="built-in scene name or a .toml file")
+    r.add_argument("--particles", type=positive_int, help="override the generated particle count")
+    r.add_argument("--shape", choices=SHAPE_CHOICES, help="override the generated shape")
+    r.add_argument("--seed", type=nonneg_int, help="override the generator seed")
+    r.add_argument("--steps", type=nonneg_int, help="override the scene's step count")
+    r.add_argument("--warmup", type=nonneg_int, default=0, metavar="W",
+                   help="untimed steps before the timed ones (after JIT compilation, which is never timed)")
+    r.add_argument("--dt", type=float, help="time step [s] (default: the scene's, usually auto)")
+    r.add_argument("--mapping", default="1-1-1-1-1", help="P-px-py-pz-T (default 1-1-1-1-1)")
+    r.add_argument("--scheme", default=None, help="thread scheme: partition, frogleap, headtail, static, "
+                                                  "dynamic (default dynamic; mappings with T > 1)")
+    r.add_argument("--threaded", choices=["step", "detection"], default="step",
+                   help="thread the whole step (default) or only contact detection (the paper's code)")
+    r.add_argument("--pin", action="store_true", help="pin threads to cores (OMP_PROC_BIND/OMP_PLACES)")
+    r.add_argument("--neighbor", choices=NEIGHBOR_CHOICES, default="linkcell")
+    r.add_argument("--contact-method", choices=CONTACT_METHOD_CHOICES, default="exact",
+                   help="ellipsoid contact geometry: exact (PW + Newton, default), pw (Perram-Wertheim depth, "
+                        "error O(depth/size)), sextic (the paper's Yan 2010 method, a known error)")
+    r.add_argument("--skin", type=skin_fraction, default=None, metavar="F",
+                   help="neighbour-list skin, fraction of the largest bounding diameter (default 0.1; "
+                        "0: estimate neighbours every step, the paper's way)")
+    r.add_argument("--snapshot-every", type=nonneg_int, default=0, metavar="K",
+                   help="write VTK + npz snapshots every K steps")
+    r.add_argument("--plot", action="store_true", help="draw DIR/run.png (timings, contacts, energy)")
+    r.add_argument("--out", default=None, help="output folder (default results/run-<scene>)")
+    r.add_argument("--guard-overlap", type=float, default=0.05, metavar="F",
+                   help="stop when a contact overlaps more than F of the smaller body's smallest semi-axis (default 0.05)")
+    r.add_argument("--halo", choices=["26", "6"], default="26",
+                   help="ghost exchange: 26 direct messages (default, the paper's) or 3 sweeps of 6")
+    r.add_argument("--update-grid", type=nonneg_int, default=0, metavar="K",
+                   help="re-fit the block grid to the particles' extent every K steps (the paper's "
+                        "updateGrid; default 0: off)")
+    r.add_argument("--timeout", type=positive_int, default=3600, help="seconds before MPI ranks are killed")
+    r.add_argument("--quiet", action="store_true")
+
+    r.add_argument("--time-step", default=None, help=argparse.SUPPRESS)  # the launcher's TimeStep (JSON) for the ranks
+    return r
+
+
+def mode_options(mapping, args, scheme):
+    """The setup options of the mode that runs `mapping` (each mode refuses options it lacks)."""
+    opts = {"neighbor": args.neighbor, "skin": args.skin, "contact_method": args.contact_method}
+    if mapping.threads > 1:
+        opts.update(threads=mapping.threads, scheme=scheme, threaded=args.threaded)
+    if mapping.procs > 1:
+        opts.update(halo=args.halo, update_grid=args.update_grid)
+    return opts

@@ -1,0 +1,35 @@
+"""One MPI rank of `bench run` (started by bench.run.launch as `python -m mpi4py -m bench.run.rank`,
+or by srun in a batch job): the same options as `bench run`, and the TimeStep the launcher chose
+(--time-step, JSON; computed here only when a batch job starts the ranks without it)."""
+import argparse
+import json
+import sys
+
+from mpi4py import MPI
+
+from bench.run.driver import execute
+from bench.run.options import add_run_arguments, mode_options
+from bench.run.prepare import load_prepared
+from dem.timestep import TimeStep, choose_time_step
+from modes.base import mode_for, parse_mapping
+
+
+def main(argv):
+    args = add_run_arguments(argparse.ArgumentParser(prog="bench.run.rank")).parse_args(argv)
+    mapping = parse_mapping(args.mapping)
+    comm = MPI.COMM_WORLD
+    if comm.Get_size() != mapping.procs:
+        raise SystemExit(f"bench: error: started with {comm.Get_size()} ranks for mapping {mapping}")
+    cart = comm.Create_cart([mapping.px, mapping.py, mapping.pz], periods=[False] * 3, reorder=False)
+    scene = load_prepared(args.scene, particles=args.particles, shape=args.shape, seed=args.seed)  # cached
+    ts = TimeStep.from_dict(json.loads(args.time_step)) if args.time_step else choose_time_step(scene, args.dt)
+    scheme = args.scheme or ("dynamic" if mapping.threads > 1 else None)
+    mode = mode_for(mapping)().setup(scene, dt=ts.dt, cart=cart, **mode_options(mapping, args, scheme))
+    execute(args, scene, mapping, scheme, mode, args.out, ts, comm=cart)
+    # an unstable run has written its records and its one line (rank 0): end normally, since a
+    # non-zero exit makes `python -m mpi4py` abort every rank; the launcher reads run.json
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,240 @@
+"""The paper beside our records: its Tables 4 and 1 overlaid on a sweep's (`bench plot --paper`).
+
+plot_paper(DIR) writes paper_table4.png (module times normalised by each side's pure-MPI
+totalT, ours at our largest core count beside the paper's pinned Table 4 on 36 cores) and,
+only when DIR/schemes.csv exists (bench schemes), paper_table1.png (efficiency per thread scheme,
+ours vs the paper's Table 1). The paper: Yan & Regueiro, Computational Particle Mechanics 2019
+(its tables are package data, bench/studies/paper/).
+"""
+import math
+import os
+import sys
+
+import numpy as np
+from matplotlib.ticker import FuncFormatter, NullFormatter
+
+from bench.studies.paper import table_path
+from bench.sweep.figures import (FONT, MODULES, empty_axes, finish_figure, first_value, note_lines, plt,
+                                 save_figure, skipped_rows, done_rows, sweep_context)
+from bench.sweep.records import read_runs
+
+SCHEME_ORDER = ("partition", "frogleap", "headtail", "static", "dynamic")
+PAPER_MAP = {"partitioning": "partition", "frog-leap": "frogleap", "head-tail": "headtail",
+             "static": "static", "dynamic": "dynamic"}
+PAPER_THREADS = 12
+PAPER_CORES = 36
+
+
+def _read_paper_table4():
+    import pandas as pd
+    path = table_path("table4_mappings_one_node.csv")
+    if not os.path.exists(path):
+        print(f"sweep plots: paper table {os.path.normpath(path)} not found; no paper overlay", file=sys.stderr)
+        return None
+    t = pd.read_csv(path, comment="#")
+    t["pinned"] = t["pinned"].astype(str).str.strip().str.lower()
+    return t
+
+
+def _normalise(rows, procs, threads, cores):
+    """(reference totalT, what it is): pure MPI (procs = cores, 1 thread) when present, else the best."""
+    pure = rows[(rows[procs] == cores) & (rows[threads] == 1)]
+    if len(pure) and pure["totalT"].min() > 0:
+        return float(pure["totalT"].min()), f"pure MPI {int(cores)}x1"
+    return float(rows["totalT"].min()), "best totalT"
+
+
+def _grouped_log_bars(ax, labels, table, ref, hatch=None):
+    """Grouped bars (totalT, compuT, commuT, migraT)/ref on a log axis; zeros marked '0'."""
+    x = np.arange(len(labels))
+    w = 0.2
+    cols = [("totalT", "totalT", "0.55")] + [(k, lab, c) for k, lab, c in MODULES]
+    for k, (key, lab, color) in enumerate(cols):
+        v = np.asarray(table[key], dtype=float) / ref
+        xs = x + (k - 1.5) * w
+        good = np.isfinite(v) & (v > 0)
+        ax.bar(xs[good], v[good], w, color=color, label=lab, hatch=hatch, edgecolor="white" if hatch else None,
+               lw=0.3)
+        for xi, vi in zip(xs[~good], v[~good]):
+            ax.text(xi, 0.01, "0" if np.isfinite(vi) else "-", transform=ax.get_xaxis_transform(),
+                    ha="center", va="bottom", fontsize=FONT - 1, color=color)
+    ax.set_xticks(x)
+    ax.set_xticklabels(labels, fontsize=FONT)
+    ax.set_xlim(-0.6, len(labels) - 0.4)
+
+
+def plot_paper(directory):
+    """Overlay the paper's tables on ours: paper_table4.png (module times per procs x threads,
+    normalised by each side's pure-MPI totalT, ours at our largest core count beside the paper's
+    pinned Table 4, 36 cores) and, when DIR/schemes.csv exists, paper_table1.png (efficiency per
+    thread scheme, ours vs the paper's Table 1). Returns the written paths."""
+    paths = []
+    p = _plot_paper_table4(directory)
+    if p:
+        paths.append(p)
+    if os.path.exists(os.path.join(directory, "schemes.csv")):
+        paths.append(_plot_paper_table1(directory))
+    return paths
+
+
+def _plot_paper_table4(directory):
+    if not os.path.exists(os.path.join(directory, "runs.csv")):
+        print(f"sweep plots: {os.path.join(directory, 'runs.csv')} not found; no paper_table4.png", file=sys.stderr)
+        return None
+    df = read_runs(directory)
+    done = done_rows(df)
+    done = done[np.isfinite(done["cores"]) & (done["totalT"] > 0)]
+    skipped = skipped_rows(df)
+    ctx = sweep_context(df)
+    paper = _read_paper_table4()
+    fig, axes = plt.subplots(1, 2, figsize=(11.5, 5.0), sharey=True, gridspec_kw=dict(width_ratios=(1, 1.25)))
+    ax, axp = axes
+    ymin, ymax = [], []
+    # ours: the largest core count, one bar group per procs x threads (the fastest when several)
+    if len(done):
+        cmax = done["cores"].max()
+        ours = done[done["cores"] == cmax].sort_values("totalT").drop_duplicates(["procs", "threads"])
+        ours = ours.sort_values(["procs", "threads"])
+        ref, what = _normalise(ours, "procs", "threads", cmax)
+        labels = [f"{int(r['procs'])} x {int(r['threads'])}\n{r['mapping']}" for _, r in ours.iterrows()]
+        tab = {k: ours[k].to_numpy(dtype=float) for k in ("totalT", "compuT", "commuT", "migraT")}
+        tab["compuT"] = np.where(np.isfinite(tab["compuT"]), tab["compuT"],
+                                 tab["totalT"] - np.nan_to_num(tab["commuT"]) - np.nan_to_num(tab["migraT"]))
+        _grouped_log_bars(ax, labels, tab, ref)
+        v = np.concatenate([t / ref for t in tab.values()])
+        v = v[np.isfinite(v) & (v > 0)]
+        ymin.append(v.min())
+        ymax.append(v.max())
+        several = len(done[done["cores"] == cmax]) > len(ours)
+        ax.set_title(f"ours: {int(cmax)} core{'s' if cmax != 1 else ''}, {ctx}\nnormalised by our {what} "
+                     f"= {1e3 * ref:.3g} ms/step" + ("\n(fastest point per procs x threads)" if several else ""),
+                     fontsize=8)
+    else:
+        empty_axes(ax, "ours: no completed point")
+        ax.set_xticks([])
+        ax.set_title(f"ours: {ctx}", fontsize=8)
+    ax.set_xlabel("procs x threads (mapping)")
+    ax.set_ylabel("time per step / reference totalT  (log)")
+    # the paper: pinned Table 4, 36 cores
+    if paper is not None:
+        pin = paper[paper["pinned"] == "yes"].sort_values("procs")
+        unpin = paper[paper["pinned"] == "no"].set_index("procs")
+        pref, pwhat = _normalise(pin, "procs", "threads", PAPER_CORES)
+        strings = {}
+        mpath = table_path("table4_mapping_strings.csv")
+        if os.path.exists(mpath):
+            import pandas as pd
+            for m in pd.read_csv(mpath, comment="#")["mapping"]:
+                strings[int(str(m).split("-")[0])] = str(m)
+        labels = [f"{int(r['procs'])} x {int(r['threads'])}" + (f"\n{strings[int(r['procs'])]}"
+                                                                if int(r["procs"]) in strings else "")
+                  for _, r in pin.iterrows()]
+        tab = {k: pin[k].to_numpy(dtype=float) for k in ("totalT", "compuT", "commuT", "migraT")}
+        _grouped_log_bars(axp, labels, tab, pref)
+        # unpinned totals as markers, same normalisation (pinned pure MPI)
+        un = np.array([unpin["totalT"].get(int(p), np.nan) for p in pin["procs"]], dtype=float) / pref
+        axp.plot(np.arange(len(pin)) - 1.5 * 0.2, un, ls="none", marker="x", color="k", ms=6,
+                 label="totalT, not pinned")
+        v = np.concatenate([t / pref for t in tab.values()] + [un])
+        v = v[np.isfinite(v) & (v > 0)]
+        ymin.append(v.min())
+        ymax.append(v.max())
+        axp.set_title(f"paper (Yan & Regueiro, Table 4): 12k ellipsoids, one {PAPER_CORES}-core node, pinned\n"
+                      f"normalised by its {pwhat} = {1e3 * pref:.3g} ms/step", fontsize=8)
+        axp.legend(fontsize=FONT, loc="upper right", framealpha=0.9)
+    else:
+        empty_axes(axp, "paper table 4 not found\n(bench/studies/paper/table4_mappings_one_node.csv)")
+        axp.set_title("paper (Yan & Regueiro, Table 4)", fontsize=8)
+        if len(done):
+            ax.legend(fontsize=FONT, loc="upper right", framealpha=0.9)
+    axp.set_xlabel("procs x threads (mapping)")
+    if ymin:
+        axp.set_yscale("log")
+        axp.set_ylim(min(ymin) / 3, max(ymax) * 3)
+        axp.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        axp.yaxis.set_minor_formatter(NullFormatter())
+    for a in axes:
+        a.grid(True, axis="y", which="major", lw=0.4, alpha=0.5)
+        a.axhline(1.0, color="k", lw=0.7, ls=":")
+    fig.suptitle("Module times per process x thread mapping, each side normalised by its own pure-MPI totalT "
+                 "(best totalT when it has no pure-MPI point); '0' = zero time, '-' = not recorded", fontsize=9)
+    path = os.path.join(directory, "paper_table4.png")
+    finish_figure(fig, note_lines(skipped, 11.5))
+    return save_figure(fig, path)
+
+
+def _read_paper_table1():
+    """{our scheme: paper efficiency (speedup / 12)} from the paper's Table 1, or {} if absent."""
+    import pandas as pd
+    path = table_path("table1_thread_schemes.csv")
+    if not os.path.exists(path):
+        print(f"sweep plots: paper table {os.path.normpath(path)} not found; no paper overlay", file=sys.stderr)
+        return {}
+    t = pd.read_csv(path, comment="#")
+    return {PAPER_MAP[m]: float(s) / PAPER_THREADS for m, s in zip(t["method"], t["speedup"]) if m in PAPER_MAP}
+
+
+def _plot_paper_table1(directory):
+    """Grouped bars of parallel efficiency per thread scheme: ours per (neighbour method, threads)
+    against its own serial (efficiency_own = T(serial, same neighbour method) / (threads x T));
+    the paper's Table 1 (12 threads, n-by-n loops, so against serial n-by-n) beside them."""
+    import pandas as pd
+    s = pd.read_csv(os.path.join(directory, "schemes.csv"))
+    for c in ("method", "neighbor", "shape"):
+        s[c] = s[c].fillna("").astype(str) if c in s else ""
+    for c in ("threads", "particles", "speedup", "efficiency", "efficiency_own", "paper_speedup",
+              "paper_efficiency"):
+        s[c] = pd.to_numeric(s[c], errors="coerce") if c in s else math.nan
+    # efficiency against the serial run of the same neighbour method where recorded, else vs all-pairs
+    own = bool(np.isfinite(s["efficiency_own"]).any())
+    metric = "efficiency_own" if own else "efficiency"
+    thr = s[(s["method"] != "serial") & (s["method"] != "")]
+    methods = [m for m in SCHEME_ORDER if m in set(thr["method"])] + sorted(set(thr["method"]) - set(SCHEME_ORDER))
+    paper = {m: v for m, v in thr.groupby("method")["paper_efficiency"].max().items() if np.isfinite(v)}
+    if not paper:
+        paper = _read_paper_table1()
+    groups = sorted({(nb, t) for nb, t in zip(thr["neighbor"], thr["threads"])}, key=lambda g: (g[0], g[1]))
+    nser = len(groups) + 1
+    w = 0.8 / nser
+    x = np.arange(len(methods))
+    fig, ax = plt.subplots(figsize=(max(7.5, 1.3 * len(methods) + 2.5), 4.8))
+    top = 1.0
+    nbname = {"allpairs": "all-pairs", "linkcell": "link-cell"}
+    for k, (nb, t) in enumerate(groups):
+        sub = thr[(thr["neighbor"] == nb) & (thr["threads"] == t)].drop_duplicates("method").set_index("method")
+        vals = np.array([float(sub[metric].get(m, np.nan)) for m in methods])
+        against = f"vs serial {nbname.get(nb, nb)}" if own else "vs serial all-pairs"
+        bars = ax.bar(x + (k - (nser - 1) / 2) * w, np.nan_to_num(vals), w, color=f"C{k}",
+                      label=f"ours, {nbname.get(nb, nb or '?')}, {int(t) if np.isfinite(t) else '?'} threads "
+                            f"({against})")
+        for b, v in zip(bars, vals):
+            if np.isfinite(v):
+                ax.text(b.get_x() + b.get_width() / 2, v, f"{v:.2f}", ha="center", va="bottom", fontsize=FONT - 1)
+                top = max(top, v)
+    pv = np.array([paper.get(m, np.nan) for m in methods])
+    bars = ax.bar(x + (nser - 1 - (nser - 1) / 2) * w, np.nan_to_num(pv), w, color="0.55",
+                  label=f"paper Table 1, n-by-n, {PAPER_THREADS} threads (vs serial n-by-n)"
+                        + ("" if paper else " (table missing)"))
+    for b, v in zip(bars, pv):
+        if np.isfinite(v):
+            ax.text(b.get_x() + b.get_width() / 2, v, f"{v:.2f}", ha="center", va="bottom", fontsize=FONT - 1)
+            top = max(top, v)
+    ax.axhline(1.0, color="k", ls="--", lw=0.8, label="ideal: speedup = threads")
+    ax.set_xticks(x)
+    ax.set_xticklabels(methods)
+    ax.set_ylim(0, 1.35 * top)
+    ax.set_xlabel("thread scheme of contact detection (neighbour estimate + contact resolution)")
+    ax.set_ylabel("efficiency = speedup / threads\n" + ("(vs serial, same neighbour method)" if own else
+                                                        "(vs serial all-pairs detection)"))
+    n = first_value(s, "particles") if len(s) else None
+    shape = first_value(s, "shape") if len(s) else None
+    ax.set_title(f"Contact-detection efficiency per thread scheme, ours vs paper Table 1\n"
+                 f"ours: {int(n) if n is not None else '?'} packed {shape or 'particle'}s; paper: 2.5k packed "
+                 f"ellipsoids, dual Xeon X5690", fontsize=9)
+    if not methods:
+        empty_axes(ax, "no threaded scheme in schemes.csv")
+    ax.grid(True, axis="y", lw=0.4, alpha=0.5)
+    ax.legend(fontsize=FONT, loc="upper left", ncol=2, framealpha=0.9)
+    path = os.path.join(directory, "paper_table1.png")
+    finish_figure(fig, [])
+    return save_figure(fig, path)

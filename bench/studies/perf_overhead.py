@@ -1,0 +1,87 @@
+"""`bench perf --what overhead`: what the parallel machinery and the per-step bookkeeping cost.
+
+Two figures of issue 11, measured by running `bench run` itself (the harness's own path, records
+and all), alternating the configurations (A B A B ...), medians over the repeats:
+
+- small: the fixed cost of a step on a 48-particle scene (pluviation, the paper's deposition),
+  serial: mean totalT over the timed steps and wall time per step [us]. Target <= 20 us.
+- mpi: 2 ranks (2-2-1-1-1) against serial on the 1521-particle free fall (pluviation) and on
+  packed 500: speedup T(1)/T(2) from the module times of runs.csv's definition
+  (bench.sweep.records.module_times: totalT = mean over steps of the max over ranks), and the parallel
+  overhead against the wire: wireT, the ping-pong model of the bytes and messages each rank sent
+  (modes/wire.py), against the exchanges (commuT - syncT + migraT: the data movement) and against
+  all of commuT + migraT (with syncT, the step's allreduce, where a rank waits for the slowest:
+  load imbalance, not software). Targets: speedup > 1; overhead <= 3 wireT + 20 us.
+
+Two ranks on two cores busy-poll: run it on an otherwise idle machine (the load average at the
+start and the end is printed and written).
+"""
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from bench.sweep.records import module_times
+
+TARGETS = {"small_us_per_step": 20.0, "mpi_speedup": 1.0, "overhead_over_wire_factor": 3.0,
+           "overhead_over_wire_add_us": 20.0}
+MPI_SCENES = (("pluviation", 1521, 400), ("packed", 500, 300))
+
+
+def _run(scene, particles, steps, mapping, out, warmup=20):
+    cmd = [sys.executable, "-m", "bench", "run", "--scene", scene, "--particles", str(particles), "--steps",
+           str(steps), "--warmup", str(warmup), "--mapping", mapping, "--out", out, "--quiet", "--timeout", "900"]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=1200)
+    if res.returncode != 0:
+        lines = (res.stderr.strip() or res.stdout.strip() or "no output").splitlines()
+        raise RuntimeError(f"{' '.join(cmd[2:])} failed: {lines[-1]}")
+    import pandas as pd
+    times = module_times(pd.read_csv(os.path.join(out, "steps.csv")))
+    with open(os.path.join(out, "run.json")) as fh:
+        info = json.load(fh)
+    times["wall_per_step"] = info["wall_s"] / max(info["steps"], 1)
+    return times
+
+
+def _median(rows, key):
+    return statistics.median(r[key] for r in rows)
+
+
+def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES):
+    """Run the figures above (scenes: (scene, particles, steps) of the MPI comparison); returns the
+    report (perf.json): targets, small, mpi [one row per scene], load averages."""
+    report = {"targets": TARGETS, "load_start": os.getloadavg()}
+    with tempfile.TemporaryDirectory(prefix="bench-overhead-") as tmp:
+        # the fixed cost of a step
+        small = [_run("pluviation", 48, small_steps, "1-1-1-1-1", os.path.join(tmp, f"small{r}"))
+                 for r in range(repeats)]
+        report["small"] = {"particles": 48, "steps": small_steps, "us_per_step": 1e6 * _median(small, "totalT"),
+                           "wall_us_per_step": 1e6 * _median(small, "wall_per_step")}
+        log(f"48 particles (pluviation), serial: {report['small']['us_per_step']:.1f} us/step "
+            f"(wall {report['small']['wall_us_per_step']:.1f} us/step); target <= {TARGETS['small_us_per_step']:g}")
+        report["mpi"] = []
+        for scene, n, steps in scenes:
+            one, two = [], []
+            for r in range(repeats):  # alternating: serial, 2 ranks, serial, 2 ranks, ...
+                one.append(_run(scene, n, steps, "1-1-1-1-1", os.path.join(tmp, f"{scene}-1-{r}")))
+                two.append(_run(scene, n, steps, "2-2-1-1-1", os.path.join(tmp, f"{scene}-2-{r}")))
+            t1, t2 = _median(one, "totalT"), _median(two, "totalT")
+            over = _median(two, "commuT") + _median(two, "migraT")
+            sync = _median(two, "syncT")
+            wire = _median(two, "wireT")
+            bound = TARGETS["overhead_over_wire_factor"] * wire + 1e-6 * TARGETS["overhead_over_wire_add_us"]
+            row = {"scene": scene, "particles": n, "steps": steps, "serial_ms": 1e3 * t1, "two_ranks_ms": 1e3 * t2,
+                   "speedup": t1 / t2, "commu_migra_us": 1e6 * over, "sync_us": 1e6 * sync,
+                   "exchange_us": 1e6 * (over - sync), "wire_us": 1e6 * wire, "overhead_bound_us": 1e6 * bound,
+                   "exchange_over_bound": (over - sync) / bound, "overhead_over_bound": over / bound,
+                   "samples": {"serial": one, "two_ranks": two}}
+            report["mpi"].append(row)
+            log(f"{scene} {n}, 2 ranks against serial: {row['two_ranks_ms']:.3f} against {row['serial_ms']:.3f} ms/step, "
+                f"speedup {row['speedup']:.2f} (target > 1); per step: exchanges (commuT - syncT + migraT) "
+                f"{row['exchange_us']:.1f} us, wire {row['wire_us']:.1f} us: {row['exchange_over_bound']:.2f} of "
+                f"3 wire + 20 us (target <= 1); with syncT {row['sync_us']:.1f} us (the allreduce, waiting for the "
+                f"slowest rank): {row['overhead_over_bound']:.2f}")
+    report["load_end"] = os.getloadavg()
+    log(f"load average {report['load_start'][0]:.2f} at the start, {report['load_end'][0]:.2f} at the end")
+    return report

@@ -1,0 +1,279 @@
+"""`bench schemes`: Table 1 in kind, the contact-detection speedup of each thread scheme.
+
+Yan & Regueiro (§4.2, Table 1; bench/studies/paper/table1_thread_schemes.csv) time contact
+detection alone (neighbour estimate + contact resolution) on 2.5k packed ellipsoids at rest,
+with 12 threads, relative to the serial n-by-n search. Here the same is done on the packed
+scene (bench.run.prepare, cached) for: serial all-pairs, serial link-cell, and each of the five
+schemes of modes/parallel.py at `--threads` T with both all-pairs and link-cell.
+
+Timing: every configuration is set up on the one scene and warmed up (JIT compile, then one
+untimed detection so buffers have their final size); then `--repeats` rounds time each
+configuration once in turn (round-robin, so slow drift of the machine spreads over all of
+them), and the medians over rounds are reported. Contact detection is
+`neighbour_phase()` + `resolve_phase()`; neither moves particles, so every round repeats
+identical work.
+
+Columns of OUT/schemes.csv:
+- family, method, neighbor, threads, particles, shape, repeats: the configuration (family and
+  the paper's pragma: serial, parallel, parallel-for);
+- detect_s, neighbor_s, resolve_s: median wall times [s] of detection, neighbour estimate and
+  contact resolution;
+- speedup: T(serial all-pairs) / T(configuration), detection times, the paper's convention
+  (so serial link-cell's speedup is the gain of the neighbour method, not of threads);
+- efficiency: speedup / threads, i.e. also relative to serial ALL-PAIRS (a link-cell scheme
+  may exceed 1 because of the neighbour method); efficiency_own = T(serial, same neighbour
+  method) / (threads x T(configuration)), the parallel efficiency against its own serial;
+- candidates, tests: candidate pairs found and pair tests made (per detection);
+- work_imbalance: max/mean over threads of the pair tests (mode.tests; deterministic; 1 for
+  serial); busy_imbalance: median over rounds of max/mean over threads of the busy cycles of
+  both phases (scan_busy + busy; 1 for serial);
+- paper_method, paper_threads, paper_speedup, paper_efficiency (= paper_speedup /
+  paper_threads: 12 for the schemes, 1 for the serial rows): the paper's row matched to ours.
+  The paper's threaded schemes loop n-by-n (link-cell is not threaded there), so they match our
+  all-pairs scheme rows; its serial n-by-n and link-cell match our serial rows; our link-cell
+  scheme rows have no paper row (NaN). The paper measured ellipsoids; the columns are filled
+  whatever --shape is.
+
+OUT/schemes.png is drawn from the CSV afterwards (plotting only reads records).
+"""
+import csv
+import math
+import os
+import sys
+import time
+
+import numpy as np
+from bench.run.figure import plt
+from bench.run.prepare import load_prepared
+from bench.run.records import prepare_output
+from bench.run.records import write_rows_csv
+from bench.studies.paper import table_path
+from dem.neighbor import HALF_SHELL, CellGrid, scan_rows
+from dem.timestep import choose_time_step
+from modes.parallel import SCHEMES
+from modes.serial import SerialMode
+from modes.threads import ThreadsMode
+
+PAPER_THREADS = 12
+# paper Table 1 method -> (our method, our neighbour method)
+PAPER_MAP = {"n-by-n": ("serial", "allpairs"), "link-cell": ("serial", "linkcell"),
+             "partitioning": ("partition", "allpairs"), "frog-leap": ("frogleap", "allpairs"),
+             "head-tail": ("headtail", "allpairs"), "static": ("static", "allpairs"),
+             "dynamic": ("dynamic", "allpairs")}
+FAMILY = {"serial": "serial", "partition": "parallel", "frogleap": "parallel", "headtail": "parallel",
+          "static": "parallel-for", "dynamic": "parallel-for"}
+COLUMNS = ["family", "method", "neighbor", "threads", "particles", "shape", "repeats", "detect_s", "neighbor_s",
+           "resolve_s", "speedup", "efficiency", "efficiency_own", "candidates", "tests", "work_imbalance",
+           "busy_imbalance", "paper_method", "paper_threads", "paper_speedup", "paper_efficiency"]
+NEIGHBORS = ("allpairs", "linkcell")
+
+
+def paper_table_path():
+    """The paper's Table 1 as CSV (package data: bench/studies/paper/table1_thread_schemes.csv)."""
+    return table_path("table1_thread_schemes.csv")
+
+
+def read_paper_table(path=None):
+    """{(our method, neighbour): (paper method, paper threads, paper speedup)} from the paper's
+    Table 1 CSV (columns family, method, speedup; '#' lines are comments), or None if missing."""
+    path = path or paper_table_path()
+    if not os.path.exists(path):
+        return None
+    out = {}
+    with open(path, newline="") as fh:
+        for row in csv.DictReader(line for line in fh if line.strip() and not line.lstrip().startswith("#")):
+            method = row["method"].strip()
+            if method in PAPER_MAP:
+                threads = 1 if row["family"].strip() == "serial" else PAPER_THREADS
+                out[PAPER_MAP[method]] = (method, threads, float(row["speedup"]))
+    return out
+
+
+def _ratio(a):
+    a = np.asarray(a, dtype=np.float64)
+    return float(a.max() / a.mean()) if a.size and a.mean() > 0 else 1.0
+
+
+def configurations():
+    """(method, neighbour) in table order: the two serial rows, then each scheme x neighbour."""
+    return [("serial", nb) for nb in NEIGHBORS] + [(s, nb) for s in SCHEMES for nb in NEIGHBORS]
+
+
+def _setup(scene, dt, method, neighbor, threads):
+    if method == "serial":
+        mode = SerialMode().setup(scene, dt=dt, neighbor=neighbor, skin=0.0)
+    else:
+        mode = ThreadsMode().setup(scene, dt=dt, neighbor=neighbor, threads=threads, scheme=method, skin=0.0)
+    mode.warmup()
+    pi, pj = mode.neighbour_phase()  # untimed: buffers reach their final size
+    mode.resolve_phase(pi, pj)
+    return mode
+
+
+def _detect(mode):
+    """One timed contact detection: (neighbour s, resolution s, candidates, busy imbalance)."""
+    threaded = hasattr(mode, "scan_busy")
+    if threaded:
+        import numba
+        numba.set_num_threads(mode.threads)
+    t0 = time.perf_counter()
+    pi, pj = mode.neighbour_phase()
+    t1 = time.perf_counter()
+    mode.resolve_phase(pi, pj)
+    t2 = time.perf_counter()
+    busy = _ratio(mode.scan_busy + mode.busy) if threaded else 1.0
+    return t1 - t0, t2 - t1, len(pi), busy
+
+
+def measure(scene, dt, threads, repeats, shape, log=None):
+    """Rows (dicts, COLUMNS without the paper columns) of every configuration."""
+    confs = configurations()
+    modes = []
+    for method, nb in confs:
+        if log:
+            log(f"warming up {method} {nb}")
+        modes.append(_setup(scene, dt, method, nb, threads))
+    samples = [[] for _ in confs]
+    for r in range(repeats):
+        for k, mode in enumerate(modes):
+            samples[k].append(_detect(mode))
+    rows = []
+    for (method, nb), mode, smp in zip(confs, modes, samples):
+        t_nb = np.array([s[0] for s in smp])
+        t_res = np.array([s[1] for s in smp])
+        threaded = method != "serial"
+        tests = mode.tests if threaded else None
+        rows.append({"family": FAMILY[method], "method": method, "neighbor": nb,
+                     "threads": threads if threaded else 1, "particles": scene.n, "shape": shape,
+                     "repeats": repeats,
+                     "detect_s": float(np.median(t_nb + t_res)), "neighbor_s": float(np.median(t_nb)),
+                     "resolve_s": float(np.median(t_res)), "candidates": int(smp[-1][2]),
+                     "tests": int(tests.sum()) if threaded else _serial_tests(mode),
+                     "work_imbalance": _ratio(tests) if threaded else 1.0,
+                     "busy_imbalance": float(np.median([s[3] for s in smp]))})
+    base = {nb: next(r["detect_s"] for r in rows if r["method"] == "serial" and r["neighbor"] == nb)
+            for nb in NEIGHBORS}
+    for r in rows:
+        r["speedup"] = base["allpairs"] / r["detect_s"]
+        r["efficiency"] = r["speedup"] / r["threads"]
+        r["efficiency_own"] = base[r["neighbor"]] / (r["threads"] * r["detect_s"])
+    return rows
+
+
+def _serial_tests(mode):
+    """Pair tests of a serial neighbour estimate: n(n-1)/2 for all-pairs, counted for link-cell."""
+    s = mode.state
+    grid = CellGrid(mode.neighbor, s.pos, s.rbound, s.gid)
+    rows = np.arange(s.n, dtype=np.int64)
+    empty = np.empty(0, dtype=np.int64)
+    return int(scan_rows(rows, 0, s.n, grid.scell, grid.dims, grid.cell_start, grid.cell_items, HALF_SHELL,
+                         grid.spos, grid.srb, grid.sgid, s.n_owned, empty, empty, 0)[1])
+
+
+def add_paper(rows, paper):
+    for r in rows:
+        m = (paper or {}).get((r["method"], r["neighbor"]))
+        r["paper_method"] = m[0] if m else ""
+        r["paper_threads"] = m[1] if m else ""
+        r["paper_speedup"] = m[2] if m else math.nan
+        r["paper_efficiency"] = m[2] / m[1] if m else math.nan
+    return rows
+
+
+def write_csv(path, rows):
+    write_rows_csv(path, rows, COLUMNS)
+
+
+def read_csv(path):
+    """schemes.csv rows with numbers parsed (empty -> NaN)."""
+    num = {"threads", "particles", "repeats", "detect_s", "neighbor_s", "resolve_s", "speedup", "efficiency",
+           "efficiency_own", "candidates", "tests", "work_imbalance", "busy_imbalance", "paper_threads",
+           "paper_speedup", "paper_efficiency"}
+    with open(path, newline="") as fh:
+        return [{k: (float(v) if v not in ("", None) else math.nan) if k in num else v for k, v in r.items()}
+                for r in csv.DictReader(fh)]
+
+
+def format_table(rows):
+    head = (f"{'method':10s} {'neighbor':8s} {'T':>2s} {'detect ms':>10s} {'nbr ms':>9s} {'res ms':>9s} "
+            f"{'speedup':>8s} {'eff':>6s} {'eff_own':>7s} {'work_imb':>8s} {'busy_imb':>8s} "
+            f"{'paper':>6s} {'paper_eff':>9s}")
+    lines = [head]
+    for r in rows:
+        ps = "" if math.isnan(r["paper_speedup"]) else f"{r['paper_speedup']:.2f}"
+        pe = "" if math.isnan(r["paper_efficiency"]) else f"{r['paper_efficiency']:.3f}"
+        lines.append(f"{r['method']:10s} {r['neighbor']:8s} {int(r['threads']):2d} {1e3 * r['detect_s']:10.2f} "
+                     f"{1e3 * r['neighbor_s']:9.2f} {1e3 * r['resolve_s']:9.2f} {r['speedup']:8.2f} "
+                     f"{r['efficiency']:6.3f} {r['efficiency_own']:7.3f} {r['work_imbalance']:8.3f} "
+                     f"{r['busy_imbalance']:8.3f} {ps:>6s} {pe:>9s}")
+    return lines
+
+
+def plot_schemes(csv_path, png_path):
+    """Grouped bars of parallel efficiency (speedup / threads, vs serial all-pairs) per scheme:
+    ours with all-pairs and link-cell beside the paper's (12 threads, n-by-n); read from the CSV."""
+    rows = read_csv(csv_path)
+    get = {(r["method"], r["neighbor"]): r for r in rows}
+    n, shape = int(rows[0]["particles"]), rows[0]["shape"]
+    threads = int(next(r["threads"] for r in rows if r["method"] != "serial"))
+    x = np.arange(len(SCHEMES))
+    w = 0.27
+    fig, ax = plt.subplots(figsize=(7.6, 4.4))
+    series = [(f"ours, all-pairs, {threads} threads", [get[(s, "allpairs")]["efficiency"] for s in SCHEMES], "C0"),
+              (f"ours, link-cell, {threads} threads", [get[(s, "linkcell")]["efficiency"] for s in SCHEMES], "C1"),
+              (f"paper, n-by-n, {PAPER_THREADS} threads",
+               [get[(s, "allpairs")]["paper_efficiency"] for s in SCHEMES], "0.55")]
+    top = 1.0
+    for k, (label, vals, color) in enumerate(series):
+        vals = np.asarray(vals, dtype=float)
+        if np.all(np.isnan(vals)):
+            label += " (table missing)"
+        bars = ax.bar(x + (k - 1) * w, np.nan_to_num(vals), w, label=label, color=color)
+        for b, v in zip(bars, vals):
+            if not math.isnan(v):
+                ax.text(b.get_x() + b.get_width() / 2, v, f"{v:.2f}", ha="center", va="bottom", fontsize=7)
+        top = max(top, np.nanmax(vals) if not np.all(np.isnan(vals)) else 0.0)
+    ax.axhline(1.0, color="k", lw=0.8, ls=":", label="all-pairs ideal (speedup = threads)")
+    lc = get.get(("serial", "linkcell"))
+    if lc is not None:
+        ax.axhline(lc["speedup"], color="C1", lw=0.8, ls="--",
+                   label=f"link-cell ideal: ours, serial link-cell speedup ({lc['speedup']:.2f})")
+        top = max(top, lc["speedup"])
+    ax.set_xticks(x)
+    ax.set_xticklabels(SCHEMES)
+    ax.set_ylim(0, 1.25 * top)
+    ax.set_ylabel("efficiency = speedup / threads\n(speedup vs serial all-pairs)")
+    ax.set_title(f"Contact detection (Table 1 in kind): {n} packed {shape}s, ours {threads} threads, "
+                 f"paper {PAPER_THREADS}", fontsize=9)
+    ax.legend(fontsize=7, loc="upper left", ncol=2)
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=110)
+    plt.close(fig)
+
+
+def schemes(args):
+    """Measure, write OUT/schemes.csv, draw OUT/schemes.png from it, print the table."""
+    prepare_output(args.out)
+
+    def log(msg):
+        print(f"bench schemes: {msg}", file=sys.stderr, flush=True)
+
+    paper = read_paper_table()
+    if paper is None:
+        print(f"bench schemes: paper table {os.path.normpath(paper_table_path())} not found; "
+              f"paper columns left NaN", file=sys.stderr)
+    scene = load_prepared("packed", particles=args.particles, shape=args.shape, log=log)
+    dt = choose_time_step(scene).dt
+    rows = measure(scene, dt, args.threads, args.repeats, args.shape, log=log)
+    add_paper(rows, paper)
+    csv_path = os.path.join(args.out, "schemes.csv")
+    write_csv(csv_path, rows)
+    plot_schemes(csv_path, os.path.join(args.out, "schemes.png"))
+    print("--- Table 1 in kind")
+    print(f"contact detection (neighbour estimate + resolution), {scene.n} packed {args.shape}s, "
+          f"median of {args.repeats}; speedup vs serial all-pairs; eff = speedup/T; eff_own vs serial of the "
+          f"same neighbour method; paper: {PAPER_THREADS} threads, n-by-n")
+    for line in format_table(read_csv(csv_path)):
+        print(line)
+    print(f"wrote {csv_path} and schemes.png")
+    return 0

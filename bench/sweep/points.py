@@ -1,0 +1,71 @@
+"""The points of a sweep: a mapping (and, with threads, a scheme) with the run parameters it shares.
+
+Every point runs as its own `bench run` in DIR/<key>/rep<r>/; its key names the mapping and
+scheme and hashes every parameter, so --resume recognises a point by what it runs.
+"""
+import hashlib
+import json
+from dataclasses import asdict, dataclass
+
+from modes.base import ModeError, parse_mapping
+from modes.parallel import SCHEMES
+
+SERIAL = "1-1-1-1-1"
+
+
+@dataclass(frozen=True)
+class Point:
+    """One sweep point: a mapping and, with threads, a scheme; the run parameters it shares."""
+    mapping: str
+    scheme: str
+    scene: str
+    particles: int
+    steps: int
+    warmup: int
+    neighbor: str
+    shape: str
+    pin: bool
+    halo: str
+    contact_method: str = "exact"
+
+    @property
+    def key(self):
+        """Folder name: readable mapping and scheme plus a hash of every parameter."""
+        digest = hashlib.sha1(json.dumps(asdict(self), sort_keys=True).encode()).hexdigest()[:8]
+        return f"{self.mapping}{'-' + self.scheme if self.scheme else ''}-{digest}"
+
+    def run_args(self, out, timeout):
+        args = ["run", "--scene", self.scene, "--mapping", self.mapping, "--neighbor", self.neighbor,
+                "--warmup", str(self.warmup), "--out", out, "--quiet", "--timeout", str(timeout)]
+        for flag, v in (("--particles", self.particles), ("--steps", self.steps), ("--shape", self.shape),
+                        ("--scheme", self.scheme)):
+            if v:
+                args += [flag, str(v)]
+        if self.pin:
+            args.append("--pin")
+        if self.contact_method != "exact":
+            args += ["--contact-method", self.contact_method]
+        if self.mapping.split("-")[0] != "1":
+            args += ["--halo", self.halo]
+        return args
+
+
+def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, shape, pin, halo,
+                contact_method="exact"):
+    """Points of a sweep: the serial reference first, then each mapping (x each scheme when it has
+    more than one thread), without duplicates, in the order given."""
+    for s in schemes:
+        if s not in SCHEMES:
+            raise ModeError(f"unknown scheme {s!r} (schemes: {', '.join(SCHEMES)})")
+    parsed = [parse_mapping(m) for m in mappings]  # one clear line for a malformed mapping
+    if SERIAL not in [str(m) for m in parsed]:
+        parsed.insert(0, parse_mapping(SERIAL))
+    points = []
+    for m in parsed:
+        for s in (schemes if m.threads > 1 else [""]):
+            p = Point(str(m), s, scene, particles or 0, steps or 0, warmup, neighbor, shape or "", pin, halo,
+                      contact_method)
+            if p not in points:
+                points.append(p)
+    points.sort(key=lambda p: p.mapping != SERIAL)  # the reference runs first
+    return points

@@ -1,0 +1,254 @@
+"""The records of a sweep: the runs.csv contract, one row per point from its run folders, the
+manifest, the Amdahl fit, and reading them back (`read_runs`, `load`).
+
+Module times per point (DESIGN.md): totalT = mean over steps of the max over ranks, commuT and
+migraT = mean over steps of the per-rank mean, compuT = totalT - commuT - migraT; syncT = mean
+over steps of the per-rank mean of syncT (the step's one allreduce, part of commuT: waiting for
+the slowest rank + the collective's latency; NaN without MPI or when steps.csv has no syncT);
+wireT = mean over steps of the per-rank mean of wire_s (the modelled wire time of what a rank
+sent, modes/wire.py), above_wireT = commuT + migraT - syncT - wireT (the software above the wire
+in the exchanges; commuT + migraT - wireT where syncT is NaN, older records; both NaN without
+MPI or when steps.csv has no wire_s); with --repeats R the median over the R runs.
+"""
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from dataclasses import asdict
+
+import numpy as np
+
+from modes.base import parse_mapping
+
+RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores", "scheme", "neighbor", "scene",
+               "particles", "steps", "repeats", "status", "reason", "totalT", "commuT", "migraT", "compuT",
+               "syncT", "wireT", "above_wireT", "neighborT", "resolveT", "overhead_pct", "speedup", "efficiency", "edsf", "rss_mb", "err_max",
+               "err_rms", "stable", "wall_s", "load_before", "load_after", "contact_method"]
+
+
+TEXT_COLUMNS = ("point", "mapping", "scheme", "neighbor", "scene", "status", "reason", "stable", "contact_method")
+
+
+NUMERIC_COLUMNS = [c for c in RUN_COLUMNS if c not in TEXT_COLUMNS]
+
+
+def read_runs(directory):
+    """DIR/runs.csv as a DataFrame with every column of RUN_COLUMNS (NaN where absent), numbers
+    parsed, text columns as str ('' for empty), procs/threads/cores filled from the mapping string
+    when empty, and a `family` column (serial, threads, MPI, hybrid)."""
+    import pandas as pd
+    path = os.path.join(directory, "runs.csv")
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"{path}: no runs.csv (run `bench sweep` first)")
+    df = pd.read_csv(path, keep_default_na=True)
+    for c in RUN_COLUMNS:
+        if c not in df:
+            df[c] = math.nan
+    for c in NUMERIC_COLUMNS:
+        df[c] = pd.to_numeric(df[c], errors="coerce").astype(float)
+    for c in TEXT_COLUMNS:
+        df[c] = df[c].map(lambda v: "" if v is None or (isinstance(v, float) and math.isnan(v)) else str(v).strip())
+    for i, m in df["mapping"].items():
+        parts = m.strip().split("-")
+        if len(parts) == 5 and all(p.isdigit() for p in parts):
+            p, px, py, pz, t = (float(x) for x in parts)
+            for col, v in (("procs", p), ("px", px), ("py", py), ("pz", pz), ("threads", t)):
+                if math.isnan(df.at[i, col]):
+                    df.at[i, col] = v
+    miss = df["cores"].isna()
+    df.loc[miss, "cores"] = df.loc[miss, "procs"] * df.loc[miss, "threads"]
+    # a row without a status counts as done when it has a time
+    nostat = df["status"] == ""
+    df.loc[nostat, "status"] = np.where(np.isfinite(df.loc[nostat, "totalT"]), "done", "unknown")
+    df["family"] = [family(p, t) for p, t in zip(df["procs"], df["threads"])]
+    return df
+
+
+def family(procs, threads):
+    """serial, threads (1 process), MPI (1 thread) or hybrid."""
+    if not (np.isfinite(procs) and np.isfinite(threads)):
+        return "hybrid" if np.isfinite(procs) and procs > 1 else "threads"
+    if procs == 1 and threads == 1:
+        return "serial"
+    if procs == 1:
+        return "threads"
+    return "MPI" if threads == 1 else "hybrid"
+
+
+def module_times(steps):
+    """Per-step module times of one run (DESIGN.md): dict of totalT, commuT, migraT, compuT,
+    syncT (mean over steps of the per-rank mean of syncT [s], the allreduce inside commuT; NaN
+    without a syncT column or with it empty, as serial and thread runs leave it), wireT (mean
+    over steps of the per-rank mean of wire_s [s]; NaN without a wire_s column), above_wireT =
+    commuT + migraT - syncT - wireT [s] (the software above the wire in the exchanges; commuT +
+    migraT - wireT when syncT is NaN; NaN when wireT is), neighborT, resolveT, rss_mb."""
+    g = steps.groupby("step")
+    total = g["totalT"].max()
+    commu = g["commuT"].mean()
+    migra = g["migraT"].mean()
+    out = {"totalT": float(total.mean()), "commuT": float(commu.mean()), "migraT": float(migra.mean())}
+    out["compuT"] = out["totalT"] - out["commuT"] - out["migraT"]
+    # the wire under commuT + migraT (issue 11): absent from older steps.csv files
+    import pandas as pd
+    # and the allreduce inside commuT (syncT): absent from older ones, empty without MPI
+    for col, key in (("wire_s", "wireT"), ("syncT", "syncT")):
+        v = pd.to_numeric(steps[col], errors="coerce") if col in steps else None
+        if v is not None and v.notna().any():
+            out[key] = float(v.groupby(steps["step"]).mean().mean())
+        else:
+            out[key] = math.nan
+    sync = out["syncT"] if math.isfinite(out["syncT"]) else 0.0  # older records: the old definition
+    out["above_wireT"] = out["commuT"] + out["migraT"] - sync - out["wireT"]
+    out["neighborT"] = float(g["neighborT"].max().mean())
+    out["resolveT"] = float(g["resolveT"].max().mean())
+    out["rss_mb"] = float(steps["rss_mb"].max()) if "rss_mb" in steps else math.nan
+    return out
+
+
+def state_error(ref, got):
+    """err_max, err_rms of final positions over the mean bounding radius (0 when bit-identical)."""
+    if ref is None or got is None or not np.array_equal(ref["id"], got["id"]):
+        return math.nan, math.nan
+    d = np.linalg.norm(got["pos"] - ref["pos"], axis=1) / float(ref["axes"].max(axis=1).mean())
+    return float(d.max()), float(np.sqrt(np.mean(d ** 2)))
+
+
+def summarise(point, rep_dirs, ref_state, t1):
+    """One runs.csv row from the repeat folders of a point."""
+    import pandas as pd
+    m = parse_mapping(point.mapping)
+    row = {c: math.nan for c in RUN_COLUMNS}
+    row.update(point=point.key, mapping=point.mapping, procs=m.procs, px=m.px, py=m.py, pz=m.pz, threads=m.threads,
+               cores=m.procs * m.threads, scheme=point.scheme, neighbor=point.neighbor, scene=point.scene,
+               contact_method=point.contact_method,
+               repeats=len(rep_dirs), status="done", reason="")
+    times, walls = [], []
+    state = None
+    for d in rep_dirs:
+        status = read_status(d)
+        if status["status"] != "done":
+            row.update(status=status["status"], reason=status["reason"])
+            return row
+        info = json.load(open(os.path.join(d, "run.json")))
+        times.append(module_times(pd.read_csv(os.path.join(d, "steps.csv"))))
+        walls.append(info.get("wall_s", math.nan))
+        row.update(particles=info["particles"], steps=info["steps"], stable=info["stable"])
+        state = dict(np.load(os.path.join(d, "state.npz")))
+    for k in times[0]:
+        row[k] = float(np.median([t[k] for t in times]))
+    if m.procs == 1:  # no MPI, no wire, no allreduce (a serial steps.csv may carry wire_s = 0)
+        row["syncT"] = row["wireT"] = row["above_wireT"] = math.nan
+    row["wall_s"] = float(np.median(walls))
+    row["overhead_pct"] = 100.0 * (row["commuT"] + row["migraT"]) / row["totalT"] if row["totalT"] > 0 else math.nan
+    with_speedup(row, t1)
+    row["err_max"], row["err_rms"] = state_error(ref_state, state)
+    return row
+
+
+def with_speedup(row, t1):
+    """Set speedup T(1)/T(p), efficiency = speedup / p and the Karp-Flatt EDSF
+    (1/S - 1/p) / (1 - 1/p) of a done row against the serial totalT t1 (p = cores); no-op without
+    t1 or a time."""
+    if not t1 or row["status"] != "done" or not row["totalT"] == row["totalT"]:
+        return row
+    s = t1 / float(row["totalT"])
+    p = int(row["cores"])
+    row.update(speedup=s, efficiency=s / p, edsf=(1 / s - 1 / p) / (1 - 1 / p) if p > 1 else math.nan)
+    return row
+
+
+def read_status(d):
+    """status and reason of one run folder from its files (status.json, written by the local
+    launcher; else judged by run.json)."""
+    path = os.path.join(d, "status.json")
+    if os.path.exists(path):
+        return json.load(open(path))
+    # a folder filled by a batch job: judge by run.json
+    run = os.path.join(d, "run.json")
+    if os.path.exists(run):
+        info = json.load(open(run))
+        if info.get("status") == "done" and os.path.exists(os.path.join(d, "state.npz")):
+            return {"status": "done", "reason": ""}
+        if info.get("stable") is False:
+            return {"status": "unstable", "reason": info.get("stability_reason") or "unstable"}
+    return {"status": "failed", "reason": "no result (not run, interrupted or crashed)"}
+
+
+def write_runs(path, rows):
+    """runs.csv, atomically (tmp file + rename): an interrupted sweep never leaves half a file."""
+    import pandas as pd
+    tmp = path + ".tmp"
+    pd.DataFrame(rows, columns=RUN_COLUMNS).to_csv(tmp, index=False)
+    os.replace(tmp, path)
+
+
+def manifest(out, points):
+    """DIR/manifest.json: versions, MPI library, numba threading layer, CPU, git commit."""
+    import platform
+    info = {"python": sys.version.split()[0], "platform": platform.platform(), "cpu_count": os.cpu_count(),
+            "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "points": [asdict(p) | {"key": p.key} for p in points]}
+    try:
+        info["usable_cpus"] = len(os.sched_getaffinity(0))
+    except AttributeError:
+        pass
+    for mod in ("numpy", "numba", "mpi4py", "pandas", "matplotlib", "psutil", "llvmlite"):
+        try:
+            info[mod] = __import__(mod).__version__
+        except Exception:  # noqa: BLE001  (a missing optional package is just not listed)
+            info[mod] = None
+    try:
+        with open("/proc/cpuinfo") as fh:
+            info["cpu_model"] = next((l.split(":", 1)[1].strip() for l in fh if l.startswith("model name")), None)
+    except OSError:
+        info["cpu_model"] = None
+    try:
+        info["mpi_library"] = subprocess.run([sys.executable, "-c", "from mpi4py import MPI; "
+                                              "print(MPI.Get_library_version().splitlines()[0])"],
+                                             capture_output=True, text=True, timeout=60).stdout.strip()
+    except Exception:  # noqa: BLE001
+        info["mpi_library"] = None
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    try:
+        info["git_commit"] = subprocess.run(["git", "-C", root, "rev-parse", "HEAD"], capture_output=True,
+                                            text=True, timeout=10).stdout.strip() or None
+    except Exception:  # noqa: BLE001
+        info["git_commit"] = None
+    return info
+
+
+def amdahl(rows):
+    """Least-squares Amdahl serial fraction f from 1/S = f (1 - 1/p) + 1/p over the done points
+    with p > 1 cores (p = processes x threads)."""
+    pts = [(float(r["speedup"]), int(r["cores"])) for r in rows
+           if r["status"] == "done" and int(r["cores"]) > 1 and r["speedup"] == r["speedup"]]
+    if not pts:
+        return {"serial_fraction": None, "points": 0}
+    x = np.array([1 - 1 / p for _, p in pts])
+    y = np.array([1 / s - 1 / p for s, p in pts])
+    f = float(np.dot(x, y) / np.dot(x, x))
+    out = {"serial_fraction": f, "points": len(pts), "valid": 0.0 <= f <= 1.0,
+           "model": "1/S = f (1 - 1/p) + 1/p, least squares over points with p > 1"}
+    if not out["valid"]:
+        out["note"] = ("f outside [0, 1]: the points are not Amdahl-limited (slower than serial, e.g. a "
+                       "loaded or oversubscribed machine, or superlinear); do not read f as a serial fraction")
+    return out
+
+
+def load(path):
+    """(runs, steps) DataFrames of a sweep folder; steps gathers every point's steps.csv with
+    `point` and `rep` columns."""
+    import pandas as pd
+    runs = pd.read_csv(os.path.join(path, "runs.csv"))
+    frames = []
+    for key in runs["point"]:
+        pdir = os.path.join(path, key)
+        if not os.path.isdir(pdir):
+            continue
+        for rep in sorted(os.listdir(pdir)):
+            f = os.path.join(pdir, rep, "steps.csv")
+            if os.path.exists(f):
+                frames.append(pd.read_csv(f).assign(point=key, rep=rep))
+    steps = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+    return runs, steps

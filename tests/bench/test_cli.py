@@ -1,0 +1,117 @@
+"""`bench` command line: contracts (files, columns) and error paths (one line, exit 2)."""
+import json
+import os
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tests.helpers import GOOD, bench, one_line_error, write
+
+
+def test_run_writes_contract_files(tmp_path):
+    """run.json (dt, dt_critical, stable, max_overlap_ratio), steps.csv (DESIGN.md columns, one row
+    per step and rank), state.npz (id, pos [n,3], quat [n,4], vel, omega sorted by id)."""
+    scene = write(tmp_path, GOOD)
+    out = tmp_path / "run"
+    res = bench("run", "--scene", scene, "--steps", "15", "--out", str(out), "--snapshot-every", "5")
+    assert res.returncode == 0, res.stderr
+    info = json.loads((out / "run.json").read_text())
+    for key in ("dt", "dt_critical", "stable", "max_overlap_ratio"):
+        assert key in info
+    assert info["stable"] is True and info["dt"] <= info["dt_critical"]
+    steps = pd.read_csv(out / "steps.csv")
+    for col in ("step", "rank", "totalT", "commuT", "migraT", "compuT", "neighborT", "resolveT",
+                "n_owned", "n_ghost", "n_contacts", "n_migrated", "bytes_sent"):
+        assert col in steps.columns
+    assert list(steps["step"]) == list(range(1, 16))
+    st = np.load(out / "state.npz")
+    assert st["pos"].shape == (2, 3) and st["quat"].shape == (2, 4)
+    assert st["vel"].shape == (2, 3) and st["omega"].shape == (2, 3)
+    assert list(st["id"]) == [0, 1]
+    snaps = sorted(os.listdir(out / "snapshots"))
+    assert snaps == ["step00000005.npz", "step00000005.vtk", "step00000010.npz", "step00000010.vtk",
+                     "step00000015.npz", "step00000015.vtk"]
+    vtk = (out / "snapshots" / "step00000005.vtk").read_text()
+    assert "POINTS 2 double" in vtk and "SCALARS quat double 4" in vtk and "VECTORS axes double" in vtk
+
+
+def test_contacts_json(tmp_path):
+    """`bench contacts`: i < j file-order ids, unit normal from i to j, positive depth.
+    Two spheres r = 1 mm, centres 1.9 mm apart on x: depth 0.1 mm, normal +x."""
+    text = GOOD.split("[[particles]]")[0] + """
+[[particles]]
+shape = "sphere"
+axes = [1e-3]
+pos = [0.01, 0.01, 0.01]
+[[particles]]
+shape = "sphere"
+axes = [1e-3]
+pos = [0.0119, 0.01, 0.01]
+[[particles]]
+shape = "sphere"
+axes = [1e-3]
+pos = [0.005, 0.005, 0.03]
+"""
+    res = bench("contacts", write(tmp_path, text))
+    assert res.returncode == 0, res.stderr
+    rows = json.loads(res.stdout)
+    assert len(rows) == 1
+    c = rows[0]
+    assert (c["i"], c["j"]) == (0, 1)
+    assert c["depth"] == pytest.approx(1e-4, rel=1e-9)
+    assert c["normal"] == pytest.approx([1.0, 0.0, 0.0])
+    assert c["point"] == pytest.approx([0.01095, 0.01, 0.01])
+
+
+def test_scenes_lists_builtins():
+    res = bench("scenes")
+    assert res.returncode == 0
+    for name in ("patch162", "pluviation", "packed"):
+        assert name in res.stdout
+
+
+BAD_SCENES = [
+    ("[domain\nbox=1", "malformed TOML"),
+    (GOOD.replace('shape = "sphere"', 'shape = "cube"'), "unknown shape 'cube'"),
+    (GOOD.replace('pos = [0.01179, 0.01, 0.0011]', 'pos = [0.01179, 0.01, 0.0011]\nmaterial = "steel"'),
+     "unknown material 'steel'"),
+    (GOOD.replace("axes = [8e-4]", "axes = [-8e-4]"), "axes must be positive"),
+    (GOOD.replace("axes = [1e-3, 8e-4, 6e-4]", "axes = [1e-3, 0.0, 6e-4]"), "axes must be positive"),
+    (GOOD.replace("density = 2650.0", "density = -1.0"), "density must be positive"),
+    (GOOD.replace("pos = [0.01, 0.01, 0.0011]", "pos = [0.05, 0.01, 0.0011]"), "outside the box"),
+    (GOOD.replace("pos = [0.01, 0.01, 0.0011]", "pos = [0.01, 0.01, 0.0005]"), "overlaps a wall"),
+    (GOOD.replace('walls = ["x-"', 'walls = ["w-"'), "unknown wall 'w-'"),
+    (GOOD.replace("friction = 0.5", "friction = 0.5\ncolour = 1"), "unknown key 'colour'"),
+    (GOOD.replace("steps = 20", "steps = -3"), "time.steps"),
+]
+
+
+@pytest.mark.parametrize("text,words", BAD_SCENES, ids=[w for _, w in BAD_SCENES])
+def test_bad_scene_one_line_exit_2(tmp_path, text, words):
+    """Bad scenes: one line naming the problem, exit 2, no traceback (issue 2, item 11)."""
+    one_line_error(bench("run", "--scene", write(tmp_path, text), "--out", str(tmp_path / "o")), words)
+
+
+@pytest.mark.parametrize("args,words", [
+    (["run", "--scene", "nosuch"], "unknown scene 'nosuch'"),
+    (["run", "--scene", "patch162", "--frobnicate"], "unrecognized arguments: --frobnicate"),
+    (["run", "--scene", "patch162", "--mapping", "9-3-3-2-4"], "px*py*pz"),
+    (["run", "--scene", "patch162", "--mapping", "two"], "malformed mapping"),
+    (["run", "--scene", "patch162", "--mapping", "1-1-1-1-0"], "T must be >= 1"),
+    (["run", "--scene", "patch162", "--mapping", "18-18-1-1-1"], "use fewer blocks along x"),
+    (["run", "--scene", "patch162", "--steps", "x"], "--steps"),
+    (["run", "--scene", "patch162", "--neighbor", "octree"], "--neighbor"),
+    (["run", "--scene", "patch162", "--shape", "cube"], "--shape"),
+    (["run", "--scene", "patch162", "--dt", "1.0", "--steps", "1"], "exceeds the critical step"),
+    (["bogus"], "invalid choice"),
+])
+def test_bad_options_one_line_exit_2(tmp_path, args, words):
+    """Bad options, mappings and time steps: one clear line, exit 2 (items 6, 10, 11)."""
+    one_line_error(bench(*args, "--out", str(tmp_path / "o")) if args[0] == "run" else bench(*args), words)
+
+
+def test_unwritable_output(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    one_line_error(bench("run", "--scene", write(tmp_path, GOOD), "--out", str(blocker / "sub")), "not writable")

@@ -1,0 +1,79 @@
+"""`bench schemes` end to end (Table 1 in kind): one row per configuration, the paper's columns,
+and the per-thread work split of the explicit schemes; no timing assertions."""
+import csv
+import math
+import os
+import subprocess
+import sys
+
+from tests.helpers import ROOT
+
+PAPER = os.path.join(ROOT, "bench", "studies", "paper", "table1_thread_schemes.csv")  # the paper's Table 1, package data
+SCHEMES = ("partition", "frogleap", "headtail", "static", "dynamic")
+N, T = 300, 2
+
+
+def _rows_tests(n, rows):
+    """All-pairs pair tests of outer rows u (i against j > i): n - 1 - u each."""
+    return sum(n - 1 - u for u in rows)
+
+
+def test_schemes_command(tmp_path):
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONPATH=ROOT, DEM_BENCH_CACHE=str(tmp_path / "cache"))
+    res = subprocess.run([sys.executable, "-m", "bench", "schemes", "--particles", str(N), "--threads", str(T),
+                          "--repeats", "2", "--out", str(out)], capture_output=True, text=True, cwd=ROOT,
+                         timeout=600, env=env)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.splitlines()[0] == "--- Table 1 in kind"
+
+    with open(out / "schemes.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    for col in ("family", "method", "neighbor", "threads", "particles", "detect_s", "neighbor_s", "resolve_s",
+                "speedup", "efficiency", "work_imbalance", "busy_imbalance", "paper_speedup", "paper_efficiency"):
+        assert col in rows[0], col
+    got = {(r["method"], r["neighbor"]): r for r in rows}
+    want = [("serial", nb) for nb in ("allpairs", "linkcell")] + \
+           [(s, nb) for s in SCHEMES for nb in ("allpairs", "linkcell")]
+    assert len(rows) == 12 and sorted(got) == sorted(want)
+    for r in rows:
+        assert int(r["threads"]) == (1 if r["method"] == "serial" else T)
+        assert float(r["detect_s"]) > 0 and float(r["speedup"]) > 0
+    assert float(got[("serial", "allpairs")]["speedup"]) == 1.0
+    assert float(got[("serial", "linkcell")]["work_imbalance"]) == 1.0
+
+    # work split (pair tests per thread) of all-pairs, i against j > i over n rows
+    n = int(got[("serial", "allpairs")]["particles"])
+    assert int(got[("serial", "allpairs")]["tests"]) == n * (n - 1) // 2
+    # partition: thread t takes rows [t n/T, (t+1) n/T); at n = 300, T = 2 thread 0 makes
+    # 33675 of the 44850 tests, so max/mean = 33675 / 22425 = 1.50167 (-> 3/2 as n grows)
+    bounds = [(t * n) // T for t in range(T + 1)]
+    per = [_rows_tests(n, range(bounds[t], bounds[t + 1])) for t in range(T)]
+    expected = max(per) / (sum(per) / T)
+    assert abs(expected - 1.5) < 0.05
+    assert math.isclose(float(got[("partition", "allpairs")]["work_imbalance"]), expected, rel_tol=1e-4)
+    assert abs(float(got[("partition", "allpairs")]["work_imbalance"]) - 1.5) <= 0.05
+    # head-tail: row pairs (k, n-1-k) cost n-1 each, 1.0; frog-leap: rows t, t+T, ... 22500 / 22425
+    for scheme in ("headtail", "frogleap"):
+        assert abs(float(got[(scheme, "allpairs")]["work_imbalance"]) - 1.0) <= 0.02, scheme
+
+    # the paper's Table 1 maps onto our all-pairs scheme rows and the two serial rows
+    ours = {"n-by-n": ("serial", "allpairs"), "link-cell": ("serial", "linkcell"),
+            "partitioning": ("partition", "allpairs"), "frog-leap": ("frogleap", "allpairs"),
+            "head-tail": ("headtail", "allpairs"), "static": ("static", "allpairs"),
+            "dynamic": ("dynamic", "allpairs")}
+    with open(PAPER, newline="") as fh:
+        paper = list(csv.DictReader(l for l in fh if l.strip() and not l.startswith("#")))
+    assert len(paper) == 7
+    for p in paper:
+        r = got[ours[p["method"]]]
+        assert math.isclose(float(r["paper_speedup"]), float(p["speedup"]), rel_tol=1e-9), p
+        threads = 1 if p["family"] == "serial" else 12
+        assert math.isclose(float(r["paper_efficiency"]), float(p["speedup"]) / threads, rel_tol=1e-5), p
+    assert float(got[("dynamic", "allpairs")]["paper_speedup"]) == 11.15
+    for s in SCHEMES:
+        assert math.isnan(float(got[(s, "linkcell")]["paper_speedup"]))
+        assert math.isnan(float(got[(s, "linkcell")]["paper_efficiency"]))
+
+    png = out / "schemes.png"
+    assert png.exists() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -1,0 +1,185 @@
+"""`bench sweep` end to end: records, metrics, resume, failures, Slurm scripts, collect, bad input."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tests.helpers import ROOT, bench, one_line_error
+
+SMALL = ["--scene", "pluviation", "--particles", "200", "--steps", "15"]
+
+
+def sweep(tmp_path, *args, name="sw"):
+    out = tmp_path / name
+    res = bench("sweep", *SMALL, "--out", str(out), *args, timeout=900)
+    return res, out
+
+
+def test_sweep_records_metrics_figures(tmp_path):
+    """Serial, threads and MPI points: runs.csv (one row each, the contract's columns), speedup 1
+    for the serial reference and S = T1/T elsewhere, err_max 0 for every bit-identical mode,
+    manifest.json with versions and load averages, figures, and bench.load."""
+    res, out = sweep(tmp_path, "--mappings", "1-1-1-1-2,2-2-1-1-1", "--schemes", "frogleap")
+    assert res.returncode == 0, res.stderr + res.stdout
+    assert "point 3/3" in res.stdout and "estimate" in res.stdout
+    runs = pd.read_csv(out / "runs.csv")
+    assert runs["mapping"].tolist() == ["1-1-1-1-1", "1-1-1-1-2", "2-2-1-1-1"]
+    for col in ("mapping", "procs", "px", "py", "pz", "threads", "scheme", "neighbor", "scene", "particles",
+                "steps", "totalT", "commuT", "migraT", "compuT", "overhead_pct", "speedup", "efficiency",
+                "edsf", "rss_mb", "err_max", "err_rms", "stable", "wall_s"):
+        assert col in runs.columns, col
+    assert (runs["status"] == "done").all()
+    assert runs.loc[0, "speedup"] == 1.0
+    t1 = runs.loc[0, "totalT"]
+    assert np.allclose(runs["speedup"], t1 / runs["totalT"])
+    assert np.allclose(runs["efficiency"], runs["speedup"] / runs["cores"])
+    assert (runs["err_max"] == 0).all() and (runs["err_rms"] == 0).all()  # bit-identical modes
+    assert np.allclose(runs["compuT"], runs["totalT"] - runs["commuT"] - runs["migraT"])
+    man = json.loads((out / "manifest.json").read_text())
+    for key in ("numpy", "numba", "mpi4py", "mpi_library", "cpu_count", "cpu_model", "git_commit", "load"):
+        assert key in man
+    assert man["numba_threading_layer"] == ["omp"] or man["numba_threading_layer"][0] in ("tbb", "workqueue")
+    assert len(man["load"]) == 3
+    for fig in ("speedup.png", "efficiency.png", "edsf.png", "modules.png", "error_vs_time.png"):
+        assert (out / fig).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    point = out / runs.loc[2, "point"] / "rep0"
+    for f in ("cmd.txt", "stdout.txt", "stderr.txt", "run.json", "steps.csv", "state.npz"):
+        assert (point / f).exists(), f
+    sys.path.insert(0, ROOT)
+    import bench as api
+    r, s = api.load(str(out))
+    assert len(r) == 3 and set(s["point"]) == set(r["point"]) and len(s) == 15 * (1 + 1 + 2)
+
+
+def test_resume_after_killed_sweep(tmp_path):
+    """Kill a sweep after its first point; runs.csv stays consistent; --resume runs only the rest
+    and the result has every point exactly once."""
+    out = tmp_path / "killed"
+    args = [sys.executable, "-m", "bench", "sweep", *SMALL, "--steps", "400", "--mappings",
+            "1-1-1-1-2,2-2-1-1-1", "--out", str(out)]
+    proc = subprocess.Popen(args, cwd=ROOT, env=dict(os.environ, PYTHONPATH=ROOT), start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 300
+    while time.time() < deadline:
+        if (out / "runs.csv").exists() and len(pd.read_csv(out / "runs.csv")) >= 1:
+            break
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    partial = pd.read_csv(out / "runs.csv")
+    assert 1 <= len(partial) < 3 and (partial["status"] == "done").all()
+    first = out / partial.loc[0, "point"] / "rep0" / "cmd.txt"
+    stamp = first.stat().st_mtime_ns
+    res = bench("sweep", *SMALL, "--steps", "400", "--mappings", "1-1-1-1-2,2-2-1-1-1", "--out", str(out),
+                "--resume", timeout=900)
+    assert res.returncode == 0, res.stderr
+    runs = pd.read_csv(out / "runs.csv")
+    assert sorted(runs["mapping"]) == ["1-1-1-1-1", "1-1-1-1-2", "2-2-1-1-1"]
+    assert runs["point"].is_unique and (runs["status"] == "done").all()
+    assert first.stat().st_mtime_ns == stamp  # the finished point was not run again
+
+
+def test_failed_point_is_recorded_and_sweep_goes_on(tmp_path):
+    """A point that cannot run (blocks narrower than a particle) is recorded as failed with its
+    reason; the later points still run; the exit status says some point failed."""
+    res, out = sweep(tmp_path, "--mappings", "16-16-1-1-1,2-2-1-1-1")
+    assert res.returncode == 4
+    runs = pd.read_csv(out / "runs.csv").set_index("mapping")
+    assert runs.loc["16-16-1-1-1", "status"] == "failed"
+    assert "use fewer blocks along x" in runs.loc["16-16-1-1-1", "reason"]
+    assert runs.loc["2-2-1-1-1", "status"] == "done"
+
+
+def test_timeout_is_recorded(tmp_path):
+    res, out = sweep(tmp_path, "--mappings", "1-1-1-1-1", "--steps", "10000000", "--timeout", "3")
+    runs = pd.read_csv(out / "runs.csv")
+    assert runs.loc[0, "status"] == "timeout"
+
+
+def test_slurm_scripts_and_dry_run(tmp_path):
+    """--launcher slurm writes one sbatch script per point with srun --ntasks/--cpus-per-task/
+    --cpu-bind and the thread variables (P > 1: the MPI rank program), plus submit.sh."""
+    res, out = sweep(tmp_path, "--mappings", "1-1-1-1-2,4-2-2-1-3", "--launcher", "slurm", "--pin")
+    assert res.returncode == 0, res.stderr
+    submit = (out / "submit.sh").read_text()
+    assert submit.count("sbatch ") == 3
+    scripts = {p: (out / p / "job.sbatch").read_text() for p in os.listdir(out) if (out / p / "job.sbatch").exists()}
+    hybrid = next(t for t in scripts.values() if "4-2-2-1-3" in t)
+    assert "#SBATCH --ntasks=4" in hybrid and "#SBATCH --cpus-per-task=3" in hybrid
+    assert "srun --ntasks=4 --cpus-per-task=3 --cpu-bind=cores" in hybrid
+    assert "export NUMBA_NUM_THREADS=3" in hybrid and "export OMP_PROC_BIND=close" in hybrid
+    assert "-m mpi4py -m bench.run.rank" in hybrid and "--steps 0" in hybrid
+    serial = next(t for t in scripts.values() if "job-name=dem-1-1-1-1-1" in t)
+    assert "#SBATCH --ntasks=1" in serial and "-m bench run" in serial
+    assert not (out / "runs.csv").exists()
+    res = bench("sweep", *SMALL, "--mappings", "2-2-1-1-1", "--dry-run", "--out", str(tmp_path / "dry"))
+    assert res.returncode == 0 and "NUMBA_NUM_THREADS=1" in res.stdout and "--mapping 2-2-1-1-1" in res.stdout
+    assert not any((tmp_path / "dry").rglob("run.json"))
+
+
+def test_collect_rebuilds_runs_csv(tmp_path):
+    """bench collect gathers the point folders (as Slurm jobs leave them) into the same rows."""
+    res, out = sweep(tmp_path, "--mappings", "2-2-1-1-1")
+    assert res.returncode == 0, res.stderr
+    before = pd.read_csv(out / "runs.csv")
+    os.remove(out / "runs.csv")
+    for st in out.rglob("status.json"):
+        os.remove(st)  # batch jobs write no status.json: collect judges by run.json
+    res = bench("collect", str(out))
+    assert res.returncode == 0, res.stderr
+    after = pd.read_csv(out / "runs.csv")
+    assert after["status"].tolist() == ["done", "done"]
+    assert np.allclose(after["totalT"], before["totalT"]) and (after["err_max"] == 0).all()
+
+
+def test_sweep_file(tmp_path):
+    f = tmp_path / "sweep.toml"
+    f.write_text('[sweep]\nmappings = ["2-2-1-1-1"]\nscene = "pluviation"\nparticles = 200\nsteps = 10\n'
+                 f'out = "{tmp_path / "fromfile"}"\n')
+    res = bench("sweep", "--file", str(f))
+    assert res.returncode == 0, res.stderr
+    assert len(pd.read_csv(tmp_path / "fromfile" / "runs.csv")) == 2
+
+
+@pytest.mark.parametrize("mappings,words", [("1-1-1-1-1,9-3-3-2-4", "px*py*pz"), ("1-1-1-1-0", "T must be >= 1"),
+                                            ("two", "malformed mapping 'two'")])
+def test_bad_mapping_one_line_nothing_lost(tmp_path, mappings, words):
+    """A malformed mapping: one line, exit 2, and an existing runs.csv is left as it was."""
+    out = tmp_path / "keep"
+    out.mkdir()
+    (out / "runs.csv").write_text("precious\n")
+    one_line_error(bench("sweep", *SMALL, "--mappings", mappings, "--out", str(out)), words)
+    assert (out / "runs.csv").read_text() == "precious\n"
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--scene", "nosuch", "--mappings", "1-1-1-1-1"], "unknown scene 'nosuch'"),
+    (["--scene", "pluviation", "--mappings", "1-1-1-1-2", "--schemes", "roundrobin"], "unknown scheme"),
+    (["--scene", "pluviation", "--mappings", "1-1-1-1-1", "--repeats", "0"], "--repeats"),
+])
+def test_bad_sweep_options(tmp_path, args, words):
+    one_line_error(bench("sweep", *args, "--out", str(tmp_path / "o")), words)
+
+
+def test_unwritable_sweep_folder(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    one_line_error(bench("sweep", *SMALL, "--mappings", "1-1-1-1-1", "--out", str(blocker / "sub")), "not writable")
+
+
+def test_contact_method_reaches_every_point(tmp_path):
+    """`bench sweep --contact-method sextic` (the paper's method under every mapping): each point's
+    command carries it (dry run), and a bad name is one line, exit 2."""
+    res = bench("sweep", *SMALL, "--mappings", "1-1-1-1-2,2-2-1-1-1", "--contact-method", "sextic", "--dry-run",
+                "--out", str(tmp_path / "dry"))
+    assert res.returncode == 0, res.stderr
+    runs = [line for line in res.stdout.splitlines() if "--mapping" in line]
+    assert len(runs) == 3 and all("--contact-method sextic" in line for line in runs), res.stdout
+    one_line_error(bench("sweep", *SMALL, "--mappings", "1-1-1-1-2", "--contact-method", "cubic", "--out",
+                         str(tmp_path / "bad")), "contact-method")

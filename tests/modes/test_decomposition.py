@@ -1,0 +1,130 @@
+"""Block decomposition and halo packing, tested without MPI (no mpiexec): the geometry that decides
+who owns a particle and who receives it as a ghost (Yan & Regueiro §3), and the bit-exact
+packing of ghost rows and forward messages (modes/halo.py)."""
+import numpy as np
+import pytest
+
+from dem.state import State
+from modes.decomposition import (DIRECTIONS, OPPOSITE, BlockGrid, DecompositionError, border_width,
+                                 direction_of, fit_skin, send_masks)
+from modes.halo import GHOST_GENERAL, GHOST_SPHERE, _columns, _split, pack_moving, unpack_moving
+
+UNIT = ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+
+
+def test_directions_and_opposites():
+    """The 26 offsets of {-1, 0, 1}^3 without 0, each once; direction k's opposite is 25 - k and
+    is its negation."""
+    assert DIRECTIONS.shape == (26, 3)
+    assert len({tuple(d) for d in DIRECTIONS}) == 26
+    assert not np.any(np.all(DIRECTIONS == 0, axis=1))
+    assert np.array_equal(OPPOSITE, 25 - np.arange(26))
+    assert np.array_equal(DIRECTIONS[OPPOSITE], -DIRECTIONS)
+
+
+def test_owner_of_a_centre():
+    """Owner = floor of the scaled coordinate: a centre exactly on the face x = 0.5 of a 2x1x1 grid
+    belongs to the upper block (1); centres outside the box belong to the nearest edge block."""
+    g = BlockGrid(UNIT, (2, 1, 1))
+    pos = np.array([[0.5, 0.5, 0.5], [0.4999, 0.5, 0.5], [-0.1, 0.5, 0.5], [1.2, 0.5, 0.5], [0.7, -3.0, 9.0]])
+    assert g.block_of(pos).tolist() == [[1, 0, 0], [0, 0, 0], [0, 0, 0], [1, 0, 0], [1, 0, 0]]
+    lo, hi = g.bounds((1, 0, 0))
+    assert lo.tolist() == [0.5, 0.0, 0.0] and hi.tolist() == [1.0, 1.0, 1.0]
+    assert g.neighbour((1, 0, 0), int(np.flatnonzero((DIRECTIONS == (1, 0, 0)).all(axis=1))[0])) is None
+
+
+def test_send_masks_cover_every_touching_pair(rng):
+    """Completeness of the ghost choice: on a 3x3x3 grid, for every particle i of the centre block
+    and every particle j of neighbour block k with |x_i - x_j| < width, i is in direction k's send
+    mask (else block k would miss a contact). 4000 random centres, width 0.1 of a 1/3 block."""
+    g = BlockGrid(UNIT, (3, 3, 3))
+    width = 0.1
+    pos = rng.random((4000, 3))
+    owner = g.block_of(pos)
+    centre = np.all(owner == 1, axis=1)
+    lo, hi = g.bounds((1, 1, 1))
+    masks = send_masks(pos[centre], lo, hi, width)
+    pi = pos[centre]
+    checked = 0
+    for k, d in enumerate(DIRECTIONS):
+        pj = pos[np.all(owner == 1 + d, axis=1)]
+        close = np.linalg.norm(pi[:, None, :] - pj[None, :, :], axis=2) < width
+        need = close.any(axis=1)
+        checked += int(need.sum())
+        assert np.all(masks[k][need]), k
+    assert checked > 0
+    # and the masks are the box-distance test, nothing more: a centre deep inside is sent nowhere
+    inner = np.all((pi - lo > width) & (hi - pi > width), axis=1)
+    assert inner.any() and not masks[:, inner].any()
+
+
+def test_direction_of_round_trip():
+    """direction_of inverts DIRECTIONS for all 26 neighbours and gives -1 for a jump of two blocks."""
+    origin = np.array([1, 1, 1])
+    to = origin + np.vstack([DIRECTIONS, [[2, 0, 0], [0, 0, 0]]])
+    got = direction_of(origin, to)
+    assert np.array_equal(got[:26], np.arange(26))
+    assert got[26] == -1 and got[27] == -1
+
+
+def test_block_width_and_skin():
+    """Blocks narrower than the border layer are refused in one line naming the axis; the layer is
+    the largest bounding diameter widened by 1e-9; a default skin shrinks to the room left
+    (h - width), an explicit one that does not fit is refused."""
+    assert border_width(0.05) == 2 * 0.05 * (1 + 1e-9)
+    g = BlockGrid(UNIT, (4, 1, 1))   # blocks 0.25 wide along x
+    g.check_width(0.25)
+    with pytest.raises(DecompositionError) as e:
+        g.check_width(0.3)
+    assert "along x" in str(e.value) and "\n" not in str(e.value)
+    assert fit_skin(g, 0.15, 0.05, explicit=True) == 0.05
+    assert fit_skin(g, 0.15, 0.2, explicit=False) == pytest.approx(0.1 * (1 - 1e-9), rel=1e-15)
+    with pytest.raises(DecompositionError, match="use a skin of at most"):
+        fit_skin(g, 0.15, 0.2, explicit=True)
+    assert fit_skin(BlockGrid(UNIT, (1, 1, 1)), 0.15, 5.0, explicit=True) == 5.0  # one block: no ghosts
+
+
+def _state(rng, n, spheres):
+    shape = np.zeros(n, dtype=np.int8) if spheres else rng.integers(0, 2, n).astype(np.int8)
+    axes = rng.random((n, 3)) + 0.5
+    if spheres:
+        axes[:] = axes[:, :1]
+    quat = rng.normal(size=(n, 4))
+    quat /= np.linalg.norm(quat, axis=1)[:, None]
+    inertia = rng.random((n, 3)) if not spheres else np.repeat(rng.random((n, 1)), 3, axis=1)
+    gid = rng.integers(0, 2 ** 62, n) | (1 << 62)   # large ids: they must survive the float64 matrix
+    return State(gid, shape, axes, rng.random(n), inertia, rng.integers(0, 3, n), rng.normal(size=(n, 3)),
+                 rng.normal(size=(n, 3)), quat, rng.normal(size=(n, 3)))
+
+
+@pytest.mark.parametrize("spheres", [True, False])
+def test_ghost_rows_round_trip_bit_exact(rng, spheres):
+    """_columns then _split gives back the selected rows of every ghost field bit for bit: gid by
+    reinterpretation (ids above 2^62, where a float conversion would round), shape and material
+    as small integers, a sphere's radius and moment once (axes0, inertia0) repeated to 3."""
+    s = _state(rng, 50, spheres)
+    fields = GHOST_SPHERE if spheres else GHOST_GENERAL
+    idx = np.array([3, 0, 49, 17, 17])
+    got = _split(_columns(s, fields, idx), fields)
+    assert np.array_equal(got["gid"], s.gid[idx])
+    for f in ("material", "mass", "axes", "inertia", "pos", "vel", "angmom") + (() if spheres else ("shape", "quat")):
+        assert np.array_equal(got[f], getattr(s, f)[idx]), f
+
+
+@pytest.mark.parametrize("with_quat", [True, False])
+def test_forward_message_round_trip(rng, with_quat):
+    """pack_moving then unpack_moving writes rows idx of (pos, vel, angmom[, quat]) into rows g0..
+    of another state bit for bit, and without quat leaves the orientation untouched."""
+    n, g0 = 40, 30
+    src = [rng.normal(size=(n, w)) for w in (3, 3, 3, 4)]
+    idx = np.array([5, 1, 39, 8])
+    buf = np.empty((len(idx), 13 if with_quat else 9))
+    pack_moving(idx, *src, with_quat, buf)
+    dst = [np.zeros((g0 + len(idx), w)) for w in (3, 3, 3, 4)]
+    unpack_moving(buf, g0, *dst, with_quat)
+    for a, b in zip(src[:3], dst[:3]):
+        assert np.array_equal(b[g0:], a[idx]) and not b[:g0].any()
+    if with_quat:
+        assert np.array_equal(dst[3][g0:], src[3][idx])
+    else:
+        assert not dst[3].any()

@@ -1,0 +1,235 @@
+"""MPI and hybrid modes, launched through `bench run` (mpiexec started by the harness, with a
+timeout): every mapping reproduces the serial trajectory bit for bit."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+from tests.helpers import GOOD, assert_same, bench, mpi_run, one_line_error, serial_state, write
+
+pytestmark = pytest.mark.skipif(not os.path.exists(os.path.join(os.path.dirname(os.sys.executable), "mpiexec"))
+                                and not __import__("shutil").which("mpiexec"), reason="no mpiexec")
+
+
+@pytest.mark.parametrize("mapping", ["2-2-1-1-1", "2-1-2-1-1", "4-2-2-1-1", "3-3-1-1-1"])
+def test_patch162_bit_identical(tmp_path, tmp_path_factory, mapping):
+    """The paper's patch test on 2, 3 and 4 blocks: the deposited ellipsoids touch across block
+    borders from step 1; the final state equals the serial one exactly."""
+    ref = serial_state(tmp_path_factory, "patch162", 150)
+    got, steps, info = mpi_run(tmp_path, "patch162", 150, mapping)
+    assert_same(ref, got)
+    assert (steps.groupby("step")["rank"].count() == info["procs"]).all()
+    assert steps["n_ghost"].sum() > 0 and steps["bytes_sent"].sum() > 0
+
+
+@pytest.mark.parametrize("mapping", ["2-2-1-1-1", "3-1-3-1-1", "4-2-2-1-1", "8-2-2-2-1"])
+def test_gas_crossing_borders_bit_identical(tmp_path, tmp_path_factory, mapping):
+    """A soft granular gas with walls: particles migrate across block faces, edges and corners
+    (8 = 2x2x2 blocks) many times, carrying their contact history; bit-identical to serial."""
+    ref = serial_state(tmp_path_factory, "gas", 2500)
+    got, steps, _ = mpi_run(tmp_path, "gas", 2500, mapping)
+    assert steps["n_migrated"].sum() > 10
+    assert steps["n_contacts"].sum() > 0
+    assert_same(ref, got)
+
+
+@pytest.mark.parametrize("scheme", ["partition", "frogleap", "headtail", "static", "dynamic"])
+def test_hybrid_bit_identical(tmp_path, tmp_path_factory, scheme):
+    """Hybrid 2 processes x 2 threads with each scheme, on the gas (migration) scene."""
+    ref = serial_state(tmp_path_factory, "gas", 2500)
+    got, steps, info = mpi_run(tmp_path, "gas", 2500, "2-2-1-1-2", "--scheme", scheme)
+    assert info["threads"] == 2 and info["scheme"] == scheme
+    assert steps["n_migrated"].sum() > 0
+    assert_same(ref, got)
+
+
+def scene_with(particles, box="[[0.0, 0.0, 0.0], [0.02, 0.02, 0.02]]"):
+    head = GOOD.split("[[particles]]")[0].replace('box = [[0.0, 0.0, 0.0], [0.02, 0.02, 0.04]]', f"box = {box}")
+    head = head.replace('gravity = [0.0, 0.0, -9.81]', 'gravity = [0.0, 0.0, -9.81]')
+    body = "".join(f"""
+[[particles]]
+shape = "{shape}"
+axes = {axes}
+pos = {pos}
+vel = {vel}
+""" for shape, axes, pos, vel in particles)
+    return head + body
+
+
+EDGE_CASES = {
+    # centre exactly on the block face x = 0.01 (owned by the upper block); neighbours 10-50 um
+    # away on both sides of the face run into it (overlaps start by motion, as the guard wants)
+    "on-face": [("sphere", [1e-3], [0.01, 0.01, 0.0011], [0.0, 0.0, 0.0]),
+                ("sphere", [1e-3], [0.00799, 0.01, 0.0011], [0.2, 0.0, 0.0]),
+                ("ellipsoid", [1e-3, 8e-4, 6e-4], [0.01205, 0.0101, 0.0011], [-0.1, 0.0, 0.0])],
+    # everything in one block of four: three blocks stay empty until particles arrive
+    "one-block": [("sphere", [1e-3], [0.003, 0.003, 0.0011], [0.3, 0.3, 0.0]),
+                  ("sphere", [1e-3], [0.0055, 0.003, 0.0011], [0.0, 0.2, 0.0]),
+                  ("ellipsoid", [1e-3, 8e-4, 6e-4], [0.003, 0.006, 0.0011], [0.2, 0.0, 0.0])],
+}
+
+
+@pytest.mark.parametrize("case", sorted(EDGE_CASES))
+def test_edge_cases_bit_identical(tmp_path, case):
+    """A particle exactly on a block face, empty blocks and all particles in one block."""
+    scene = write(tmp_path, scene_with(EDGE_CASES[case]), f"{case}.toml")
+    ref_out = tmp_path / "serial"
+    res = bench("run", "--scene", scene, "--steps", "600", "--out", str(ref_out), "--quiet")
+    assert res.returncode == 0, res.stderr
+    ref = dict(np.load(ref_out / "state.npz"))
+    got, steps, _ = mpi_run(tmp_path, scene, 600, "4-2-2-1-1")
+    assert_same(ref, got)
+    if case == "on-face":
+        assert steps["n_contacts"].sum() > 0
+    if case == "one-block":
+        first = steps[steps["step"] == 1]
+        assert sorted(first["n_owned"].tolist()) == [0, 0, 0, 3]
+
+
+def test_particle_larger_than_block_refused(tmp_path):
+    """Blocks narrower than the largest particle's bounding diameter are refused in one line."""
+    scene = write(tmp_path, scene_with(EDGE_CASES["on-face"]))
+    one_line_error(bench("run", "--scene", scene, "--mapping", "16-16-1-1-1", "--out", str(tmp_path / "o")),
+                   "use fewer blocks along x")
+
+
+def test_records_of_a_pure_mpi_run(tmp_path):
+    """steps.csv has one row per step and rank with commuT, migraT, ghosts and bytes; compuT is
+    totalT - commuT - migraT; run.json names the MPI library."""
+    _, steps, info = mpi_run(tmp_path, "gas", 50, "2-2-1-1-1")
+    assert len(steps) == 2 * 50 and set(steps["rank"]) == {0, 1}
+    # ghosts travel every step; migration only on the neighbour-list rebuilds (the first step and
+    # whenever a particle has moved half the skin)
+    rebuilt = steps["neighbor_rebuilt"] == 1
+    assert (steps["commuT"] > 0).all() and (steps["migraT"][rebuilt] > 0).all()
+    assert (steps["migraT"][~rebuilt] == 0).all() and rebuilt.sum() < len(steps)
+    assert np.allclose(steps["compuT"], steps["totalT"] - steps["commuT"] - steps["migraT"])
+    assert steps["n_owned"].groupby(steps["step"]).sum().eq(300).all()
+    assert "MPICH" in info["mpi_library"] or "Open MPI" in info["mpi_library"]
+
+
+def test_six_message_halo_same_ghosts(tmp_path, tmp_path_factory):
+    """--halo 6 (three sweeps forwarding ghosts) delivers exactly the ghosts of the direct
+    26-neighbour exchange on 2x2x2 blocks (same count every step) and the serial trajectory."""
+    ref = serial_state(tmp_path_factory, "gas", 2500)
+    got6, steps6, info = mpi_run(tmp_path, "gas", 2500, "8-2-2-2-1", "--halo", "6")
+    assert info["halo"] == "6"
+    assert_same(ref, got6)
+    _, steps26, _ = mpi_run(tmp_path / "direct", "gas", 2500, "8-2-2-2-1")
+    assert steps6["n_ghost"].tolist() == steps26["n_ghost"].tolist()
+
+
+def test_update_grid_bit_identical(tmp_path, tmp_path_factory):
+    """The paper's updateGrid: re-fitting the block grid to the settling pluviation every 500
+    steps hands particles to new owners (whole state and history) without changing a bit."""
+    ref = serial_state(tmp_path_factory, "pluviation", 10000, ("--particles", "300"))
+    got, steps, info = mpi_run(tmp_path, "pluviation", 10000, "2-1-1-2-1", "--particles", "300",
+                               "--update-grid", "500")
+    assert info["grid_updates"] >= 10
+    assert steps["n_contacts"].sum() > 0
+    assert_same(ref, got)
+
+
+def test_every_step_estimate_bit_identical(tmp_path, tmp_path_factory):
+    """--skin 0 (the paper's every-step neighbour estimate, ghosts chosen every step) on 2 and on
+    2x2x2 blocks with the three-sweep halo: the serial trajectory bit for bit."""
+    ref = serial_state(tmp_path_factory, "gas", 2500)
+    for mapping, extra in (("2-2-1-1-1", ()), ("8-2-2-2-1", ("--halo", "6"))):
+        got, steps, info = mpi_run(tmp_path / mapping, "gas", 2500, mapping, "--skin", "0", *extra)
+        assert info["skin"] == 0.0 and (steps["neighbor_rebuilt"] == 1).all()
+        assert_same(ref, got)
+
+
+def test_rebuilds_decided_together_and_forward_sends_moving_fields(tmp_path):
+    """With a skin every rank rebuilds on the same steps (one collective decision); between
+    rebuilds each rank sends one message per neighbour holding only the moving fields of the
+    same ghosts: position, velocity, angular momentum, quaternion = 13 doubles = 104 bytes a
+    ghost for ellipsoids, so rank 0's bytes equal 104 x rank 1's ghosts on those steps."""
+    _, steps, info = mpi_run(tmp_path, "gas", 400, "2-2-1-1-1")
+    wide = steps.pivot(index="step", columns="rank")
+    assert (wide["neighbor_rebuilt"][0] == wide["neighbor_rebuilt"][1]).all()
+    between = wide[wide["neighbor_rebuilt"][0] == 0]
+    assert 0 < len(between) < 400 and info["forward_bytes_per_ghost"] == 104
+    assert (between["n_migrated"][0] == 0).all() and (between["migraT"][0] == 0).all()
+    assert (between["msgs_sent"][0] == 1).all() and (between["msgs_sent"][1] == 1).all()
+    assert (between["bytes_sent"][0] == 104 * between["n_ghost"][1]).all()
+    assert (between["bytes_sent"][1] == 104 * between["n_ghost"][0]).all()
+
+
+def test_wire_time_is_the_measured_model_of_the_bytes_sent(tmp_path):
+    """run.json holds each rank's ping-pong fit of its link (latency alpha > 0, bandwidth beta > 0,
+    the same for both ends); steps.csv's wire_s is sum over the step's messages of
+    alpha + bytes / beta (Hockney's model; modes/wire.py), which for one neighbour is
+    msgs_sent alpha + bytes_sent / beta, to the 7 significant digits steps.csv keeps."""
+    _, steps, info = mpi_run(tmp_path, "gas", 100, "2-2-1-1-1")
+    w0 = info["wire"]["0"]["partners"]["1"]
+    w1 = info["wire"]["1"]["partners"]["0"]
+    assert w0 == w1 and w0["latency_s"] > 0 and w0["bandwidth_Bps"] > 0
+    model = steps["msgs_sent"] * w0["latency_s"] + steps["bytes_sent"] / w0["bandwidth_Bps"]
+    assert np.allclose(steps["wire_s"], model, rtol=1e-6, atol=0)
+    assert (steps["wire_s"] > 0).all()
+
+
+def test_default_skin_fits_narrow_blocks_explicit_one_refused(tmp_path):
+    """Ghost layers are the largest bounding diameter plus the skin wide: on blocks too narrow for
+    the default skin it shrinks to fit (run.json says by how much); an explicit skin that does not
+    fit is refused in one line."""
+    # blocks 2.1 mm wide along x, the largest bounding diameter 2 mm: room for a 0.1 mm skin (0.05 d)
+    pair = [("sphere", [1e-3], [0.0011, 0.01, 0.0011], [0.1, 0.0, 0.0]),
+            ("sphere", [1e-3], [0.00312, 0.01, 0.0011], [-0.1, 0.0, 0.0])]
+    scene = write(tmp_path, scene_with(pair, box="[[0.0, 0.0, 0.0], [0.0042, 0.02, 0.02]]"))
+    got, _, info = mpi_run(tmp_path, scene, 50, "2-2-1-1-1")
+    assert info["skin"] == pytest.approx(0.05, rel=1e-6) and info["skin_requested"] is None
+    one_line_error(bench("run", "--scene", scene, "--mapping", "2-2-1-1-1", "--skin", "0.5",
+                         "--out", str(tmp_path / "o")), "use a skin of at most")
+
+
+MPI_ALLOCATION_PROBE = """
+import json, sys
+from mpi4py import MPI
+from numba.core.runtime import rtsys
+from bench.run.prepare import load_prepared
+from dem.timestep import choose_time_step
+from modes.mpi import MpiMode
+cart = MPI.COMM_WORLD.Create_cart([2, 1, 1], periods=[False] * 3, reorder=False)
+sc = load_prepared("packed", particles=500)
+m = MpiMode().setup(sc, dt=choose_time_step(sc).dt, cart=cart)
+m.warmup()
+m.step()  # the first build: migration, ghosts, list
+s, p, h = m.state, m.pairs, m.halo
+keep = lambda: [s.pos, s.vel, s.quat, s.angmom, s.wall_hist, p.pi, p.hist, p.pf, p.on, m.rot, m.omega,
+                h.rounds[0].send_buf, h.rounds[0].recv_buf]
+arrays = keep()
+before = rtsys.get_allocation_stats().alloc
+rows = [m.step() for _ in range(20)]
+out = {"rank": cart.Get_rank(), "allocs": rtsys.get_allocation_stats().alloc - before,
+       "rebuilt": sum(r["neighbor_rebuilt"] for r in rows), "same": all(a is b for a, b in zip(arrays, keep())),
+       "msgs": [r["msgs_sent"] for r in rows], "ghosts": s.n - s.n_owned}
+m.release()
+with open(sys.argv[1] + f"/rank{cart.Get_rank()}.json", "w") as fh:
+    json.dump(out, fh)
+"""
+
+
+def test_forward_steps_allocate_nothing(tmp_path):
+    """Under MPI a step between rebuilds allocates nothing either: on both ranks numba's allocator
+    counts nothing (NRT statistics: every kernel of such a step, pack, unpack, derive, resolve and
+    finish, runs without the runtime), the state, pair list and exchange buffers stay the same
+    objects, and each step sends exactly one message (the forward exchange to the one neighbour)."""
+    import subprocess
+    import sys
+    from tests.helpers import ROOT
+    probe = tmp_path / "probe.py"
+    probe.write_text(MPI_ALLOCATION_PROBE)
+    mpiexec = os.path.join(os.path.dirname(sys.executable), "mpiexec")
+    env = dict(os.environ, NUMBA_NRT_STATS="1", NUMBA_NUM_THREADS="1", PYTHONPATH=ROOT)
+    res = subprocess.run([mpiexec, "-n", "2", sys.executable, str(probe), str(tmp_path)], capture_output=True,
+                         text=True, env=env, timeout=600, cwd=ROOT)
+    assert res.returncode == 0, res.stderr
+    ranks = [json.loads((tmp_path / f"rank{r}.json").read_text()) for r in (0, 1)]
+    assert sorted(r["rank"] for r in ranks) == [0, 1]
+    for r in ranks:
+        assert r["rebuilt"] == 0 and r["ghosts"] > 0, r
+        assert r["allocs"] == 0 and r["same"], r
+        assert r["msgs"] == [1] * 20, r

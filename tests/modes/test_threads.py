@@ -1,0 +1,173 @@
+"""Threads mode: the paper's five schemes reproduce the serial trajectory bit for bit, and their
+row assignment and work balance are what the schemes promise."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+from bench.run.prepare import load_prepared
+from dem.timestep import choose_time_step
+from modes.parallel import SCHEMES, scheme_rows
+from modes.serial import SerialMode
+from modes.threads import ThreadsMode
+from tests.helpers import bench, one_line_error
+
+FIELDS = ("id", "pos", "quat", "vel", "omega")
+
+
+def run(name, steps, n=None, threads=1, **kw):
+    sc = load_prepared(name, particles=n)
+    dt = choose_time_step(sc).dt
+    mode = (ThreadsMode().setup(sc, dt=dt, threads=threads, **kw) if threads > 1 else
+            SerialMode().setup(sc, dt=dt, **{k: v for k, v in kw.items() if k in ("neighbor", "skin")}))
+    rows = [mode.step() for _ in range(steps)]
+    return mode.snapshot(), rows
+
+
+_REF = {}
+
+
+def reference(name, steps, n, neighbor):
+    key = (name, steps, n, neighbor)
+    if key not in _REF:
+        _REF[key] = run(name, steps, n, neighbor=neighbor)
+    return _REF[key]
+
+
+def assert_same(a, b):
+    for f in FIELDS:
+        assert np.array_equal(a[f], b[f]), f
+
+
+@pytest.mark.parametrize("neighbor", ["allpairs", "linkcell"])
+@pytest.mark.parametrize("threads", [2, 3])
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_patch162_bit_identical(scheme, threads, neighbor):
+    """patch162 (deposited ellipsoids, wall and particle contacts): every scheme, 2 and 3
+    threads, both neighbour methods: the final state equals the serial one exactly."""
+    ref, rows = reference("patch162", 150, None, neighbor)
+    got, trows = run("patch162", 150, threads=threads, scheme=scheme, neighbor=neighbor)
+    assert sum(r["n_contacts"] for r in rows) > 0
+    assert [r["n_contacts"] for r in trows] == [r["n_contacts"] for r in rows]
+    assert_same(ref, got)
+
+
+@pytest.mark.parametrize("neighbor", ["allpairs", "linkcell"])
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_pluviation_bit_identical(scheme, neighbor):
+    """A falling pluviation (200 ellipsoids) past the first particle-particle contacts (step ~8040):
+    2 threads, every scheme, both neighbour methods, bit-identical to serial."""
+    ref, rows = reference("pluviation", 9000, 200, neighbor)
+    got, _ = run("pluviation", 9000, 200, threads=2, scheme=scheme, neighbor=neighbor)
+    assert sum(r["n_contacts"] for r in rows) > 0
+    assert_same(ref, got)
+
+
+@pytest.mark.parametrize("shape", ["ellipsoid", "sphere"])
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_packed_bit_identical(scheme, shape, monkeypatch):
+    """A packed assembly (coordination >= 4) of ellipsoids and of spheres (the sphere-only pair
+    loop): 3 threads, every scheme, bit-identical to serial."""
+    def go(threads):
+        sc = load_prepared("packed", particles=400, shape=shape)
+        dt = choose_time_step(sc).dt
+        mode = ThreadsMode().setup(sc, dt=dt, threads=3, scheme=scheme) if threads > 1 else \
+            SerialMode().setup(sc, dt=dt)
+        for _ in range(30):
+            mode.step()
+        return mode.snapshot()
+    assert_same(go(1), go(3))
+
+
+def test_skin_and_detection_only_bit_identical():
+    """Threads with a Verlet skin (list rebuilt and particles re-sorted during the fall), and with
+    only contact detection threaded (the paper's situation), still match serial exactly."""
+    ref, _ = reference("pluviation", 9000, 200, "linkcell")
+    got, rows = run("pluviation", 9000, 200, threads=2, scheme="dynamic", skin=0.2)
+    assert sum(r["neighbor_rebuilt"] for r in rows) > 3
+    assert_same(ref, got)
+    got, _ = run("pluviation", 9000, 200, threads=3, scheme="headtail", threaded="detection")
+    assert_same(ref, got)
+
+
+@pytest.mark.parametrize("scheme", ["partition", "frogleap", "headtail"])
+@pytest.mark.parametrize("n", [0, 1, 7, 100, 101])
+@pytest.mark.parametrize("threads", [1, 2, 3, 5])
+def test_scheme_rows_cover_each_row_once(scheme, n, threads):
+    """Each explicit scheme hands every outer row to exactly one thread."""
+    start, rows = scheme_rows(scheme, n, threads)
+    assert len(start) == threads + 1 and start[0] == 0 and start[-1] == n
+    assert sorted(rows.tolist()) == list(range(n))
+
+
+def test_scheme_row_patterns():
+    """The patterns of the paper (§4.2): partition = contiguous blocks, frogleap = stride T,
+    headtail = pairs (k, n-1-k) for k = t, t+T, ..."""
+    s, r = scheme_rows("partition", 10, 2)
+    assert r[s[0]:s[1]].tolist() == [0, 1, 2, 3, 4] and r[s[1]:s[2]].tolist() == [5, 6, 7, 8, 9]
+    s, r = scheme_rows("frogleap", 10, 3)
+    assert r[s[1]:s[2]].tolist() == [1, 4, 7]
+    s, r = scheme_rows("headtail", 10, 2)
+    assert r[s[0]:s[1]].tolist() == [0, 9, 2, 7, 4, 5] and r[s[1]:s[2]].tolist() == [1, 8, 3, 6]
+
+
+def test_allpairs_work_imbalance():
+    """On the triangular all-pairs loop (row u tests n-1-u partners), partition at 2 threads makes
+    thread 0 do sum_{u < n/2} (n-1-u) tests: max/mean -> 1.5 for large n (3/4 of the work against
+    a mean of 1/2); frogleap and headtail balance it to ~1.0. Work = pair tests actually made."""
+    sc = load_prepared("packed", particles=400)
+    n = sc.n
+    dt = choose_time_step(sc).dt
+    expect = {"partition": sum(n - 1 - u for u in range(n // 2)) / (n * (n - 1) / 4)}
+    for scheme, lo, hi in (("partition", expect["partition"] - 1e-9, expect["partition"] + 1e-9),
+                           ("frogleap", 1.0, 1.01), ("headtail", 1.0, 1.01)):
+        m = ThreadsMode().setup(sc, dt=dt, threads=2, scheme=scheme, neighbor="allpairs")
+        m.neighbour_phase()
+        assert m.tests.sum() == n * (n - 1) // 2
+        assert lo <= m.work_imbalance <= hi, (scheme, m.work_imbalance)
+    assert 1.49 < expect["partition"] < 1.51
+
+
+def test_dynamic_hands_out_all_rows():
+    """dynamic: the atomic counter hands out every row exactly once (the pair tests sum to the
+    serial count) whichever thread takes them."""
+    sc = load_prepared("packed", particles=400)
+    m = ThreadsMode().setup(sc, dt=choose_time_step(sc).dt, threads=3, scheme="dynamic", neighbor="allpairs")
+    m.neighbour_phase()
+    assert m.tests.sum() == sc.n * (sc.n - 1) // 2
+
+
+def test_run_records_threads(tmp_path):
+    """bench run with 1-1-1-1-2: run.json records threads, scheme, layer and pinning; steps.csv
+    carries the load-imbalance and NSF columns."""
+    out = tmp_path / "t"
+    res = bench("run", "--scene", "patch162", "--mapping", "1-1-1-1-2", "--scheme", "headtail", "--steps", "20",
+                "--pin", "--out", str(out))
+    assert res.returncode == 0, res.stderr
+    info = json.loads((out / "run.json").read_text())
+    assert info["threads"] == 2 and info["scheme"] == "headtail" and info["pin"] is True
+    assert info["threading_layer"] in ("omp", "tbb", "workqueue")
+    assert info["threading"]["NUMBA_NUM_THREADS"] == 2 and info["threading"]["OMP_PROC_BIND"] == "close"
+    import pandas as pd
+    steps = pd.read_csv(out / "steps.csv")
+    assert {"imbalance", "work_imbalance", "busy_max", "nsf"} <= set(steps.columns)
+    assert (steps["imbalance"] >= 1.0).all()
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--mapping", "1-1-1-1-2", "--scheme", "roundrobin"], "unknown scheme 'roundrobin'"),
+    (["--scheme", "dynamic"], "needs a mapping with more than one thread"),
+    (["--mapping", "1-1-1-1-0"], "T must be >= 1"),
+    (["--mapping", "1-1-1-1--2"], "malformed mapping"),
+])
+def test_bad_thread_options(tmp_path, args, words):
+    one_line_error(bench("run", "--scene", "patch162", "--steps", "1", "--out", str(tmp_path / "o"), *args), words)
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) >= 4, reason="needs fewer than 4 usable CPUs")
+def test_oversubscription_warns_in_one_line(tmp_path):
+    res = bench("run", "--scene", "patch162", "--steps", "2", "--mapping", "1-1-1-1-4", "--out", str(tmp_path / "o"))
+    assert res.returncode == 0, res.stderr
+    lines = [l for l in res.stderr.splitlines() if "oversubscribes" in l]
+    assert len(lines) == 1
