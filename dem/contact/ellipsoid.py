@@ -35,7 +35,8 @@ Method (reference notes contact-mechanics.md §1.4-1.6):
 All kernels are allocation free (scalar locals and tuples), plain float64, no fastmath.
 """
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import overload
 
 # ---- output buffer layout (float64 array of length OUT_LEN) ----
 OUT_DEPTH = 0           # penetration depth delta > 0 [m] (minimum translation distance)
@@ -178,12 +179,29 @@ def _oct_axes(rot, a6, nx, ny, nz):
     m0 = rot[0, 0] * nx + rot[1, 0] * ny + rot[2, 0] * nz
     m1 = rot[0, 1] * nx + rot[1, 1] * ny + rot[2, 1] * nz
     m2 = rot[0, 2] * nx + rot[1, 2] * ny + rot[2, 2] * nz
-    # indices, not constant subscripts: _newton_s2 also types this with an ellipsoid's 3-tuple
-    # (where octants is False and it never runs), and a constant a6[3] would not type there
-    i = 0 if m0 >= 0.0 else 1
-    j = 2 if m1 >= 0.0 else 3
-    k = 4 if m2 >= 0.0 else 5
-    return a6[i], a6[j], a6[k]
+    return (a6[0] if m0 >= 0.0 else a6[1],
+            a6[2] if m1 >= 0.0 else a6[3],
+            a6[4] if m2 >= 0.0 else a6[5])
+
+
+def _facing_axes(rot, a, octants, nx, ny, nz):
+    """The three semi-axes of the body that face direction n: a itself for an ellipsoid (a [3], or
+    a 3-tuple: an octant the active set chose), the octant ellipsoid of a poly-ellipsoid (a [6],
+    octants True). Compiled by its overload below, per type of a: the 3-tuple form (called from
+    the poly-ellipsoid solver) never types the octant choice."""
+    raise NotImplementedError("numba only")
+
+
+@overload(_facing_axes)
+def _facing_axes_numba(rot, a, octants, nx, ny, nz):
+    if isinstance(a, types.BaseTuple):
+        return lambda rot, a, octants, nx, ny, nz: a
+
+    def axes_of(rot, a, octants, nx, ny, nz):
+        if octants:
+            return _oct_axes(rot, a, nx, ny, nz)
+        return (a[0], a[1], a[2])
+    return axes_of
 
 
 @njit(cache=True, _nrt=False)
@@ -211,12 +229,8 @@ def _newton_s2(rot1, a1, rot2, a2, octants, rx, ry, rz, rn, nx, ny, nz, maxit, d
     it = 0
     while True:
         it += 1
-        if octants:
-            ax1 = _oct_axes(rot1, a1, nx, ny, nz)
-            ax2 = _oct_axes(rot2, a2, -nx, -ny, -nz)
-        else:
-            ax1 = (a1[0], a1[1], a1[2])
-            ax2 = (a2[0], a2[1], a2[2])
+        ax1 = _facing_axes(rot1, a1, octants, nx, ny, nz)
+        ax2 = _facing_axes(rot2, a2, octants, -nx, -ny, -nz)
         h1, u0, u1, u2 = _hq(rot1, ax1, nx, ny, nz)
         h2, w0, w1, w2 = _hq(rot2, ax2, nx, ny, nz)
         phi = h1 + h2 - (nx * rx + ny * ry + nz * rz)
