@@ -3,7 +3,7 @@
 P ranks on the mapping's block grid (default 2-2-1-1-1; `--procs P` alone takes the most cubic
 grid, as MPI_Dims_create does) measure an OSU-style ping-pong with each of their up to 26
 neighbour blocks (modes.wire.pingpong; started as
-`mpiexec -n P python -m mpi4py -m bench.perf_comm_rank ...`, killed after --timeout seconds).
+`mpiexec -n P python -m mpi4py -m bench.studies.perf_comm_rank ...`, killed after --timeout seconds).
 Printed per pair, as the OSU micro-benchmarks' osu_latency does: size [B], one-way latency
 t(n) = round trip / 2 [us] and the ping-pong bandwidth n / t(n) [MB/s, 1 MB = 1e6 B]; then the
 fitted t(n) = alpha + n / beta (Hockney). With --out DIR, DIR/perf.json holds the pairs, every
@@ -141,7 +141,7 @@ def perf_comm(args):
               f"runs (correctness) but its latency measures the scheduler, not the wire", file=sys.stderr)
     with tempfile.TemporaryDirectory(prefix="bench-comm-") as tmp:
         raw = os.path.join(tmp, "ranks.json")
-        cmd = [exe, "-n", str(m.procs), sys.executable, "-m", "mpi4py", "-m", "bench.perf_comm_rank",
+        cmd = [exe, "-n", str(m.procs), sys.executable, "-m", "mpi4py", "-m", "bench.studies.perf_comm_rank",
                "--dims", str(m.px), str(m.py), str(m.pz), "--json", raw]
         if getattr(args, "patterns", False):
             cmd.append("--patterns")

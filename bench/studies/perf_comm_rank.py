@@ -27,7 +27,7 @@ def neighbour_ranks(cart, grid, coords):
 
 
 def main(argv):
-    p = argparse.ArgumentParser(prog="bench.perf_comm_rank")
+    p = argparse.ArgumentParser(prog="bench.studies.perf_comm_rank")
     p.add_argument("--dims", type=int, nargs=3, required=True)
     p.add_argument("--sizes", default=None, help="comma-separated message sizes [B]")
     p.add_argument("--time-per-size", type=float, default=2e-3)
