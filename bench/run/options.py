@@ -12,24 +12,22 @@ NEIGHBOR_CHOICES = ["allpairs", "linkcell"]
 SHAPE_CHOICES = ["sphere", "ellipsoid", "polyellipsoid"]
 
 
-def positive_int(text):
+def _integer_at_least(text, lo, what):
     try:
         v = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if v < lo:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
     return v
+
+
+def positive_int(text):
+    return _integer_at_least(text, 1, "a positive integer")
 
 
 def nonneg_int(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
-    return v
+    return _integer_at_least(text, 0, "a non-negative integer")
 
 
 def skin_fraction(text):
