@@ -124,7 +124,9 @@ def test_slurm_scripts_and_dry_run(tmp_path):
 
 
 def test_collect_rebuilds_runs_csv(tmp_path):
-    """bench collect gathers the point folders (as Slurm jobs leave them) into the same rows."""
+    """bench collect gathers the point folders (as Slurm jobs leave them) into the same rows, with
+    the speedups of a local sweep: S = T(1)/T(p), so 1.0 exactly for the serial row, and efficiency
+    S/p for the 2 ranks."""
     res, out = sweep(tmp_path, "--mappings", "2-2-1-1-1")
     assert res.returncode == 0, res.stderr
     before = pd.read_csv(out / "runs.csv")
@@ -136,6 +138,9 @@ def test_collect_rebuilds_runs_csv(tmp_path):
     after = pd.read_csv(out / "runs.csv")
     assert after["status"].tolist() == ["done", "done"]
     assert np.allclose(after["totalT"], before["totalT"]) and (after["err_max"] == 0).all()
+    assert after.loc[0, "mapping"] == "1-1-1-1-1" and after.loc[0, "speedup"] == 1.0
+    assert after.loc[1, "speedup"] == pytest.approx(after.loc[0, "totalT"] / after.loc[1, "totalT"], rel=1e-12)
+    assert after.loc[1, "efficiency"] == pytest.approx(after.loc[1, "speedup"] / 2, rel=1e-12)
 
 
 def test_sweep_file(tmp_path):
