@@ -23,7 +23,7 @@ import math
 import numpy as np
 from numba import njit
 
-from dem.contact.ellipsoid import (ellipsoid_contact, ellipsoid_wall_contact, OUT_DEPTH, OUT_NX, OUT_NY,
+from dem.contact.ellipsoid import (_write_out, ellipsoid_contact, ellipsoid_wall_contact, OUT_DEPTH, OUT_NX, OUT_NY,
                                    OUT_NZ, OUT_XCX, OUT_XCY, OUT_XCZ, OUT_RE, OUT_KRATIO, OUT_LAM, OUT_LEN)
 from dem.contact.hertz_factor import hertz_factor
 from dem.contact.law import hertz_mindlin
@@ -213,17 +213,10 @@ def pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, oorg, orot, a
     if shape[i] == SPHERE and shape[j] == SPHERE:
         hit, depth, nx, ny, nz, xcx, xcy, xcz, r_e = sphere_contact(
             pos[i, 0], pos[i, 1], pos[i, 2], axes[i, 0], pos[j, 0], pos[j, 1], pos[j, 2], axes[j, 0])
-        if hit:
-            out[OUT_DEPTH] = depth
-            out[OUT_NX] = nx
-            out[OUT_NY] = ny
-            out[OUT_NZ] = nz
-            out[OUT_XCX] = xcx
-            out[OUT_XCY] = xcy
-            out[OUT_XCZ] = xcz
-            out[OUT_RE] = r_e
-            out[OUT_KRATIO] = 1.0
-            out[OUT_LAM] = 0.0
+        if hit:  # surface points p1 = x_c + depth/2 n on i, p2 = x_c - depth/2 n on j
+            h = 0.5 * depth
+            _write_out(out, depth, nx, ny, nz, xcx + h * nx, xcy + h * ny, xcz + h * nz,
+                       xcx - h * nx, xcy - h * ny, xcz - h * nz, r_e, 1.0, 0.0, 0, 0)
         return 1 if hit else 0, axes[i, 0], axes[j, 0], 0
     if poly_scene and (shape[i] == POLY or shape[j] == POLY):
         hit = polyellipsoid_contact(oorg[i], orot[i], ax6[i], oorg[j], orot[j], ax6[j], n0, out)

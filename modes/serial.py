@@ -15,12 +15,12 @@ import time
 import numpy as np
 
 from dem.contact.ellipsoid import OUT_LEN
-from dem.shapes import POLY, SPHERE
 from dem.contact import CONTACT_METHODS
 from dem.forces import finish_range, resolve_range, scene_kind, wall_candidates
 from dem.integrate import derive_all
 from dem.neighbor import cell_order, find_pairs
 from dem.pairs import DEFAULT_SKIN, PairList
+from dem.shapes import POLY, SPHERE
 from modes.base import ModeError, register
 
 

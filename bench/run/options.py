@@ -77,7 +77,6 @@ def add_run_arguments(r):
     r.add_argument("--timeout", type=positive_int, default=3600, help="seconds before MPI ranks are killed")
     r.add_argument("--quiet", action="store_true")
 
-    r.add_argument("--time-step", default=None, help=argparse.SUPPRESS)  # the launcher's TimeStep (JSON) for the ranks
     return r
 
 

@@ -15,7 +15,9 @@ from modes.base import mode_for, parse_mapping
 
 
 def main(argv):
-    args = add_run_arguments(argparse.ArgumentParser(prog="bench.run.rank")).parse_args(argv)
+    parser = add_run_arguments(argparse.ArgumentParser(prog="bench.run.rank"))
+    parser.add_argument("--time-step", default=None, help="the launcher's TimeStep as JSON (dem.timestep)")
+    args = parser.parse_args(argv)
     mapping = parse_mapping(args.mapping)
     comm = MPI.COMM_WORLD
     if comm.Get_size() != mapping.procs:
