@@ -18,6 +18,24 @@ nothing, and the counts that inlined helpers taking arrays would add (an atomic 
 decrement per array per call) were measured to cost as much as the physics (a 10k sphere bed:
 resolution 1.9x faster without them). A kernel they call that allocates (the sextic method)
 asks for the runtime explicitly (_nrt=True).
+
+The kernels' arrays travel in plain tuples grouped by what they describe, unpacked in each
+kernel's first lines (a plain tuple unboxes as fast as separate arguments; a namedtuple was
+measured 3x dearer per call, 4 us for 14 arrays, which a 48-particle step cannot afford):
+
+- bodies  (pos, vel [n,3] [m, m/s], quat [n,4], angmom [n,3] [kg m^2/s], mass [n] [kg],
+          inertia [n,3] [kg m^2], shape [n], axes [n,3] [m], rbound [n] [m], material [n],
+          force, torque [n,3] [N, N m], rot [n,3,3], omega [n,3] [rad/s]): body_arrays
+- polys   (poly [n, P_LEN], oorg [n,3], orot [n,3,3], ax6 [n,6]): the octant geometry of a scene
+          with poly-ellipsoids (dem.integrate.derive_poly_geometry), empty arrays elsewhere
+- law     (estar, gstar [n_mat, n_mat] [Pa], mu, zeta [n_mat, n_mat]): law_tables
+- walls   (wall_m [w,3], wall_d [w] [m], estar_w, gstar_w, zeta_w, mu_w [n_mat],
+          wall_hist [n, w, HIST_LEN]): wall_arrays
+- plist   (pi, pj [m], hist [m, HIST_LEN], on [m] int8, pf [m, PF_LEN]): the pair list
+          (dem.pairs.PairList.arrays)
+- adj     (adj_start [n_owned+1], adj_items, on, pf, near [n_owned] int8): each particle's pairs
+          (dem.pairs.PairList.gather_arrays)
+- gravity (gx, gy, gz [m/s^2], has_gravity)
 """
 import math
 import numpy as np
@@ -57,6 +75,25 @@ def scene_kind(shape, has_poly):
     if has_poly:
         return POLY
     return SPHERE if bool(np.all(shape == SPHERE)) else ELLIPSOID
+
+
+def body_arrays(state, rot, omega):
+    """The bodies group of a State and its derived rot [n,3,3], omega [n,3]."""
+    s = state
+    return (s.pos, s.vel, s.quat, s.angmom, s.mass, s.inertia, s.shape, s.axes, s.rbound, s.material, s.force,
+            s.torque, rot, omega)
+
+
+def law_tables(materials):
+    """The law group of dem.materials.Materials: the pair tables."""
+    m = materials
+    return m.estar, m.gstar, m.mu, m.zeta
+
+
+def wall_arrays(wall_m, wall_d, materials, wall_hist):
+    """The walls group: planes, the particle-wall law of each material, per-wall history."""
+    m = materials
+    return wall_m, wall_d, m.estar_w, m.gstar_w, m.zeta_w, m.mu_w, wall_hist
 
 
 @njit(cache=True, inline="always")
@@ -124,10 +161,15 @@ def _store(hist, k, f, nx, ny, nz, lam, pf):
 
 
 @njit(cache=True, inline="always")
-def pair_law(i, j, depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio, pos, vel, omega, mass, material,
-             estar, gstar, zeta, mu, hist, k, has_hist, dt, lam, pf):
-    """contact_force for particles i -> j, inputs read by index; the old history is read from and the
-    new one written to hist[k], the forces to pf[k]."""
+def pair_law(k, i, j, geo, bodies, law, plist, dt):
+    """contact_force for particles i -> j of pair k, on the resolved geometry geo = (depth [m],
+    normal from i to j [3], contact point [3] [m], R_e [m], kappa ratio, PW lambda); the old
+    history is read from and the new one written to hist[k] (it is valid when on[k] == 1), the
+    forces to pf[k]."""
+    pos, vel, _, _, mass, _, _, _, _, material, _, _, _, omega = bodies
+    estar, gstar, mu, zeta = law
+    _, _, hist, on, pf = plist
+    depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio, lam = geo
     r1x, r1y, r1z = xcx - pos[i, 0], xcy - pos[i, 1], xcz - pos[i, 2]
     r2x, r2y, r2z = xcx - pos[j, 0], xcy - pos[j, 1], xcz - pos[j, 2]
     vrx = (vel[j, 0] + (omega[j, 1] * r2z - omega[j, 2] * r2y)
@@ -142,7 +184,7 @@ def pair_law(i, j, depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio, pos, vel, omeg
     b = material[j]
     f = contact_force(depth, nx, ny, nz, r_e, kratio, r1x, r1y, r1z, r2x, r2y, r2z, vrx, vry, vrz,
                       mi * mj / (mi + mj), estar[a, b], gstar[a, b], zeta[a, b], mu[a, b],
-                      hist[k, H_FT], hist[k, H_FT + 1], hist[k, H_FT + 2], hist[k, H_A], has_hist, dt)
+                      hist[k, H_FT], hist[k, H_FT + 1], hist[k, H_FT + 2], hist[k, H_A], on[k] == 1, dt)
     _store(hist, k, f, nx, ny, nz, lam, pf)
 
 
@@ -171,45 +213,46 @@ def _apart(i, j, pos, rbound):
 
 
 @njit(cache=True, inline="always")
-def _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt, hist, on, pf):
+def _sphere_pair(k, i, j, bodies, law, plist, dt):
     """Closed-form sphere-sphere contact and law for pair k = (i, j); returns the depth ratio (depth
     over the smaller radius) or -1 when apart."""
+    pos = bodies[0]
+    axes = bodies[7]
+    on = plist[3]
     hit, depth, nx, ny, nz, xcx, xcy, xcz, r_e = sphere_contact(
         pos[i, 0], pos[i, 1], pos[i, 2], axes[i, 0], pos[j, 0], pos[j, 1], pos[j, 2], axes[j, 0])
     if not hit:
         on[k] = 0
         return -1.0
-    pair_law(i, j, depth, nx, ny, nz, xcx, xcy, xcz, r_e, 1.0, pos, vel, omega, mass, material,
-             estar, gstar, zeta, mu, hist, k, on[k] == 1, dt, 0.0, pf)
+    pair_law(k, i, j, (depth, nx, ny, nz, xcx, xcy, xcz, r_e, 1.0, 0.0), bodies, law, plist, dt)
     on[k] = 1
     return depth / min(axes[i, 0], axes[j, 0])
 
 
 @njit(cache=True, inline="always")
-def _solved_pair(hit, k, i, j, out, amin_i, amin_j, pos, vel, omega, mass, material, estar, gstar, zeta, mu,
-                 hist, on, dt, pf):
+def _solved_pair(hit, k, i, j, out, amin_i, amin_j, bodies, law, plist, dt):
     """After a solver filled out [OUT_LEN] (hit = 1) or found no contact: apply the law to pair k and
     return the depth over the smaller of the smallest semi-axes amin_i, amin_j [m] (-1 when apart)."""
+    on = plist[3]
     if hit == 0:
         on[k] = 0
         return -1.0
     depth = out[OUT_DEPTH]
-    pair_law(i, j, depth, out[OUT_NX], out[OUT_NY], out[OUT_NZ], out[OUT_XCX], out[OUT_XCY],
-             out[OUT_XCZ], out[OUT_RE], out[OUT_KRATIO], pos, vel, omega, mass, material,
-             estar, gstar, zeta, mu, hist, k, on[k] == 1, dt, out[OUT_LAM], pf)
+    pair_law(k, i, j, (depth, out[OUT_NX], out[OUT_NY], out[OUT_NZ], out[OUT_XCX], out[OUT_XCY], out[OUT_XCZ],
+                       out[OUT_RE], out[OUT_KRATIO], out[OUT_LAM]), bodies, law, plist, dt)
     on[k] = 1
     return depth / min(amin_i, amin_j)
 
 
 @njit(cache=True, inline="always")
-def pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, oorg, orot, ax6, lam0, n0, out):
+def pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, polys, lam0, n0, out):
     """The contact geometry of the pair (i, j) by the pair's shapes: the one shape dispatch of a
     pair, used by the step (resolve_range) and by `bench contacts` (pair_contacts). Two spheres:
     closed form; a poly-ellipsoid on either side (in a scene with them, poly_scene): the octant
-    active set on the octant geometry oorg, orot, ax6; else the ellipsoid method
-    CONTACT_METHODS[method] (warm start lam0, n0 [3]; lam0 < 0 and n0 = 0: none). Fills out
-    [OUT_LEN] (OUT_* layout: depth, normal from i to j, contact points, R_e, kappa ratio, lambda)
-    on contact. Returns (hit, smallest semi-axis of i, of j [m], 1 when a solver ran)."""
+    active set on the octant geometry of polys; else the ellipsoid method CONTACT_METHODS[method]
+    (warm start lam0, n0 [3]; lam0 < 0 and n0 = 0: none). Fills out [OUT_LEN] (OUT_* layout: depth,
+    normal from i to j, contact points, R_e, kappa ratio, lambda) on contact. Returns (hit,
+    smallest semi-axis of i, of j [m], 1 when a solver ran)."""
     if shape[i] == SPHERE and shape[j] == SPHERE:
         hit, depth, nx, ny, nz, xcx, xcy, xcz, r_e = sphere_contact(
             pos[i, 0], pos[i, 1], pos[i, 2], axes[i, 0], pos[j, 0], pos[j, 1], pos[j, 2], axes[j, 0])
@@ -219,6 +262,7 @@ def pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, oorg, orot, a
                        xcx - h * nx, xcy - h * ny, xcz - h * nz, r_e, 1.0, 0.0, 0, 0)
         return 1 if hit else 0, axes[i, 0], axes[j, 0], 0
     if poly_scene and (shape[i] == POLY or shape[j] == POLY):
+        _, oorg, orot, ax6 = polys
         hit = polyellipsoid_contact(oorg[i], orot[i], ax6[i], oorg[j], orot[j], ax6[j], n0, out)
         ai = ax6[i, 0]
         aj = ax6[j, 0]
@@ -238,15 +282,14 @@ def pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, oorg, orot, a
 
 
 @njit(cache=True)
-def pair_contacts(pi, pj, pos, rot, axes, shape, method, poly_scene, oorg, orot, ax6, rows):
+def pair_contacts(pi, pj, pos, rot, axes, shape, method, poly_scene, polys, rows):
     """The contacts of candidate pairs (pi[k], pj[k]) without history (no warm start), through
     pair_geometry: rows [m, 8] = (hit, depth [m], normal i -> j [3], contact point [3] [m])."""
     out = np.zeros(OUT_LEN)
     n0 = np.zeros(3)
     for k in range(pi.shape[0]):
         n0[0] = n0[1] = n0[2] = 0.0
-        hit, _, _, _ = pair_geometry(pi[k], pj[k], pos, rot, axes, shape, method, poly_scene, oorg, orot, ax6,
-                                     -1.0, n0, out)
+        hit, _, _, _ = pair_geometry(pi[k], pj[k], pos, rot, axes, shape, method, poly_scene, polys, -1.0, n0, out)
         rows[k, 0] = hit
         if hit:
             rows[k, 1] = out[OUT_DEPTH]
@@ -276,16 +319,16 @@ def _accumulate(k, i, j, pf, force, torque, n_owned):
 
 
 @njit(cache=True, _nrt=False)
-def _resolve_spheres(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt, hist, on,
-                     pf, accumulate, force, torque, n_owned):
+def _resolve_spheres(k0, k1, plist, bodies, law, dt, accumulate, n_owned):
     """The sphere loop: no solver in it, so a sphere scene neither runs nor carries one."""
+    pi, pj, _, _, pf = plist
+    force, torque = bodies[10], bodies[11]
     nc = 0
     worst = 0.0
     worst_k = -1
     rsum = 0.0
     for k in range(k0, k1):
-        r = _sphere_pair(k, pi[k], pj[k], pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt,
-                         hist, on, pf)
+        r = _sphere_pair(k, pi[k], pj[k], bodies, law, plist, dt)
         if r >= 0.0:
             if accumulate:
                 _accumulate(k, pi[k], pj[k], pf, force, torque, n_owned)
@@ -298,11 +341,11 @@ def _resolve_spheres(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, esta
 
 
 @njit(cache=True, _nrt=False)
-def _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar, gstar,
-                        mu, zeta, dt, method, hist, on, pf, oorg, orot, ax6, poly_scene, out, n0, accumulate, force,
-                        torque, n_owned):
+def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, poly_scene, accumulate, n_owned, out, n0):
     """The loop of a scene with ellipsoids (and poly-ellipsoids when poly_scene): closed form for
     two spheres, the bounding-sphere test, then the solver of the pair's shapes."""
+    pi, pj, hist, on, pf = plist
+    pos, _, _, _, _, _, shape, axes, rbound, _, force, torque, rot, _ = bodies
     nc = 0
     calls = 0
     worst = 0.0
@@ -312,18 +355,15 @@ def _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shap
         i = pi[k]
         j = pj[k]
         if shape[i] == SPHERE and shape[j] == SPHERE:
-            r = _sphere_pair(k, i, j, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt, hist, on,
-                             pf)
+            r = _sphere_pair(k, i, j, bodies, law, plist, dt)
         elif _apart(i, j, pos, rbound):
             on[k] = 0
             r = -1.0
         else:
             lam0 = _warm_start(hist, k, on[k] == 1, n0)
-            hit, ai, aj, solver = pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, oorg, orot, ax6,
-                                                lam0, n0, out)
+            hit, ai, aj, solver = pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, polys, lam0, n0, out)
             calls += solver
-            r = _solved_pair(hit, k, i, j, out, ai, aj, pos, vel, omega, mass, material, estar, gstar, zeta, mu,
-                             hist, on, dt, pf)
+            r = _solved_pair(hit, k, i, j, out, ai, aj, bodies, law, plist, dt)
         if r >= 0.0:
             if accumulate:
                 _accumulate(k, i, j, pf, force, torque, n_owned)
@@ -336,44 +376,44 @@ def _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shap
 
 
 @njit(cache=True, _nrt=False)
-def resolve_range(kind, method, k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass, material,
-                  estar, gstar, mu, zeta, dt, hist, on, pf, oorg, orot, ax6, out, n0, accumulate, force, torque,
-                  n_owned):
-    """Resolve pairs k0..k1-1 of the pair list: geometry (closed form for two spheres; otherwise the
-    ellipsoid method CONTACT_METHODS[method]: EXACT = PW + Newton on S^2, PW = Perram-Wertheim depth
-    only, SEXTIC = Yan 2010; poly-ellipsoids by the octant active set), then the contact law.
-    Updates hist [m, HIST_LEN] and on [m] in place (on[k] = 1: touching; its history is valid) and
-    writes the forces of the touching pairs into pf [m, PF_LEN]. accumulate (one thread, pairs in
-    ascending (gid_i, gid_j): dem.pairs.PairList.set(by_gid=True)) also sums them into force,
-    torque [n, 3] of the owned particles 0..n_owned-1 as it goes (zeroed first), as LAMMPS does:
-    in that order each particle receives its contributions in ascending partner gid, the order of
-    the gather (finish_range), so both strategies give the same bits; it spares the gather's
-    second pass over the pairs. Threads leave it False (their pairs are resolved concurrently). kind (SPHERE, ELLIPSOID, POLY) picks the loop, so a scene pays only for the
-    solvers its shapes use. out [OUT_LEN], n0 [3] are scratch; oorg [n,3], orot [n,3,3], ax6 [n,6]
-    the octant geometry (empty outside POLY). Returns RESOLVED: (contacts, solver calls, largest
-    depth ratio = depth over the smaller minimum semi-axis, its pair or -1, sum of the depth ratios)."""
+def resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, accumulate, n_owned, out, n0):
+    """Resolve pairs k0..k1-1 of the pair list plist: geometry (closed form for two spheres;
+    otherwise the ellipsoid method CONTACT_METHODS[method]: EXACT = PW + Newton on S^2, PW =
+    Perram-Wertheim depth only, SEXTIC = Yan 2010; poly-ellipsoids by the octant active set on
+    polys), then the contact law (law tables, time step dt [s]). Updates hist [m, HIST_LEN] and
+    on [m] in place (on[k] = 1: touching; its history is valid) and writes the forces of the
+    touching pairs into pf [m, PF_LEN]. accumulate (one thread, pairs in ascending (gid_i, gid_j):
+    dem.pairs.PairList.set(by_gid=True)) also sums them into the bodies' force, torque [n, 3] of
+    the owned particles 0..n_owned-1 as it goes (zeroed first), as LAMMPS does: in that order each
+    particle receives its contributions in ascending partner gid, the order of the gather
+    (finish_range), so both strategies give the same bits; it spares the gather's second pass over
+    the pairs. Threads leave it False (their pairs are resolved concurrently). kind (SPHERE,
+    ELLIPSOID, POLY) picks the loop, so a scene pays only for the solvers its shapes use. out
+    [OUT_LEN], n0 [3] are scratch. Returns RESOLVED: (contacts, solver calls, largest depth ratio
+    = depth over the smaller minimum semi-axis, its pair or -1, sum of the depth ratios)."""
     if accumulate:
+        force, torque = bodies[10], bodies[11]
         for p in range(n_owned):
             for c in range(3):
                 force[p, c] = 0.0
                 torque[p, c] = 0.0
     if kind == SPHERE:
-        return _resolve_spheres(k0, k1, pi, pj, pos, vel, omega, axes, mass, material, estar, gstar, mu, zeta, dt,
-                                hist, on, pf, accumulate, force, torque, n_owned)
-    return _resolve_ellipsoids(k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar,
-                               gstar, mu, zeta, dt, method, hist, on, pf, oorg, orot, ax6,
-                               kind == POLY, out, n0, accumulate, force, torque, n_owned)
+        return _resolve_spheres(k0, k1, plist, bodies, law, dt, accumulate, n_owned)
+    return _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, kind == POLY, accumulate, n_owned,
+                               out, n0)
 
 
 @njit(cache=True, _nrt=False)
-def _wall_particle(p, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar_w, gstar_w,
-                   zeta_w, mu_w, wall_hist, dt, oorg, orot, ax6, out, fx, fy, fz, tx, ty, tz):
+def _wall_particle(p, walls, bodies, polys, dt, out, fx, fy, fz, tx, ty, tz):
     """Planar-wall contacts of particle p (walls in fixed order) added to its force (fx, fy, fz) and
     torque (tx, ty, tz); updates its per-wall history. Called only for a particle within reach of a
     wall, and not inlined: the wall solvers would crowd the per-particle loop. Wall planes: m.x = d with m the unit normal
     into the domain; body 1 is the particle, body 2 the fixed wall, the normal from particle into
     wall is -m. Poly-ellipsoids use their octant geometry. Returns (force [3], torque [3], wall
     contacts, largest depth ratio = depth over the smallest semi-axis)."""
+    wall_m, wall_d, estar_w, gstar_w, zeta_w, mu_w, wall_hist = walls
+    pos, vel, _, _, mass, _, shape, axes, rbound, material, _, _, rot, omega = bodies
+    _, oorg, orot, ax6 = polys
     worst = 0.0
     touching = 0
     for w in range(wall_m.shape[0]):
@@ -470,14 +510,6 @@ def wall_candidates(n_owned, pos, reach, wall_m, wall_d, wall_hist, near):
 
 
 @njit(cache=True, inline="always")
-def _pair_sums(p, gathered, adj_start, adj_items, on, pf, force, torque):
-    """Particle p's pair force and torque: already summed (gathered) or gathered now."""
-    if gathered:
-        return force[p, 0], force[p, 1], force[p, 2], torque[p, 0], torque[p, 1], torque[p, 2]
-    return _gather(p, adj_start, adj_items, on, pf)
-
-
-@njit(cache=True, inline="always")
 def _put(p, force, torque, fx, fy, fz, tx, ty, tz):
     force[p, 0] = fx
     force[p, 1] = fy
@@ -518,22 +550,23 @@ def _fold(acc, p, touching, worst, ke, wg, bad, d2):
 
 
 @njit(cache=True, inline="always")
-def _finish_particle(p, spheres, gathered, pairs, bodies, walls, polys, gx, gy, gz, has_gravity, dt, poly_scene, ref,
-                     out, acc):
+def _finish_particle(p, spheres, gathered, adj, bodies, walls, polys, gravity, dt, poly_scene, ref, out, acc):
     """finish_range's work for particle p, folded into the running FINISHED tuple acc."""
-    adj_start, adj_items, on, pf, near = pairs
-    pos, vel, quat, angmom, mass, inertia, shape, axes, rbound, material, force, torque, rot, omega = bodies
-    wall_m, wall_d, estar_w, gstar_w, zeta_w, mu_w, wall_hist = walls
+    adj_start, adj_items, on, pf, near = adj
+    pos, vel, quat, angmom, mass, inertia, shape, axes, _, _, force, torque, rot, omega = bodies
     poly, oorg, orot, ax6 = polys
-    fx, fy, fz, tx, ty, tz = _pair_sums(p, gathered, adj_start, adj_items, on, pf, force, torque)
+    gx, gy, gz, _ = gravity
+    if gathered:
+        fx, fy, fz = force[p, 0], force[p, 1], force[p, 2]
+        tx, ty, tz = torque[p, 0], torque[p, 1], torque[p, 2]
+    else:
+        fx, fy, fz, tx, ty, tz = _gather(p, adj_start, adj_items, on, pf)
     touching, worst = 0, 0.0
     if near[p]:
-        fx, fy, fz, tx, ty, tz, touching, worst = _wall_particle(
-            p, wall_m, wall_d, pos, vel, omega, rot, axes, rbound, shape, mass, material, estar_w, gstar_w,
-            zeta_w, mu_w, wall_hist, dt, oorg, orot, ax6, out, fx, fy, fz, tx, ty, tz)
+        fx, fy, fz, tx, ty, tz, touching, worst = _wall_particle(p, walls, bodies, polys, dt, out,
+                                                                 fx, fy, fz, tx, ty, tz)
     _put(p, force, torque, fx, fy, fz, tx, ty, tz)
-    integrate_particle(p, pos, vel, quat, angmom, mass, inertia, shape, force, torque, gx, gy, gz, has_gravity, dt,
-                       spheres)
+    integrate_particle(p, bodies, gravity, dt, spheres)
     derive_particle(p, quat, angmom, inertia, shape, rot, omega, False, spheres)
     if poly_scene:
         derive_poly_geometry(p, pos, rot, axes, shape, poly, orot, oorg, ax6)
@@ -542,16 +575,14 @@ def _finish_particle(p, spheres, gathered, pairs, bodies, walls, polys, gx, gy, 
 
 
 @njit(cache=True, _nrt=False)
-def finish_range(p0, p1, spheres, gathered, adj_start, adj_items, on, pf, near, pos, vel, quat, angmom, mass, inertia, shape, axes,
-                 rbound, material, force, torque, rot, omega, gx, gy, gz, has_gravity, dt, wall_m, wall_d, estar_w,
-                 gstar_w, zeta_w, mu_w, wall_hist, poly, oorg, orot, ax6, poly_scene, ref, out):
+def finish_range(p0, p1, spheres, gathered, adj, bodies, walls, polys, gravity, dt, poly_scene, ref, out):
     """The rest of the step for owned particles p0..p1-1, one particle at a time:
     1. gather: sum the forces and torques of particle p's touching pairs in ascending partner gid
-       (adjacency adj_start [n_owned+1], adj_items = 2 k + (1 if p is pair k's j end)), or, when
-       gathered, take force[p], torque[p] as resolve_range(accumulate=True) left them;
+       (adj: adjacency adj_start [n_owned+1], adj_items = 2 k + (1 if p is pair k's j end)), or,
+       when gathered, take force[p], torque[p] as resolve_range(accumulate=True) left them;
     2. walls in wall order for the particles of the wall list near [n_owned] (wall_candidates, at
        each rebuild), giving force[p], torque[p];
-    3. integration (dem.integrate: leapfrog, symplectic rotation, gravity (gx, gy, gz) [m/s^2]);
+    3. integration (dem.integrate: leapfrog, symplectic rotation, gravity [m/s^2] when it has one);
     4. the derived rotation matrix rot[p] and world angular velocity omega[p] of the new
        orientation (and the octant geometry of a poly-ellipsoid when poly_scene), so the next
        step's resolution finds them ready;
@@ -563,19 +594,13 @@ def finish_range(p0, p1, spheres, gathered, adj_start, adj_items, on, pf, near, 
     (nothing is allocated). Returns FINISHED: (wall contacts, largest wall depth ratio, its
     particle or -1, kinetic energy, gravity work, number of non-finite particles, the first of
     them or -1, largest squared displacement)."""
-    # the arrays travel in tuples (free without numba's runtime; an inlined call takes at most 30
-    # arguments), and the loop is written twice only so that `spheres` is a literal in each
+    # the loop is written twice only so that `spheres` is a literal in each
     acc = (0, 0.0, -1, 0.0, 0.0, 0, -1, 0.0)
-    pairs = (adj_start, adj_items, on, pf, near)
-    bodies = (pos, vel, quat, angmom, mass, inertia, shape, axes, rbound, material, force, torque, rot, omega)
-    walls = (wall_m, wall_d, estar_w, gstar_w, zeta_w, mu_w, wall_hist)
-    polys = (poly, oorg, orot, ax6)
     if spheres:
         for p in range(p0, p1):
-            acc = _finish_particle(p, True, gathered, pairs, bodies, walls, polys, gx, gy, gz, has_gravity, dt,
-                                   False, ref, out, acc)
+            acc = _finish_particle(p, True, gathered, adj, bodies, walls, polys, gravity, dt, False, ref, out, acc)
     else:
         for p in range(p0, p1):
-            acc = _finish_particle(p, False, gathered, pairs, bodies, walls, polys, gx, gy, gz, has_gravity, dt,
-                                   poly_scene, ref, out, acc)
+            acc = _finish_particle(p, False, gathered, adj, bodies, walls, polys, gravity, dt, poly_scene, ref, out,
+                                   acc)
     return acc

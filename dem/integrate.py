@@ -121,10 +121,12 @@ def spin(w, x, y, z, ox, oy, oz, dt):
 
 
 @njit(cache=True, inline="always")
-def integrate_particle(p, pos, vel, quat, angmom, mass, inertia, shape, force, torque,
-                       gx, gy, gz, has_gravity, dt, spheres):
-    """One leapfrog step of particle p (see module docstring); spheres: a literal True where every
-    particle is a sphere (the ellipsoid rotation is then compiled out)."""
+def integrate_particle(p, bodies, gravity, dt, spheres):
+    """One leapfrog step of particle p of the bodies group (dem.forces; see module docstring), under
+    gravity = (gx, gy, gz [m/s^2], has_gravity); spheres: a literal True where every particle is a
+    sphere (the ellipsoid rotation is then compiled out)."""
+    pos, vel, quat, angmom, mass, inertia, shape, _, _, _, force, torque, _, _ = bodies
+    gx, gy, gz, has_gravity = gravity
     im = 1.0 / mass[p]
     if has_gravity:
         vel[p, 0] += dt * (force[p, 0] * im + gx)
@@ -151,15 +153,6 @@ def integrate_particle(p, pos, vel, quat, angmom, mass, inertia, shape, force, t
     quat[p, 1] = x
     quat[p, 2] = y
     quat[p, 3] = z
-
-
-@njit(cache=True)
-def integrate_range(lo, hi, pos, vel, quat, angmom, mass, inertia, shape, force, torque,
-                    gx, gy, gz, has_gravity, dt):
-    """Integrate particles lo..hi-1 (a loop strategy's share of the owned particles)."""
-    for p in range(lo, hi):
-        integrate_particle(p, pos, vel, quat, angmom, mass, inertia, shape, force, torque,
-                           gx, gy, gz, has_gravity, dt, False)
 
 
 @njit(cache=True, inline="always")
@@ -252,9 +245,11 @@ def derive_geometry_range(lo, hi, pos, rot, axes, shape, poly, orot, oorg, ax6):
 
 
 @njit(cache=True, _nrt=False)
-def derive_all(lo, hi, pos, quat, angmom, inertia, axes, shape, poly, rot, omega, poly_scene, orot, oorg, ax6):
-    """Derived quantities of particles lo..hi-1: rot, omega (derive_particle) and, when poly_scene,
-    the octant geometry (derive_poly_geometry)."""
+def derive_all(lo, hi, bodies, polys, poly_scene):
+    """Derived quantities of particles lo..hi-1 of the bodies group (dem.forces): rot, omega
+    (derive_particle) and, when poly_scene, the octant geometry of polys (derive_poly_geometry)."""
+    pos, _, quat, angmom, _, inertia, shape, axes, _, _, _, _, rot, omega = bodies
+    poly, oorg, orot, ax6 = polys
     for p in range(lo, hi):
         derive_particle(p, quat, angmom, inertia, shape, rot, omega, True, False)
         if poly_scene:

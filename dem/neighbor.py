@@ -95,8 +95,7 @@ def sorted_copies(cell_items, cell_of, pos, rbound, gid):
 
 
 @njit(cache=True)
-def scan_rows(rows, r0, r1, scell, dims, cell_start, cell_items, half_shell, spos, srb, sgid, n_owned,
-              pi, pj, count):
+def scan_rows(rows, r0, r1, grid, half_shell, n_owned, pi, pj, count):
     """The one neighbour loop: for each outer particle at scan row u in `rows`, test the later
     particles of its own cell and all particles of its 13 forward (half-shell) cells.
 
@@ -105,9 +104,11 @@ def scan_rows(rows, r0, r1, scell, dims, cell_start, cell_items, half_shell, spo
     n-by-n search, i against j > i). Arrays are in scan (cell) order (sorted_copies); pairs are
     written as local indices via cell_items from position `count` of pi, pj on. Only rows[r0:r1]
     are scanned, so a thread scheme hands each thread its rows.
+    grid = (scell, dims, cell_start, cell_items, spos, srb, sgid): CellGrid.arrays.
     Returns (pair count, which may exceed len(pi): then the caller enlarges the buffers and
     scans again; number of pair tests made, the work of these rows).
     """
+    scell, dims, cell_start, cell_items, spos, srb, sgid = grid
     nx, ny, nz = dims[0], dims[1], dims[2]
     tests = 0
     for r in range(r0, r1):
@@ -185,10 +186,14 @@ class CellGrid:
         self.dims, _, _, self.cell_start, self.cell_items, cell_of = bin_particles(pos, cutoff)
         self.spos, self.srb, self.sgid, self.scell = sorted_copies(self.cell_items, cell_of, pos, rbound, gid)
 
+    @property
+    def arrays(self):
+        """The grid group of scan_rows: (scell, dims, cell_start, cell_items, spos, srb, sgid)."""
+        return self.scell, self.dims, self.cell_start, self.cell_items, self.spos, self.srb, self.sgid
+
     def scan(self, rows, n_owned, pi, pj):
         """Serial scan of all rows; returns the pair count."""
-        return scan_rows(rows, 0, rows.shape[0], self.scell, self.dims, self.cell_start, self.cell_items,
-                         HALF_SHELL, self.spos, self.srb, self.sgid, n_owned, pi, pj, 0)[0]
+        return scan_rows(rows, 0, rows.shape[0], self.arrays, HALF_SHELL, n_owned, pi, pj, 0)[0]
 
 
 def find_pairs(method, pos, radii, gid, n_owned, buffers):

@@ -265,6 +265,19 @@ class PairList:
     def adj_items(self):
         return self.adjacency()[1]
 
+    @property
+    def arrays(self):
+        """The resolution kernels' plist group (pi, pj, hist, on, pf) (dem.forces)."""
+        return self.pi, self.pj, self.hist, self.on, self.pf
+
+    def gather_arrays(self, summed):
+        """The finish kernels' adj group (adj_start, adj_items, on, pf, near) (dem.forces); where
+        the forces are summed as the pairs are resolved (summed) nothing gathers, and the
+        adjacency is left unbuilt (empty arrays of its types take its place)."""
+        adj_start, adj_items = (np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64)) if summed \
+            else self.adjacency()
+        return adj_start, adj_items, self.on, self.pf, self.near
+
     def adjacency(self):
         """(adj_start [n_owned+1], adj_items): each owned particle's pairs in ascending partner gid."""
         if self._adj is None:

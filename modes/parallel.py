@@ -108,11 +108,11 @@ def scheme_rows(scheme, n, threads):
 
 
 @njit(parallel=True, cache=True)
-def scan_threads(code, threads, row_start, rows, scell, dims, cell_start, cell_items, spos, srb, sgid,
-                 n_owned, pi_t, pj_t, counts, tests, busy):
-    """Neighbour scan under a scheme into per-thread buffers pi_t, pj_t [T, cap]; counts [T],
-    tests [T] (pair tests made) and busy [T] (cycles) per thread."""
-    n = scell.shape[0]
+def scan_threads(code, threads, row_start, rows, grid, n_owned, pi_t, pj_t, counts, tests, busy):
+    """Neighbour scan (dem.neighbor.scan_rows over the grid group) under a scheme into per-thread
+    buffers pi_t, pj_t [T, cap]; counts [T], tests [T] (pair tests made) and busy [T] (cycles) per
+    thread."""
+    n = grid[0].shape[0]
     counts[:] = 0
     tests[:] = 0
     busy[:] = 0
@@ -120,8 +120,8 @@ def scan_threads(code, threads, row_start, rows, scell, dims, cell_start, cell_i
         for b in prange((n + STATIC_BLOCK - 1) // STATIC_BLOCK):
             t = get_thread_id()
             c0 = cycle_counter()
-            c, w = scan_rows(rows, b * STATIC_BLOCK, min(n, (b + 1) * STATIC_BLOCK), scell, dims, cell_start,
-                             cell_items, HALF_SHELL, spos, srb, sgid, n_owned, pi_t[t], pj_t[t], counts[t])
+            c, w = scan_rows(rows, b * STATIC_BLOCK, min(n, (b + 1) * STATIC_BLOCK), grid, HALF_SHELL, n_owned,
+                             pi_t[t], pj_t[t], counts[t])
             counts[t] = c
             tests[t] += w
             busy[t] += cycle_counter() - c0
@@ -135,8 +135,7 @@ def scan_threads(code, threads, row_start, rows, scell, dims, cell_start, cell_i
                 s = fetch_add(counter, 0, DYNAMIC_ROWS)
                 if s >= n:
                     break
-                c, dw = scan_rows(rows, s, min(n, s + DYNAMIC_ROWS), scell, dims, cell_start, cell_items, HALF_SHELL,
-                                  spos, srb, sgid, n_owned, pi_t[t], pj_t[t], c)
+                c, dw = scan_rows(rows, s, min(n, s + DYNAMIC_ROWS), grid, HALF_SHELL, n_owned, pi_t[t], pj_t[t], c)
                 w += dw
             counts[t] = c
             tests[t] = w
@@ -144,8 +143,7 @@ def scan_threads(code, threads, row_start, rows, scell, dims, cell_start, cell_i
     else:
         for t in prange(threads):
             c0 = cycle_counter()
-            c, w = scan_rows(rows, row_start[t], row_start[t + 1], scell, dims, cell_start, cell_items,
-                             HALF_SHELL, spos, srb, sgid, n_owned, pi_t[t], pj_t[t], 0)
+            c, w = scan_rows(rows, row_start[t], row_start[t + 1], grid, HALF_SHELL, n_owned, pi_t[t], pj_t[t], 0)
             counts[t] = c
             tests[t] = w
             busy[t] = cycle_counter() - c0
@@ -177,15 +175,15 @@ def _fold_resolved(red, t, r):
 
 
 @njit(parallel=True, cache=True)
-def resolve_threads(code, threads, offsets, kind, method, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass,
-                    material, estar, gstar, mu, zeta, dt, hist, on, pf, oorg, orot, ax6, outs, n0s,
-                    counter, red, busy):
-    """Contact resolution of the pair list under a scheme. Explicit schemes: thread t resolves the pairs it
-    found, offsets[t]..offsets[t+1]; static: prange over blocks of STATIC_BLOCK pairs; dynamic:
-    chunks of DYNAMIC_PAIRS from the atomic counter [1]. outs [T, >= OUT_LEN], n0s [T, >= 3] are
-    per-thread scratch, red [T, >= RED_LEN] per-thread reductions, busy [T, >= 1] cycles (column
-    0); rows padded apart so that no two threads write one cache line.
+def resolve_threads(code, threads, offsets, kind, method, plist, bodies, polys, law, dt, scratch):
+    """Contact resolution of the pair list under a scheme (dem.forces.resolve_range, argument
+    groups as there). Explicit schemes: thread t resolves the pairs it found,
+    offsets[t]..offsets[t+1]; static: prange over blocks of STATIC_BLOCK pairs; dynamic: chunks of
+    DYNAMIC_PAIRS from the atomic counter [1]. scratch = (outs [T, >= OUT_LEN], n0s [T, >= 3]
+    per-thread scratch, counter [1], red [T, >= RED_LEN] per-thread reductions, busy [T, >= 1]
+    cycles (column 0)); rows padded apart so that no two threads write one cache line.
     Returns dem.forces.RESOLVED over all threads."""
+    outs, n0s, counter, red, busy = scratch
     m = offsets[threads]
     red[:, :] = 0.0
     red[:, 3] = -1.0
@@ -194,9 +192,8 @@ def resolve_threads(code, threads, offsets, kind, method, pi, pj, pos, vel, omeg
             t = get_thread_id()
             c0 = cycle_counter()
             k = b * STATIC_BLOCK
-            r = resolve_range(kind, method, k, min(m, k + STATIC_BLOCK), pi, pj, pos, vel, omega, rot, axes, rbound,
-                              shape, mass, material, estar, gstar, mu, zeta, dt, hist, on, pf, oorg,
-                              orot, ax6, outs[t], n0s[t], False, pos, pos, 0)
+            r = resolve_range(kind, method, k, min(m, k + STATIC_BLOCK), plist, bodies, polys, law, dt, False, 0,
+                              outs[t], n0s[t])
             _fold_resolved(red, t, r)
             busy[t, 0] += cycle_counter() - c0
     else:
@@ -211,9 +208,7 @@ def resolve_threads(code, threads, offsets, kind, method, pi, pj, pos, vel, omeg
                     if k0 >= m:
                         break
                     k1 = min(m, k0 + DYNAMIC_PAIRS)
-                r = resolve_range(kind, method, k0, k1, pi, pj, pos, vel, omega, rot, axes, rbound, shape, mass,
-                                  material, estar, gstar, mu, zeta, dt, hist, on, pf, oorg, orot,
-                                  ax6, outs[t], n0s[t], False, pos, pos, 0)
+                r = resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, False, 0, outs[t], n0s[t])
                 _fold_resolved(red, t, r)
                 if code != DYNAMIC:
                     break
@@ -234,26 +229,21 @@ def resolve_threads(code, threads, offsets, kind, method, pi, pj, pos, vel, omeg
 
 
 @njit(parallel=True, cache=True)
-def derive_threads(threads, lo, hi, pos, quat, angmom, inertia, axes, shape, poly, rot, omega, poly_scene, orot, oorg,
-                   ax6):
+def derive_threads(threads, lo, hi, bodies, polys, poly_scene):
     """dem.integrate.derive_all of particles lo..hi-1 in T contiguous blocks."""
     for t in prange(threads):
-        derive_all(lo + (t * (hi - lo)) // threads, lo + ((t + 1) * (hi - lo)) // threads, pos, quat, angmom, inertia,
-                   axes, shape, poly, rot, omega, poly_scene, orot, oorg, ax6)
+        derive_all(lo + (t * (hi - lo)) // threads, lo + ((t + 1) * (hi - lo)) // threads, bodies, polys, poly_scene)
 
 
 @njit(parallel=True, cache=True)
-def finish_threads(threads, n, spheres, gathered, adj_start, adj_items, on, pf, near, pos, vel, quat, angmom, mass, inertia, shape, axes, rbound, material,
-                   force, torque, rot, omega, gx, gy, gz, has_gravity, dt, wall_m, wall_d, estar_w, gstar_w, zeta_w,
-                   mu_w, wall_hist, poly, oorg, orot, ax6, poly_scene, ref, outs, fin):
-    """dem.forces.finish_range of the owned particles 0..n-1 in T contiguous blocks (particles are
-    independent in this pass: each reads only its own pairs' results). fin [T, >= FIN_LEN] holds the
-    per-thread results, combined here in thread order. Returns dem.forces.FINISHED."""
+def finish_threads(threads, n, spheres, gathered, adj, bodies, walls, polys, gravity, dt, poly_scene, ref, outs, fin):
+    """dem.forces.finish_range (argument groups as there) of the owned particles 0..n-1 in T
+    contiguous blocks (particles are independent in this pass: each reads only its own pairs'
+    results). outs [T, >= OUT_LEN] is per-thread scratch; fin [T, >= FIN_LEN] holds the per-thread
+    results, combined here in thread order. Returns dem.forces.FINISHED."""
     for t in prange(threads):
-        r = finish_range((t * n) // threads, ((t + 1) * n) // threads, spheres, gathered, adj_start, adj_items, on, pf, near, pos, vel, quat, angmom,
-                         mass, inertia, shape, axes, rbound, material, force, torque, rot, omega, gx, gy, gz,
-                         has_gravity, dt, wall_m, wall_d, estar_w, gstar_w, zeta_w, mu_w, wall_hist, poly, oorg, orot,
-                         ax6, poly_scene, ref, outs[t])
+        r = finish_range((t * n) // threads, ((t + 1) * n) // threads, spheres, gathered, adj, bodies, walls, polys,
+                         gravity, dt, poly_scene, ref, outs[t])
         fin[t, 0] = r[0]
         fin[t, 1] = r[1]
         fin[t, 2] = r[2]

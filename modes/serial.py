@@ -16,7 +16,7 @@ import numpy as np
 
 from dem.contact.ellipsoid import OUT_LEN
 from dem.contact import CONTACT_METHODS
-from dem.forces import finish_range, resolve_range, scene_kind, wall_candidates
+from dem.forces import body_arrays, finish_range, law_tables, resolve_range, scene_kind, wall_arrays, wall_candidates
 from dem.integrate import derive_all
 from dem.neighbor import cell_order, find_pairs
 from dem.pairs import DEFAULT_SKIN, PairList
@@ -52,6 +52,8 @@ class SerialMode:
         self.neighbor = neighbor
         self.g = np.asarray(scene.gravity, dtype=np.float64)
         self.has_gravity = bool(np.any(self.g != 0.0))
+        self.gravity = (float(self.g[0]), float(self.g[1]), float(self.g[2]), self.has_gravity)
+        self.law = law_tables(scene.materials)
         self.touches_walls = True   # MPI: whether this block touches a wall (modes/mpi.py)
         self.no_walls = (np.zeros((0, 3)), np.zeros(0))
         self.all_spheres = self.state.all_spheres
@@ -91,7 +93,10 @@ class SerialMode:
     def ensure_derived(self):
         """Rotation matrices [n,3,3] and angular velocities [n,3] sized to the current n (MPI
         changes n at rebuilds: ghosts and migrants); in a scene with poly-ellipsoids also the
-        octant geometry oorg [n,3], orot [n,3,3], ax6 [n,6] (empty otherwise)."""
+        octant geometry oorg [n,3], orot [n,3,3], ax6 [n,6] (empty otherwise). Then the kernels'
+        bodies and polys groups (dem.forces) over the current arrays: they are bound here, at
+        every rebuild, the only time the state's arrays are replaced (re-sorting, migration,
+        ghosts); a step between rebuilds allocates nothing."""
         n = self.state.n
         if self.rot is None or self.rot.shape[0] != n:
             self.rot = np.zeros((n, 3, 3))
@@ -100,13 +105,13 @@ class SerialMode:
             self.oorg = np.zeros((g, 3))
             self.orot = np.zeros((g, 3, 3))
             self.ax6 = np.zeros((g, 6))
+        self.bodies = body_arrays(self.state, self.rot, self.omega)
+        self.polys = (self.state.poly, self.oorg, self.orot, self.ax6)
 
     def derive(self, lo, hi):
         """Derived quantities of particles lo..hi-1 (all of them after a rebuild; ghosts after a
         forward exchange)."""
-        s = self.state
-        derive_all(lo, hi, s.pos, s.quat, s.angmom, s.inertia, s.axes, s.shape, s.poly, self.rot, self.omega,
-                   self.kind == POLY, self.orot, self.oorg, self.ax6)
+        derive_all(lo, hi, self.bodies, self.polys, self.kind == POLY)
 
     def sync_history(self):
         """Write the pair list's contact history into the state's per-particle rows (the form that
@@ -148,7 +153,9 @@ class SerialMode:
         self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos, by_gid=self.accumulate,
                        carry=carry)
         self.pairs.near = np.zeros(s.n_owned, dtype=np.int8)
-        wall_candidates(s.n_owned, s.pos, reach, *self.walls(), s.wall_hist, self.pairs.near)
+        wall_candidates(s.n_owned, s.pos, reach, *self.wall_planes(), s.wall_hist, self.pairs.near)
+        self.plist = self.pairs.arrays
+        self.adj = self.pairs.gather_arrays(self.accumulate)
 
     def migrate(self):
         """Hand particles that left the block to their new owner (MPI); returns how many left."""
@@ -170,30 +177,28 @@ class SerialMode:
 
     def resolve(self):
         """Contact resolution of the pair list; returns dem.forces.RESOLVED."""
-        s, m, p = self.state, self.scene.materials, self.pairs
-        return resolve_range(self.kind, self.method, 0, p.m, p.pi, p.pj, s.pos, s.vel, self.omega, self.rot,
-                             s.axes, s.rbound, s.shape, s.mass, s.material, m.estar, m.gstar, m.mu, m.zeta, self.dt,
-                             p.hist, p.on, p.pf, self.oorg, self.orot, self.ax6, self.out,
-                             self.n0, self.accumulate, s.force, s.torque, s.n_owned)
+        return resolve_range(self.kind, self.method, 0, self.pairs.m, self.plist, self.bodies, self.polys, self.law,
+                             self.dt, self.accumulate, self.state.n_owned, self.out, self.n0)
 
     @property
     def has_walls(self):
         """Whether the step has a wall pass (a scene with walls, a block that touches one)."""
         return bool(len(self.scene.walls)) and self.touches_walls
 
-    def walls(self):
+    def wall_planes(self):
         """Wall planes (normals [n_walls, 3], offsets [n_walls]) this rank's particles can touch;
         read from the scene each step (a build moves them)."""
         return (self.scene.wall_m, self.scene.wall_d) if self.has_walls else self.no_walls
 
+    def walls(self):
+        """The kernels' walls group (dem.forces.wall_arrays) of this step."""
+        return wall_arrays(*self.wall_planes(), self.scene.materials, self.state.wall_hist)
+
     def finish(self):
         """Gather, walls, integration, derived quantities and guard sums; returns dem.forces.FINISHED."""
-        s, m, p, g = self.state, self.scene.materials, self.pairs, self.g
-        return finish_range(0, s.n_owned, self.kind == SPHERE, self.accumulate, p.adj_start, p.adj_items, p.on, p.pf, p.near, s.pos, s.vel, s.quat,
-                            s.angmom, s.mass, s.inertia, s.shape, s.axes, s.rbound, s.material, s.force, s.torque,
-                            self.rot, self.omega, g[0], g[1], g[2], self.has_gravity, self.dt, *self.walls(),
-                            m.estar_w, m.gstar_w, m.zeta_w, m.mu_w, s.wall_hist, s.poly, self.oorg,
-                            self.orot, self.ax6, self.kind == POLY, p.ref, self.out)
+        return finish_range(0, self.state.n_owned, self.kind == SPHERE, self.accumulate, self.adj, self.bodies,
+                            self.walls(), self.polys, self.gravity, self.dt, self.kind == POLY, self.pairs.ref,
+                            self.out)
 
     @property
     def worst_contact(self):

@@ -68,6 +68,7 @@ class ThreadsMode(SerialMode):
         self.fin = np.zeros((t, PAD))
         self.busy_rows = np.zeros((t, PAD), dtype=np.int64)
         self.counter = np.zeros(1, dtype=np.int64)
+        self.scratch = (self.outs, self.n0s, self.counter, self.red, self.busy_rows)
 
     @property
     def busy(self):
@@ -89,8 +90,7 @@ class ThreadsMode(SerialMode):
         while True:
             pi_t = np.empty((self.threads, self.cap), dtype=np.int64)
             pj_t = np.empty((self.threads, self.cap), dtype=np.int64)
-            par.scan_threads(self.code, self.threads, row_start, rows, grid.scell, grid.dims, grid.cell_start,
-                             grid.cell_items, grid.spos, grid.srb, grid.sgid, s.n_owned, pi_t, pj_t,
+            par.scan_threads(self.code, self.threads, row_start, rows, grid.arrays, s.n_owned, pi_t, pj_t,
                              self.counts, self.tests, self.scan_busy)
             if self.counts.max() <= self.cap:
                 break
@@ -106,34 +106,23 @@ class ThreadsMode(SerialMode):
         return m
 
     def resolve(self):
-        s, m, p = self.state, self.scene.materials, self.pairs
         self.busy_rows[:, 0] = 0
-        return par.resolve_threads(self.code, self.threads, p.offsets, self.kind, self.method, p.pi, p.pj, s.pos,
-                                   s.vel, self.omega, self.rot, s.axes, s.rbound, s.shape, s.mass, s.material,
-                                   m.estar, m.gstar, m.mu, m.zeta, self.dt,
-                                   p.hist, p.on, p.pf, self.oorg, self.orot, self.ax6,
-                                   self.outs, self.n0s, self.counter,
-                                   self.red, self.busy_rows)
+        return par.resolve_threads(self.code, self.threads, self.pairs.offsets, self.kind, self.method, self.plist,
+                                   self.bodies, self.polys, self.law, self.dt, self.scratch)
 
     # --- the rest of the step --------------------------------------------------------------------
     def derive(self, lo, hi):
         if self.threaded == "step" and hi > lo:
-            s = self.state
-            par.derive_threads(self.threads, lo, hi, s.pos, s.quat, s.angmom, s.inertia, s.axes, s.shape, s.poly,
-                               self.rot, self.omega, self.kind == POLY, self.orot, self.oorg, self.ax6)
+            par.derive_threads(self.threads, lo, hi, self.bodies, self.polys, self.kind == POLY)
         else:
             super().derive(lo, hi)
 
     def finish(self):
         if self.threaded != "step":
             return super().finish()
-        s, m, p, g = self.state, self.scene.materials, self.pairs, self.g
-        return par.finish_threads(self.threads, s.n_owned, self.kind == SPHERE, False, p.adj_start, p.adj_items, p.on, p.pf, p.near, s.pos, s.vel,
-                                  s.quat, s.angmom, s.mass, s.inertia, s.shape, s.axes, s.rbound, s.material, s.force,
-                                  s.torque, self.rot, self.omega, g[0], g[1], g[2], self.has_gravity, self.dt,
-                                  *self.walls(), m.estar_w, m.gstar_w, m.zeta_w, m.mu_w, s.wall_hist,
-                                  s.poly, self.oorg, self.orot, self.ax6, self.kind == POLY, p.ref, self.outs,
-                                  self.fin)
+        return par.finish_threads(self.threads, self.state.n_owned, self.kind == SPHERE, False, self.adj, self.bodies,
+                                  self.walls(), self.polys, self.gravity, self.dt, self.kind == POLY, self.pairs.ref,
+                                  self.outs, self.fin)
 
     def step(self):
         row = super().step()

@@ -166,8 +166,7 @@ def _serial_tests(mode):
     grid = CellGrid(mode.neighbor, s.pos, s.rbound, s.gid)
     rows = np.arange(s.n, dtype=np.int64)
     empty = np.empty(0, dtype=np.int64)
-    return int(scan_rows(rows, 0, s.n, grid.scell, grid.dims, grid.cell_start, grid.cell_items, HALF_SHELL,
-                         grid.spos, grid.srb, grid.sgid, s.n_owned, empty, empty, 0)[1])
+    return int(scan_rows(rows, 0, s.n, grid.arrays, HALF_SHELL, s.n_owned, empty, empty, 0)[1])
 
 
 def add_paper(rows, paper):
