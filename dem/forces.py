@@ -4,9 +4,11 @@ The pair list (dem.pairs, kept between neighbour rebuilds) holds each candidate 
 gid[i] < gid[j], once, with its contact history hist [m, HIST_LEN] (tangential spring, contact
 radius, PW warm start: dem.state H_*) and on [m] (int8: the pair touched at its last resolution,
 so its history is valid). Resolution reads a pair's history and overwrites it in place: a pair
-is resolved by exactly one thread, and nothing else reads its record meanwhile. It writes the
-pair's forces into pf [m, PF_LEN], in pair order (a sequential stream: scattering them to the
-two ends' rows was measured 3x dearer on a 10k sphere bed, the stores missing the cache).
+is resolved by exactly one thread, and nothing else reads its record meanwhile. Where pairs are
+resolved concurrently (threads) it writes the pair's forces into pf [m, PF_LEN], in pair order (a
+sequential stream: scattering them to the two ends' rows was measured 3x dearer on a 10k sphere
+bed, the stores missing the cache); one thread over gid-sorted pairs adds them to the two ends
+as it goes instead, and stores no per-pair force (resolve_range, accumulate).
 
 Determinism (DESIGN.md): particle p then sums its pair contributions in ascending partner gid
 (the adjacency of dem.pairs, sorted once per rebuild), then its walls in wall order. The result
@@ -138,9 +140,9 @@ def contact_force(depth, nx, ny, nz, r_e, kratio, r1x, r1y, r1z, r2x, r2y, r2z, 
 
 
 @njit(cache=True, inline="always")
-def _store(hist, k, f, nx, ny, nz, lam, pf):
-    """Write contact_force's tuple f: the new history of pair k (spring, contact radius, warm start)
-    and its forces pf[k]."""
+def _store_history(hist, k, f, nx, ny, nz, lam):
+    """Write the new history of pair k from contact_force's tuple f: spring, contact radius, and the
+    warm start of the next resolution (PW lambda, normal)."""
     hist[k, H_FT] = f[9]
     hist[k, H_FT + 1] = f[10]
     hist[k, H_FT + 2] = f[11]
@@ -149,6 +151,31 @@ def _store(hist, k, f, nx, ny, nz, lam, pf):
     hist[k, H_N] = nx
     hist[k, H_N + 1] = ny
     hist[k, H_N + 2] = nz
+
+
+@njit(cache=True, inline="always")
+def _deliver(k, i, j, f, sums):
+    """Hand the forces of touching pair k (contact_force's tuple f) on: sums = (accumulate, pf,
+    force, torque, n_owned). accumulate (one thread, pairs in gid order: see resolve_range) adds
+    them to the owned ends, force[i] -= F, torque[i] += T_i, force[j] += F, torque[j] += T_j, and
+    writes nothing per pair; else they are stored in pf[k] for the gather (finish_range)."""
+    accumulate, pf, force, torque, n_owned = sums
+    if accumulate:
+        if i < n_owned:
+            force[i, 0] -= f[0]
+            force[i, 1] -= f[1]
+            force[i, 2] -= f[2]
+            torque[i, 0] += f[3]
+            torque[i, 1] += f[4]
+            torque[i, 2] += f[5]
+        if j < n_owned:
+            force[j, 0] += f[0]
+            force[j, 1] += f[1]
+            force[j, 2] += f[2]
+            torque[j, 0] += f[6]
+            torque[j, 1] += f[7]
+            torque[j, 2] += f[8]
+        return
     pf[k, PF_F] = f[0]
     pf[k, PF_F + 1] = f[1]
     pf[k, PF_F + 2] = f[2]
@@ -161,14 +188,14 @@ def _store(hist, k, f, nx, ny, nz, lam, pf):
 
 
 @njit(cache=True, inline="always")
-def pair_law(k, i, j, geo, bodies, law, plist, dt):
+def pair_law(k, i, j, geo, bodies, law, plist, dt, sums):
     """contact_force for particles i -> j of pair k, on the resolved geometry geo = (depth [m],
     normal from i to j [3], contact point [3] [m], R_e [m], kappa ratio, PW lambda); the old
     history is read from and the new one written to hist[k] (it is valid when on[k] == 1), the
-    forces to pf[k]."""
+    forces handed on by _deliver (sums)."""
     pos, vel, _, _, mass, _, _, _, _, material, _, _, _, omega = bodies
     estar, gstar, mu, zeta = law
-    _, _, hist, on, pf = plist
+    _, _, hist, on, _ = plist
     depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio, lam = geo
     r1x, r1y, r1z = xcx - pos[i, 0], xcy - pos[i, 1], xcz - pos[i, 2]
     r2x, r2y, r2z = xcx - pos[j, 0], xcy - pos[j, 1], xcz - pos[j, 2]
@@ -185,7 +212,8 @@ def pair_law(k, i, j, geo, bodies, law, plist, dt):
     f = contact_force(depth, nx, ny, nz, r_e, kratio, r1x, r1y, r1z, r2x, r2y, r2z, vrx, vry, vrz,
                       mi * mj / (mi + mj), estar[a, b], gstar[a, b], zeta[a, b], mu[a, b],
                       hist[k, H_FT], hist[k, H_FT + 1], hist[k, H_FT + 2], hist[k, H_A], on[k] == 1, dt)
-    _store(hist, k, f, nx, ny, nz, lam, pf)
+    _store_history(hist, k, f, nx, ny, nz, lam)
+    _deliver(k, i, j, f, sums)
 
 
 @njit(cache=True, inline="always")
@@ -213,7 +241,7 @@ def _apart(i, j, pos, rbound):
 
 
 @njit(cache=True, inline="always")
-def _sphere_pair(k, i, j, bodies, law, plist, dt):
+def _sphere_pair(k, i, j, bodies, law, plist, dt, sums):
     """Closed-form sphere-sphere contact and law for pair k = (i, j); returns the depth ratio (depth
     over the smaller radius) or -1 when apart."""
     pos = bodies[0]
@@ -224,13 +252,13 @@ def _sphere_pair(k, i, j, bodies, law, plist, dt):
     if not hit:
         on[k] = 0
         return -1.0
-    pair_law(k, i, j, (depth, nx, ny, nz, xcx, xcy, xcz, r_e, 1.0, 0.0), bodies, law, plist, dt)
+    pair_law(k, i, j, (depth, nx, ny, nz, xcx, xcy, xcz, r_e, 1.0, 0.0), bodies, law, plist, dt, sums)
     on[k] = 1
     return depth / min(axes[i, 0], axes[j, 0])
 
 
 @njit(cache=True, inline="always")
-def _solved_pair(hit, k, i, j, out, amin_i, amin_j, bodies, law, plist, dt):
+def _solved_pair(hit, k, i, j, out, amin_i, amin_j, bodies, law, plist, dt, sums):
     """After a solver filled out [OUT_LEN] (hit = 1) or found no contact: apply the law to pair k and
     return the depth over the smaller of the smallest semi-axes amin_i, amin_j [m] (-1 when apart)."""
     on = plist[3]
@@ -239,7 +267,7 @@ def _solved_pair(hit, k, i, j, out, amin_i, amin_j, bodies, law, plist, dt):
         return -1.0
     depth = out[OUT_DEPTH]
     pair_law(k, i, j, (depth, out[OUT_NX], out[OUT_NY], out[OUT_NZ], out[OUT_XCX], out[OUT_XCY], out[OUT_XCZ],
-                       out[OUT_RE], out[OUT_KRATIO], out[OUT_LAM]), bodies, law, plist, dt)
+                       out[OUT_RE], out[OUT_KRATIO], out[OUT_LAM]), bodies, law, plist, dt, sums)
     on[k] = 1
     return depth / min(amin_i, amin_j)
 
@@ -298,40 +326,18 @@ def pair_contacts(pi, pj, pos, rot, axes, shape, method, poly_scene, polys, rows
                 rows[k, 5 + c] = out[OUT_XCX + c]
 
 
-@njit(cache=True, inline="always")
-def _accumulate(k, i, j, pf, force, torque, n_owned):
-    """Add touching pair k's forces to its owned ends: force[i] -= F, torque[i] += T_i,
-    force[j] += F, torque[j] += T_j (the single-threaded strategy; see resolve_range)."""
-    if i < n_owned:
-        force[i, 0] -= pf[k, PF_F]
-        force[i, 1] -= pf[k, PF_F + 1]
-        force[i, 2] -= pf[k, PF_F + 2]
-        torque[i, 0] += pf[k, PF_TI]
-        torque[i, 1] += pf[k, PF_TI + 1]
-        torque[i, 2] += pf[k, PF_TI + 2]
-    if j < n_owned:
-        force[j, 0] += pf[k, PF_F]
-        force[j, 1] += pf[k, PF_F + 1]
-        force[j, 2] += pf[k, PF_F + 2]
-        torque[j, 0] += pf[k, PF_TJ]
-        torque[j, 1] += pf[k, PF_TJ + 1]
-        torque[j, 2] += pf[k, PF_TJ + 2]
-
-
 @njit(cache=True, _nrt=False)
 def _resolve_spheres(k0, k1, plist, bodies, law, dt, accumulate, n_owned):
     """The sphere loop: no solver in it, so a sphere scene neither runs nor carries one."""
     pi, pj, _, _, pf = plist
-    force, torque = bodies[10], bodies[11]
+    sums = (accumulate, pf, bodies[10], bodies[11], n_owned)
     nc = 0
     worst = 0.0
     worst_k = -1
     rsum = 0.0
     for k in range(k0, k1):
-        r = _sphere_pair(k, pi[k], pj[k], bodies, law, plist, dt)
+        r = _sphere_pair(k, pi[k], pj[k], bodies, law, plist, dt, sums)
         if r >= 0.0:
-            if accumulate:
-                _accumulate(k, pi[k], pj[k], pf, force, torque, n_owned)
             nc += 1
             rsum += r
             if r > worst:
@@ -346,6 +352,7 @@ def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, poly_scen
     two spheres, the bounding-sphere test, then the solver of the pair's shapes."""
     pi, pj, hist, on, pf = plist
     pos, _, _, _, _, _, shape, axes, rbound, _, force, torque, rot, _ = bodies
+    sums = (accumulate, pf, force, torque, n_owned)
     nc = 0
     calls = 0
     worst = 0.0
@@ -355,7 +362,7 @@ def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, poly_scen
         i = pi[k]
         j = pj[k]
         if shape[i] == SPHERE and shape[j] == SPHERE:
-            r = _sphere_pair(k, i, j, bodies, law, plist, dt)
+            r = _sphere_pair(k, i, j, bodies, law, plist, dt, sums)
         elif _apart(i, j, pos, rbound):
             on[k] = 0
             r = -1.0
@@ -363,10 +370,8 @@ def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, poly_scen
             lam0 = _warm_start(hist, k, on[k] == 1, n0)
             hit, ai, aj, solver = pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, polys, lam0, n0, out)
             calls += solver
-            r = _solved_pair(hit, k, i, j, out, ai, aj, bodies, law, plist, dt)
+            r = _solved_pair(hit, k, i, j, out, ai, aj, bodies, law, plist, dt, sums)
         if r >= 0.0:
-            if accumulate:
-                _accumulate(k, i, j, pf, force, torque, n_owned)
             nc += 1
             rsum += r
             if r > worst:
@@ -382,12 +387,12 @@ def resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, accumulat
     Perram-Wertheim depth only, SEXTIC = Yan 2010; poly-ellipsoids by the octant active set on
     polys), then the contact law (law tables, time step dt [s]). Updates hist [m, HIST_LEN] and
     on [m] in place (on[k] = 1: touching; its history is valid) and writes the forces of the
-    touching pairs into pf [m, PF_LEN]. accumulate (one thread, pairs in ascending (gid_i, gid_j):
-    dem.pairs.PairList.set(by_gid=True)) also sums them into the bodies' force, torque [n, 3] of
+    touching pairs into pf [m, PF_LEN]; accumulate (one thread, pairs in ascending (gid_i, gid_j):
+    dem.pairs.PairList.set(by_gid=True)) instead sums them into the bodies' force, torque [n, 3] of
     the owned particles 0..n_owned-1 as it goes (zeroed first), as LAMMPS does: in that order each
     particle receives its contributions in ascending partner gid, the order of the gather
-    (finish_range), so both strategies give the same bits; it spares the gather's second pass over
-    the pairs. Threads leave it False (their pairs are resolved concurrently). kind (SPHERE,
+    (finish_range), so both strategies give the same bits; it spares pf and the gather's second
+    pass over the pairs. Threads leave it False (their pairs are resolved concurrently). kind (SPHERE,
     ELLIPSOID, POLY) picks the loop, so a scene pays only for the solvers its shapes use. out
     [OUT_LEN], n0 [3] are scratch. Returns RESOLVED: (contacts, solver calls, largest depth ratio
     = depth over the smaller minimum semi-axis, its pair or -1, sum of the depth ratios)."""
