@@ -472,6 +472,19 @@ def _wall_particle(p, walls, bodies, polys, dt, out, fx, fy, fz, tx, ty, tz):
 
 
 @njit(cache=True, inline="always")
+def _wall_pass_due(p, walls, pos, rbound):
+    """Whether particle p of the wall list needs _wall_particle this step: some wall plane is closer
+    than its bounding radius, or some wall history is still open (the pass would close it). A
+    pass that is not due would change nothing, and a call passes the groups by value."""
+    wall_m, wall_d, _, _, _, _, wall_hist = walls
+    for w in range(wall_m.shape[0]):
+        if (wall_m[w, 0] * pos[p, 0] + wall_m[w, 1] * pos[p, 1] + wall_m[w, 2] * pos[p, 2] - wall_d[w] < rbound[p]
+                or wall_hist[p, w, H_A] != 0.0):
+            return True
+    return False
+
+
+@njit(cache=True, inline="always")
 def _gather(p, adj_start, adj_items, on, pf):
     """Force and torque on particle p from its touching pairs, summed in ascending partner gid
     (adj_items = 2 k + (1 if p is pair k's j end)). Branch-free: a pair that does not touch adds
@@ -567,7 +580,7 @@ def _finish_particle(p, spheres, gathered, adj, bodies, walls, polys, gravity, d
     else:
         fx, fy, fz, tx, ty, tz = _gather(p, adj_start, adj_items, on, pf)
     touching, worst = 0, 0.0
-    if near[p]:
+    if near[p] and _wall_pass_due(p, walls, pos, bodies[8]):
         fx, fy, fz, tx, ty, tz, touching, worst = _wall_particle(p, walls, bodies, polys, dt, out,
                                                                  fx, fy, fz, tx, ty, tz)
     _put(p, force, torque, fx, fy, fz, tx, ty, tz)
