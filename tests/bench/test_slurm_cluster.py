@@ -12,6 +12,8 @@ the machines CI runs on, where each 2-CPU point takes the whole node and the job
   the 2-rank point started with `--mpi none` (each rank alone) fails with its own line; collect
   exits 4 and names both.
 - C: cancelled with `bench sweep --cancel` before it starts.
+- D: written with --no-submit, one point's script then spoilt (a partition that does not exist):
+  submit.sh submits the other point and the collect job, records the refusal, exits 4.
 Plus refusals at generation by what sinfo and `sbatch --test-only` say. The test skips, with the
 script's one line, only where slurm-wlm and munge cannot be installed (not root, no apt-get).
 """
@@ -98,6 +100,8 @@ def sweeps(slurm_cluster, tmp_path_factory):
                             "--launcher", "slurm", "--time", "10", "--out", "A", cwd=str(base))
     got["status_a_early"] = bench("sweep", "--status", str(base / "A"))
     got["collect_a_early"] = bench("collect", str(base / "A"))
+    got["again_a_early"] = bench("sweep", *SCENE, "--steps", "10", "--warmup", "2", "--mappings", "1-1-1-1-2,2-2-1-1-1",
+                                 "--launcher", "slurm", "--time", "10", "--out", "A", cwd=str(base))
     got["submit_b"] = bench("sweep", *SCENE, "--steps", "2000000", "--mappings", "2-2-1-1-1", "--launcher", "slurm",
                             "--time", "1", "--mpi", "none", "--out", "B", cwd=str(base))
     got["submit_c"] = bench("sweep", *SCENE, "--steps", "10", "--mappings", "1-1-1-1-1", "--launcher", "slurm",
@@ -114,7 +118,8 @@ def sweeps(slurm_cluster, tmp_path_factory):
 
 def test_sweep_a_runs_every_point_under_slurm(sweeps):
     """A: 3 points (serial, 1-1-1-1-2 dynamic, 2-2-1-1-1 through srun --mpi=pmi2) pending or
-    running right after submission (collect then exits 4); afterwards all 3 done on this node, the
+    running right after submission (collect then exits 4, the same sweep again is refused);
+    afterwards all 3 done on this node, the
     collect job's runs.csv has speedup 1.0 for serial, S = T1/T for the others and err_max 0 for
     all (bit-identical under Slurm too), and the manifest names this node's CPU model and count."""
     base = sweeps["base"]
@@ -125,6 +130,8 @@ def test_sweep_a_runs_every_point_under_slurm(sweeps):
     early = status_rows(sweeps["status_a_early"].stdout)
     assert len(early) == 3 and {s for s, _ in early.values()} <= {"pending", "running"}, sweeps["status_a_early"].stdout
     assert sweeps["collect_a_early"].returncode == 4
+    # the same sweep again while its jobs are queued: refused (nothing submitted twice)
+    one_line_error(sweeps["again_a_early"], "repeat(s) still pending or running", "--cancel", "--resume")
     assert sweeps["collect_states"][0] == "COMPLETED"
     res = bench("sweep", "--status", str(a))
     assert res.returncode == 0, res.stderr
@@ -239,3 +246,33 @@ def test_refused_by_the_cluster_at_generation(slurm_cluster, tmp_path):
                          "--partition", "nosuch", "--out", str(tmp_path / "part")),
                    "sbatch --test-only refuses prepare.sbatch", "invalid partition")
     assert not list(tmp_path.rglob("*.sbatch"))
+
+
+def test_submit_goes_on_past_a_refused_job(slurm_cluster, tmp_path):
+    """D: `--no-submit` writes the scripts; the serial point's job.sbatch then names a partition
+    that does not exist. bash submit.sh: sbatch refuses that one job, submits the prepare, the
+    2-thread point and the collect job, records the refusal in jobs.json and the point's job.json,
+    and exits 4; --status shows the refused point failed with sbatch's message. Then --cancel."""
+    d = tmp_path / "D"
+    res = bench("sweep", *SCENE, "--steps", "10", "--mappings", "1-1-1-1-2", "--launcher", "slurm", "--time", "5",
+                "--no-submit", "--out", str(d))
+    assert res.returncode == 0 and "submit them with: bash" in res.stdout, res.stdout + res.stderr
+    assert not (d / "jobs.json").exists()
+    serial = next(p for p in os.listdir(d) if p.startswith("1-1-1-1-1-"))
+    script = d / serial / "job.sbatch"
+    script.write_text(script.read_text().replace("#SBATCH --time=5\n", "#SBATCH --time=5\n#SBATCH --partition=nosuch\n"))
+    sub = subprocess.run(["bash", str(d / "submit.sh")], capture_output=True, text=True, timeout=120)
+    assert sub.returncode == 4, sub.stdout + sub.stderr
+    assert f"sbatch refused {serial}/job.sbatch" in sub.stderr and "(1 refused)" in sub.stdout
+    jobs = json.loads((d / "jobs.json").read_text())
+    assert jobs["prepare"]["job_id"] and jobs["collect"]["job_id"]
+    assert jobs["points"][serial]["job_id"] is None and "invalid partition" in jobs["points"][serial]["error"]
+    threads = next(k for k in jobs["points"] if k != serial)
+    assert jobs["points"][threads]["job_id"] and jobs["points"][threads]["tasks"] == [0]
+    assert json.loads((d / serial / "job.json").read_text())["job_id"] is None
+    rows = status_rows(bench("sweep", "--status", str(d)).stdout)
+    state, reason = rows[("1-1-1-1-1", "rep0")]
+    assert state == "failed" and reason.startswith("sbatch refused the job:") and "invalid partition" in reason
+    assert rows[("1-1-1-1-2", "rep0")][0] in ("pending", "running", "done")
+    res = bench("sweep", "--cancel", str(d))
+    assert res.returncode == 0, res.stderr

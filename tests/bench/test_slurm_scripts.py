@@ -112,6 +112,21 @@ def test_sweep_file_options_reach_every_job(tmp_path):
     assert not (out / "jobs.json").exists() and not list(out.rglob("job.json"))
 
 
+def test_relative_scene_file_becomes_absolute(tmp_path):
+    """A scene given as a relative .toml path (run from its folder) reaches every job as an
+    absolute path (the jobs run in DIR, not where bench sweep ran)."""
+    import shutil
+    from dem.scene import BUILTIN_DIR
+    shutil.copy(os.path.join(BUILTIN_DIR, "pluviation.toml"), tmp_path / "my.toml")
+    res = bench_noslurm(tmp_path, "sweep", "--scene", "my.toml", "--particles", "200", "--steps", "10",
+                        "--mappings", "2-2-1-1-1", "--launcher", "slurm", "--out", "o", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    jobs = scripts(tmp_path / "o")
+    assert len(jobs) == 2 and all(f"--scene {tmp_path / 'my.toml'} " in t for t in jobs.values())
+    man = json.loads((tmp_path / "o" / "manifest.json").read_text())
+    assert {p["scene"] for p in man["points"]} == {str(tmp_path / "my.toml")}
+
+
 def test_submit_script_dependencies_and_records(tmp_path):
     """submit.sh: the prepare job first, each point after it (afterany), the collect job after all
     point jobs (afterany); no `set -e` (a refused job does not stop the rest); job ids go to
