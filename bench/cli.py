@@ -64,7 +64,7 @@ def build_parser():
                                                           "repeats done, pending or running)")
     sw.add_argument("--out")
     sw.add_argument("--status", metavar="DIR", help="the state of each point of the sweep in DIR (its files, and "
-                                                     "Slurm's squeue/scontrol/sacct where it runs)")
+                                                     "Slurm's scontrol/sacct where Slurm runs)")
     sw.add_argument("--cancel", metavar="DIR", help="scancel the jobs of the Slurm sweep in DIR still pending or running")
     sl = sw.add_argument_group("Slurm (--launcher slurm; a sweep file's [sweep.slurm] table holds the same)")
     sl.add_argument("--no-submit", action="store_true", help="write the job scripts and submit.sh, submit nothing")
@@ -75,7 +75,8 @@ def build_parser():
         if kind == "bool":
             sl.add_argument(flag, dest=f"slurm_{name}", action="store_true", default=None, help=text)
         else:
-            sl.add_argument(flag, dest=f"slurm_{name}", type=positive_int if kind == "int" else str, help=text)
+            sl.add_argument(flag, dest=f"slurm_{name}", type=positive_int if kind == "int" else str,
+                            metavar=name.upper(), help=text)
 
     ac = sub.add_parser("accuracy", help="work-precision study: error against run time per contact method and dt")
     ac.add_argument("--scene", required=True, help="built-in scene name or a .toml file")
