@@ -14,6 +14,8 @@ import sys
 from bench.run.options import (CONTACT_METHOD_CHOICES, NEIGHBOR_CHOICES, SHAPE_CHOICES, add_run_arguments,
                                nonneg_int, positive_int, skin_fraction)
 from bench.run.threads_env import configure_threads
+from bench.sweep.slurm_options import FIELDS as SLURM_FIELDS
+from bench.sweep.slurm_options import check_field, check_options
 
 EXIT_USAGE = 2
 
@@ -55,10 +57,26 @@ def build_parser():
     sw.add_argument("--halo", choices=["26", "6"], default="26")
     sw.add_argument("--pin", action="store_true")
     sw.add_argument("--timeout", type=positive_int, default=1800, help="seconds per point run")
-    sw.add_argument("--launcher", choices=["local", "slurm"], default="local")
+    sw.add_argument("--launcher", default="local", help="local (default: each point here, one after another) or "
+                                                         "slurm (a prepare job, a job array a point, a collect job)")
     sw.add_argument("--dry-run", action="store_true", help="print every command and environment, run nothing")
-    sw.add_argument("--resume", action="store_true", help="skip the points already done in OUT/runs.csv")
+    sw.add_argument("--resume", action="store_true", help="skip the points already done in OUT/runs.csv (slurm: the "
+                                                          "repeats done, pending or running)")
     sw.add_argument("--out")
+    sw.add_argument("--status", metavar="DIR", help="the state of each point of the sweep in DIR (its files, and "
+                                                     "Slurm's scontrol/sacct where Slurm runs)")
+    sw.add_argument("--cancel", metavar="DIR", help="scancel the jobs of the Slurm sweep in DIR still pending or running")
+    sl = sw.add_argument_group("Slurm (--launcher slurm; a sweep file's [sweep.slurm] table holds the same)")
+    sl.add_argument("--no-submit", action="store_true", help="write the job scripts and submit.sh, submit nothing")
+    for name, (kind, text) in SLURM_FIELDS.items():
+        if kind == "lines":
+            continue  # sweep file only
+        flag = "--" + name.replace("_", "-")
+        if kind == "bool":
+            sl.add_argument(flag, dest=f"slurm_{name}", action="store_true", default=None, help=text)
+        else:
+            sl.add_argument(flag, dest=f"slurm_{name}", type=positive_int if kind == "int" else str,
+                            metavar=name.upper(), help=text)
 
     ac = sub.add_parser("accuracy", help="work-precision study: error against run time per contact method and dt")
     ac.add_argument("--scene", required=True, help="built-in scene name or a .toml file")
@@ -183,7 +201,7 @@ def cmd_run(args):
 SWEEP_FIELDS = {"mappings": str, "schemes": str, "scene": str, "particles": int, "shape": str, "steps": int,
                 "warmup": int, "repeats": int, "neighbor": str, "contact_method": str, "halo": str, "pin": bool,
                 "timeout": int,
-                "launcher": str, "out": str}
+                "launcher": str, "out": str, "slurm": dict}
 
 
 def _sweep_file(args):
@@ -198,9 +216,19 @@ def _sweep_file(args):
     except tomllib.TOMLDecodeError as e:
         raise UsageError(f"malformed TOML in {args.file}: {e}") from None
     table = doc.get("sweep", doc)
+    if not isinstance(table, dict):
+        raise UsageError(f"sweep in {args.file} must be a table ([sweep]), got {table!r}")
     for key, value in table.items():
         if key not in SWEEP_FIELDS:
             raise UsageError(f"unknown key {key!r} in {args.file} (allowed: {', '.join(SWEEP_FIELDS)})")
+        if key == "slurm":
+            try:
+                args.slurm_file = check_options(value, args.file)
+            except ValueError as e:
+                raise UsageError(str(e)) from None
+            continue
+        if SWEEP_FIELDS[key] is str and not isinstance(value, (str, list)):
+            raise UsageError(f"{key} in {args.file} must be a string, got {value!r}")
         if isinstance(value, list):
             value = ",".join(str(v) for v in value)
         want = SWEEP_FIELDS[key]
@@ -213,8 +241,29 @@ def _sweep_file(args):
             setattr(args, key, value)
 
 
+def _slurm_options(args):
+    """The Slurm options of a sweep: the sweep file's [sweep.slurm] table, then the flags given."""
+    opts = dict(getattr(args, "slurm_file", None) or {})
+    for name in SLURM_FIELDS:
+        value = getattr(args, f"slurm_{name}", None)
+        if value is not None:
+            try:
+                opts[name] = check_field(name, value, "--" + name.replace("_", "-"))
+            except ValueError as e:
+                raise UsageError(str(e)) from None
+    return opts
+
+
 @_one_line
 def cmd_sweep(args):
+    if args.status or args.cancel:
+        if args.status and args.cancel:
+            raise UsageError("bench sweep: --status and --cancel are one at a time")
+        folder = args.status or args.cancel
+        if not os.path.exists(os.path.join(folder, "manifest.json")):
+            raise UsageError(f"bench sweep: {folder} has no manifest.json (not a sweep folder)")
+        from bench.sweep.slurm import cancel_sweep, show_status
+        return show_status(folder) if args.status else cancel_sweep(folder)
     if args.file:
         _sweep_file(args)
     for need in ("mappings", "scene", "out"):
@@ -222,10 +271,16 @@ def cmd_sweep(args):
             raise UsageError(f"bench sweep: --{need} is required (or set it in the sweep file)")
     from bench.sweep.driver import sweep
     from bench.sweep.launchers import LAUNCHERS
+    if args.launcher not in LAUNCHERS:
+        raise UsageError(f"bench sweep: unknown launcher {args.launcher!r} (launchers: {', '.join(LAUNCHERS)})")
     if args.neighbor not in NEIGHBOR_CHOICES or args.halo not in ("26", "6") or \
-            args.launcher not in LAUNCHERS or args.contact_method not in CONTACT_METHOD_CHOICES:
-        raise UsageError(f"bench sweep: neighbor must be {'|'.join(NEIGHBOR_CHOICES)}, halo 26|6, launcher "
-                         f"{'|'.join(LAUNCHERS)}, contact_method {'|'.join(CONTACT_METHOD_CHOICES)}")
+            args.contact_method not in CONTACT_METHOD_CHOICES:
+        raise UsageError(f"bench sweep: neighbor must be {'|'.join(NEIGHBOR_CHOICES)}, halo 26|6, "
+                         f"contact_method {'|'.join(CONTACT_METHOD_CHOICES)}")
+    args.slurm = _slurm_options(args)
+    if args.launcher != "slurm" and (args.slurm or args.no_submit):
+        given = ", ".join(sorted(args.slurm)) or "no_submit"
+        raise UsageError(f"bench sweep: Slurm options ({given}) need --launcher slurm")
     from dem.scene import load_scene
     load_scene(args.scene, particles=args.particles, shape=args.shape)  # a bad scene fails here, once
     return sweep(args)

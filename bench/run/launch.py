@@ -4,14 +4,19 @@ The parent process has already validated the inputs, built the scene's cache, ch
 step (handed to the ranks, which do not choose it again) and created the output folder; here it
 refuses a decomposition that cannot work (one line), compiles numba's
 cache once so that P ranks do not compile at the same time, and runs mpiexec with a timeout
-(`python -m mpi4py` aborts every rank when one raises). Environment: NUMBA_NUM_THREADS = T;
-more ranks x threads than usable CPUs get a one-line warning and OMP_WAIT_POLICY=PASSIVE.
---pin binds each rank to T cores: Hydra (MPICH) `-bind-to core:T`; the Open MPI equivalent is
-`--map-by slot:PE=T --bind-to core`, and Slurm's `srun --cpus-per-task=T --cpu-bind=cores`.
+(`python -m mpi4py` aborts every rank when one raises; at the timeout the starter gets SIGTERM,
+which mpiexec and srun forward to the ranks, and SIGKILL 10 s later). Environment:
+NUMBA_NUM_THREADS = T; more ranks x threads than usable CPUs get a one-line warning and
+OMP_WAIT_POLICY=PASSIVE. --pin binds each rank to T cores: Hydra (MPICH) `-bind-to core:T`; the
+Open MPI equivalent is `--map-by slot:PE=T --bind-to core`, and Slurm's `srun --cpus-per-task=T
+--cpu-bind=cores`. `--mpi-starter CMD` replaces `mpiexec -n P` (a Slurm job starts its ranks with
+`srun --mpi=pmi2 ...`, bench.sweep.slurm); the starter then places the ranks, possibly over
+several nodes, so the CPUs of this process are not compared with P x T.
 """
 import copy
 import json
 import os
+import shlex
 import shutil
 import signal
 import subprocess
@@ -53,27 +58,37 @@ def launch_mpi(args, mapping, scene, out, ts):
             fit_skin(grid, width, args.skin * 2.0 * float(scene.state.rbound.max()), explicit=True)
     except DecompositionError as e:
         raise ModeError(str(e)) from None
-    exe = mpiexec_path()
-    if exe is None:
-        raise ModeError("mapping with P > 1 needs mpiexec (pip install mpich, or a system MPI)")
+    starter = getattr(args, "mpi_starter", None)
+    if starter:
+        cmd = shlex.split(starter)
+        if not cmd or shutil.which(cmd[0]) is None:
+            raise ModeError(f"--mpi-starter {starter!r}: {cmd[0] if cmd else 'an empty command'} not found")
+    else:
+        exe = mpiexec_path()
+        if exe is None:
+            raise ModeError("mapping with P > 1 needs mpiexec (pip install mpich, or a system MPI)")
+        cmd = [exe, "-n", str(mapping.procs)]
+        if args.pin:
+            cmd += ["-bind-to", f"core:{mapping.threads}"]
     warm_cache(scene, mapping, args, ts.dt)
     env = dict(os.environ, NUMBA_NUM_THREADS=str(mapping.threads))
     cpus = usable_cpus()
-    if mapping.procs * mapping.threads > cpus:
+    if not starter and mapping.procs * mapping.threads > cpus:
         env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
         print(f"bench: warning: {mapping.procs} ranks x {mapping.threads} threads on {cpus} usable CPUs "
               f"oversubscribes them (MPI busy-polls): fine for correctness, not for timings", file=sys.stderr)
-    cmd = [exe, "-n", str(mapping.procs)]
-    if args.pin:
-        cmd += ["-bind-to", f"core:{mapping.threads}"]
     cmd += [sys.executable, "-m", "mpi4py", "-m", "bench.run.rank"] + _run_argv(args, out)
     cmd += ["--time-step", json.dumps(ts.as_dict())]
     try:
         proc = subprocess.Popen(cmd, env=env, start_new_session=True)
         rc = proc.wait(timeout=args.timeout)
     except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
+        os.killpg(proc.pid, signal.SIGTERM)  # mpiexec and srun forward it to the ranks
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
         print(f"bench: error: {mapping.procs} MPI ranks did not finish within {args.timeout} s; killed", file=sys.stderr)
         return 3
     if rc == 0:

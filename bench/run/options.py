@@ -75,6 +75,10 @@ def add_run_arguments(r):
                    help="re-fit the block grid to the particles' extent every K steps (the paper's "
                         "updateGrid; default 0: off)")
     r.add_argument("--timeout", type=positive_int, default=3600, help="seconds before MPI ranks are killed")
+    r.add_argument("--mpi-starter", default=None, metavar="CMD",
+                   help="P > 1: the command that starts the P ranks instead of `mpiexec -n P`, the rank program "
+                        "appended (inside a Slurm allocation: 'srun --mpi=pmi2 --ntasks=P --cpus-per-task=T "
+                        "--cpu-bind=cores'; `bench sweep --launcher slurm` writes it)")
     r.add_argument("--quiet", action="store_true")
 
     return r

@@ -63,8 +63,10 @@ def load_prepared(spec, particles=None, shape=None, seed=None, log=None):
     return prepare(load_scene(spec, particles=particles, shape=shape, seed=seed), log=log)
 
 
-def prepare(scene, log=None):
-    """Run (or load from the cache) the scene's [build] stage in place; returns the scene."""
+def prepare(scene, log=None, build_missing=True):
+    """Run (or load from the cache) the scene's [build] stage in place; returns the scene.
+    build_missing=False only loads a cached build: returns None when the scene has a build stage
+    that is not cached yet (the scene is left unbuilt)."""
     build = scene.extras.get("build") or {}
     if not build:
         return scene
@@ -81,6 +83,8 @@ def prepare(scene, log=None):
             return scene
         except (OSError, KeyError, ValueError):
             pass  # unreadable cache: build again
+    if not build_missing:
+        return None
     if build["method"] == "settle":
         info = settle(scene, build.get("max_steps", 5000), float(build.get("ke_tol", 1e-4)), log=log)
     else:

@@ -6,7 +6,8 @@ DIR/<point>/rep<r>/ through the chosen launcher (bench.sweep.launchers). The ser
 run first) when missing. After every point DIR/runs.csv is rewritten atomically, so an
 interrupted sweep leaves a consistent file; --resume skips the points already done (identified
 by their parameters). A point that crashes, hangs past its timeout or goes unstable is recorded
-with its status and reason, and the sweep goes on. The columns are bench.sweep.records'; the
+with its status and reason, and the sweep goes on. A batch launcher (slurm) instead writes and
+submits jobs and returns; `bench collect DIR` then records them the same way. The columns are bench.sweep.records'; the
 figures (bench.sweep.figures) are drawn from runs.csv at the end.
 """
 import json
@@ -27,6 +28,9 @@ def sweep(args):
     """The `bench sweep` command (args from bench.cli)."""
     mappings = [m.strip() for m in args.mappings.split(",") if m.strip()]
     schemes = [s.strip() for s in (args.schemes or "dynamic").split(",") if s.strip()]
+    launcher = LAUNCHERS[getattr(args, "launcher", "local")].from_args(args)
+    if launcher.batch and os.path.isfile(args.scene):  # the jobs run elsewhere, from another folder
+        args.scene = os.path.abspath(args.scene)
     points = make_points(mappings, schemes, args.scene, args.particles, args.steps, args.warmup,
                          args.neighbor, args.shape, args.pin, args.halo, getattr(args, "contact_method", "exact"))
     out = args.out
@@ -37,13 +41,12 @@ def sweep(args):
         import pandas as pd
         old = pd.read_csv(runs_path, keep_default_na=False)
         done = {r["point"]: r for r in old.to_dict("records") if r["status"] == "done"}
-    launcher = LAUNCHERS[getattr(args, "launcher", "local")](args.timeout)
     if args.dry_run:
         return launcher.dry_run(points, out, args.repeats)
     if launcher.batch:
-        return launcher.submit(points, out)
+        return launcher.submit(points, out, args.repeats, args.resume)
     info = manifest(out, points)
-    info["load"] = {}
+    info.update(launcher=launcher.name, repeats=args.repeats, load={})
     write_json(os.path.join(out, "manifest.json"), info)
     env = dict(os.environ)
     rows = {}

@@ -69,3 +69,13 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
                 points.append(p)
     points.sort(key=lambda p: p.mapping != SERIAL)  # the reference runs first
     return points
+
+
+def point_env(point):
+    """The thread variables of a point's processes (NUMBA_NUM_THREADS, OMP_NUM_THREADS = T; with
+    --pin OMP_PROC_BIND=close and OMP_PLACES=cores)."""
+    m = parse_mapping(point.mapping)
+    env = {"NUMBA_NUM_THREADS": str(m.threads), "OMP_NUM_THREADS": str(m.threads)}
+    if point.pin:
+        env.update(OMP_PROC_BIND="close", OMP_PLACES="cores")
+    return env

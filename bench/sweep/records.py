@@ -115,8 +115,9 @@ def state_error(ref, got):
     return float(d.max()), float(np.sqrt(np.mean(d ** 2)))
 
 
-def summarise(point, rep_dirs, ref_state, t1):
-    """One runs.csv row from the repeat folders of a point."""
+def summarise(point, rep_dirs, ref_state, t1, statuses=None):
+    """One runs.csv row from the repeat folders of a point; statuses: their outcomes when known
+    (bench collect: files and Slurm, bench.sweep.status), else read from each folder."""
     import pandas as pd
     m = parse_mapping(point.mapping)
     row = {c: math.nan for c in RUN_COLUMNS}
@@ -126,11 +127,12 @@ def summarise(point, rep_dirs, ref_state, t1):
                repeats=len(rep_dirs), status="done", reason="")
     times, walls = [], []
     state = None
-    for d in rep_dirs:
-        status = read_status(d)
+    statuses = statuses or [read_status(d) for d in rep_dirs]
+    for status in statuses:
         if status["status"] != "done":
             row.update(status=status["status"], reason=status["reason"])
             return row
+    for d in rep_dirs:
         info = json.load(open(os.path.join(d, "run.json")))
         times.append(module_times(pd.read_csv(os.path.join(d, "steps.csv"))))
         walls.append(info.get("wall_s", math.nan))
@@ -161,19 +163,9 @@ def with_speedup(row, t1):
 
 def read_status(d):
     """status and reason of one run folder from its files (status.json, written by the local
-    launcher; else judged by run.json)."""
-    path = os.path.join(d, "status.json")
-    if os.path.exists(path):
-        return json.load(open(path))
-    # a folder filled by a batch job: judge by run.json
-    run = os.path.join(d, "run.json")
-    if os.path.exists(run):
-        info = json.load(open(run))
-        if info.get("status") == "done" and os.path.exists(os.path.join(d, "state.npz")):
-            return {"status": "done", "reason": ""}
-        if info.get("stable") is False:
-            return {"status": "unstable", "reason": info.get("stability_reason") or "unstable"}
-    return {"status": "failed", "reason": "no result (not run, interrupted or crashed)"}
+    launcher and by a Slurm job; else judged by run.json)."""
+    from bench.sweep.status import from_files
+    return from_files(d) or {"status": "failed", "reason": "no result (not run, interrupted or crashed)"}
 
 
 def write_runs(path, rows):

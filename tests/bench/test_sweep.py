@@ -1,4 +1,5 @@
-"""`bench sweep` end to end: records, metrics, resume, failures, Slurm scripts, collect, bad input."""
+"""`bench sweep` end to end (local launcher): records, metrics, resume, failures, collect, bad input.
+The Slurm launcher: test_slurm_scripts.py (its scripts) and test_slurm_cluster.py (a real Slurm)."""
 import json
 import os
 import signal
@@ -102,22 +103,9 @@ def test_timeout_is_recorded(tmp_path):
     assert runs.loc[0, "status"] == "timeout"
 
 
-def test_slurm_scripts_and_dry_run(tmp_path):
-    """--launcher slurm writes one sbatch script per point with srun --ntasks/--cpus-per-task/
-    --cpu-bind and the thread variables (P > 1: the MPI rank program), plus submit.sh."""
-    res, out = sweep(tmp_path, "--mappings", "1-1-1-1-2,4-2-2-1-3", "--launcher", "slurm", "--pin")
-    assert res.returncode == 0, res.stderr
-    submit = (out / "submit.sh").read_text()
-    assert submit.count("sbatch ") == 3
-    scripts = {p: (out / p / "job.sbatch").read_text() for p in os.listdir(out) if (out / p / "job.sbatch").exists()}
-    hybrid = next(t for t in scripts.values() if "4-2-2-1-3" in t)
-    assert "#SBATCH --ntasks=4" in hybrid and "#SBATCH --cpus-per-task=3" in hybrid
-    assert "srun --ntasks=4 --cpus-per-task=3 --cpu-bind=cores" in hybrid
-    assert "export NUMBA_NUM_THREADS=3" in hybrid and "export OMP_PROC_BIND=close" in hybrid
-    assert "-m mpi4py -m bench.run.rank" in hybrid and "--steps 0" in hybrid
-    serial = next(t for t in scripts.values() if "job-name=dem-1-1-1-1-1" in t)
-    assert "#SBATCH --ntasks=1" in serial and "-m bench run" in serial
-    assert not (out / "runs.csv").exists()
+def test_local_dry_run(tmp_path):
+    """--dry-run prints each point's command with its thread variables and runs nothing (the
+    Slurm launcher's scripts: tests/bench/test_slurm_scripts.py)."""
     res = bench("sweep", *SMALL, "--mappings", "2-2-1-1-1", "--dry-run", "--out", str(tmp_path / "dry"))
     assert res.returncode == 0 and "NUMBA_NUM_THREADS=1" in res.stdout and "--mapping 2-2-1-1-1" in res.stdout
     assert not any((tmp_path / "dry").rglob("run.json"))
