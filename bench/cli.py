@@ -147,6 +147,8 @@ def build_parser():
 
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
+    from bench.run.lifeline import Interrupted, exit_status, signal_name
+    from bench.run.records import RecordError
     try:
         args = build_parser().parse_args(argv)
         return COMMANDS[args.command](args)
@@ -154,9 +156,15 @@ def main(argv=None):
         msg = str(e)
         print(msg if msg.startswith("bench") else f"bench: error: {msg}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print("bench: interrupted", file=sys.stderr)
-        return 130
+    except RecordError as e:  # a record that could not be written (full disk): the earlier ones are kept
+        print(f"bench: error: {e}", file=sys.stderr)
+        return 1
+    except MemoryError:
+        print("bench: error: out of memory (use fewer particles, or a machine with more memory)", file=sys.stderr)
+        return EXIT_USAGE
+    except (KeyboardInterrupt, Interrupted) as e:
+        print(f"bench: error: interrupted by {signal_name(e)}; the records written so far are kept", file=sys.stderr)
+        return exit_status(e)
 
 
 def _usage_errors():
@@ -193,6 +201,12 @@ def cmd_contacts(args):
 
 @_one_line
 def cmd_run(args):
+    from bench.run.threads_env import check_size
+    too_big = check_size(args.mapping, local_ranks=False)  # threads: before numba starts them (P x T: launch)
+    if too_big:
+        raise UsageError(too_big)
+    if args.out is not None and not args.out.strip():
+        raise UsageError("--out must be a folder, got an empty string")
     configure_threads(args.mapping, args.pin)  # before numba starts
     from bench.run.driver import run
     return run(args)
