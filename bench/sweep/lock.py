@@ -1,0 +1,58 @@
+"""One writer a sweep folder (issue 15): `bench sweep` and `bench collect` hold an exclusive
+flock on DIR/.lock for as long as they write there; a second writer gets one line and exit 2.
+
+The lock's file descriptor is inherited by the sweep's `bench run` children and their supervisors
+(bench.run.lifeline: BENCH_LOCK_FD and pass_fds), and an flock belongs to the open file, so the
+folder stays locked while any process of the sweep lives: a `--resume` started while a killed
+sweep's runs are still ending is refused rather than mixing its files with theirs. The file holds
+the holder's pid, host, start time and command, for the message.
+"""
+import fcntl
+import json
+import os
+import socket
+import sys
+import time
+
+from modes.base import ModeError
+
+
+class SweepLock:
+    """with SweepLock(DIR) as lock: ... (lock.fd: the descriptor children inherit)."""
+
+    def __init__(self, directory):
+        self.path = os.path.join(directory, ".lock")
+        self.fd = None
+
+    def __enter__(self):
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = _holder(fd)
+            os.close(fd)
+            raise ModeError(f"{os.path.dirname(self.path) or '.'} is in use by another sweep or collect "
+                            f"({holder}); wait for it to end, or write to another --out") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, json.dumps({"pid": os.getpid(), "host": socket.gethostname(),
+                                 "since": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                                 "command": " ".join(sys.argv)}).encode())
+        os.set_inheritable(fd, True)
+        self.fd = fd
+        return self
+
+    def __exit__(self, *exc):
+        # close only: an explicit LOCK_UN would also free it for the children still holding it
+        if self.fd is not None:
+            os.close(self.fd)
+            self.fd = None
+        return False
+
+
+def _holder(fd):
+    try:
+        os.lseek(fd, 0, os.SEEK_SET)
+        info = json.loads(os.read(fd, 4096).decode() or "{}")
+        return f"pid {info.get('pid')} on {info.get('host')} since {info.get('since')}"
+    except (OSError, ValueError):
+        return "holder unknown"
