@@ -26,7 +26,9 @@ def check_size(mapping_text, local_ranks=True):
     m = re.fullmatch(r"\s*(\d+)-(\d+)-(\d+)-(\d+)-(\d+)\s*", mapping_text or "")
     if not m:
         return None
-    procs, threads = int(m.group(1)), int(m.group(5))
+    procs, px, py, pz, threads = (int(g) for g in m.groups())
+    if min(procs, px, py, pz, threads) < 1 or procs != px * py * pz:
+        return None  # malformed: the mapping parser says why
     limit = size_limit()
     if threads > limit:
         return (f"mapping {mapping_text.strip()}: {threads} threads a process is more than {MAX_PER_CPU} per CPU "
