@@ -167,7 +167,7 @@ def local_sweep(args, launcher, points, out, lock_fd):
             t1[key] = float(row["totalT"])
             if os.path.exists(os.path.join(e["dirs"][0], "state.npz")):
                 ref_state[key] = dict(np.load(os.path.join(e["dirs"][0], "state.npz")))
-    stopped = None
+    stopped = current = None
     try:
         for r in range(repeats):
             for k, p in enumerate(points, 1):
@@ -175,7 +175,9 @@ def local_sweep(args, launcher, points, out, lock_fd):
                     continue
                 rep = everything[p.key]["dirs"][r]
                 load0 = os.getloadavg()[0]
+                current = p
                 st = launcher.run_point(p, rep, env, lock_fd)
+                current = None
                 ran += 1
                 load = info["load"].setdefault(p.key, {})
                 load.setdefault("before", load0)
@@ -190,6 +192,9 @@ def local_sweep(args, launcher, points, out, lock_fd):
                 print(_progress(k, len(points), p, r, repeats, st, row, rep, el, eta), flush=True)
     except (KeyboardInterrupt, Interrupted) as e:
         stopped = e
+        if current is not None:  # the point that was running: its repeat is recorded (interrupted)
+            failed[current.key] = True
+            record(current)
     # speedups against each group's T(1) (this sweep's serial point, or the row carried over)
     for key, row in rows.items():
         ref = rows.get(reference_key(everything[key]["point"]))
@@ -208,7 +213,8 @@ def local_sweep(args, launcher, points, out, lock_fd):
     write_json(os.path.join(out, "manifest.json"), info)
     if stopped is not None:
         print(f"bench: error: sweep interrupted by {signal_name(stopped)}: the point running was stopped and "
-              f"recorded; runs.csv has every point done; `bench sweep ... --resume` continues", flush=True)
+              f"recorded; runs.csv has every point done; `bench sweep ... --resume` continues", file=sys.stderr,
+              flush=True)
         return exit_status(stopped)
     summary = amdahl(list(rows.values()))
     write_json(os.path.join(out, "summary.json"), summary)
