@@ -29,6 +29,7 @@ class SweepLock:
         self.fd = None
 
     def __enter__(self):
+        self.created = not os.path.exists(self.path)
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         deadline = None
         while True:
@@ -58,8 +59,13 @@ class SweepLock:
         self.fd = fd
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, kind, value, tb):
         # close only: an explicit LOCK_UN would also free it for the children still holding it
+        if self.fd is not None and self.created and kind is not None and issubclass(kind, ValueError):
+            try:  # refused input (ModeError, SceneError): leave the folder as it was
+                os.remove(self.path)
+            except OSError:
+                pass
         if self.fd is not None:
             os.close(self.fd)
             self.fd = None
