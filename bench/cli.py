@@ -159,6 +159,13 @@ def main(argv=None):
     except RecordError as e:  # a record that could not be written (full disk): the earlier ones are kept
         print(f"bench: error: {e}", file=sys.stderr)
         return 1
+    except OSError as e:  # the file system refused a write outside the records' own handling
+        import errno
+        if e.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EIO, errno.EACCES, errno.EPERM):
+            raise
+        where = f" {e.filename}" if e.filename else ""
+        print(f"bench: error: cannot write{where}: {e.strerror}", file=sys.stderr)
+        return 1
     except MemoryError:
         print("bench: error: out of memory (use fewer particles, or a machine with more memory)", file=sys.stderr)
         return EXIT_USAGE

@@ -196,8 +196,13 @@ def finish_figure(fig, note):
 
 
 def save_figure(fig, path):
-    fig.savefig(path, dpi=DPI, bbox_inches="tight", pad_inches=0.08)
-    plt.close(fig)
+    """Write the figure atomically (a full disk leaves the old file and raises RecordError)."""
+    from bench.run.records import atomic_write
+    try:
+        atomic_write(path, lambda fh: fig.savefig(fh, format="png", dpi=DPI, bbox_inches="tight", pad_inches=0.08),
+                     mode="wb")
+    finally:
+        plt.close(fig)
     return path
 
 
