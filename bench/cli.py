@@ -147,6 +147,8 @@ def build_parser():
 
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
+    from bench.run.lifeline import Interrupted, exit_status, signal_name
+    from bench.run.records import RecordError
     try:
         args = build_parser().parse_args(argv)
         return COMMANDS[args.command](args)
@@ -154,9 +156,22 @@ def main(argv=None):
         msg = str(e)
         print(msg if msg.startswith("bench") else f"bench: error: {msg}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print("bench: interrupted", file=sys.stderr)
-        return 130
+    except RecordError as e:  # a record that could not be written (full disk): the earlier ones are kept
+        print(f"bench: error: {e}", file=sys.stderr)
+        return 1
+    except OSError as e:  # the file system refused a write outside the records' own handling
+        import errno
+        if e.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EIO, errno.EACCES, errno.EPERM):
+            raise
+        where = f" {e.filename}" if e.filename else ""
+        print(f"bench: error: cannot write{where}: {e.strerror}", file=sys.stderr)
+        return 1
+    except MemoryError:
+        print("bench: error: out of memory (use fewer particles, or a machine with more memory)", file=sys.stderr)
+        return EXIT_USAGE
+    except (KeyboardInterrupt, Interrupted) as e:
+        print(f"bench: error: interrupted by {signal_name(e)}; the records written so far are kept", file=sys.stderr)
+        return exit_status(e)
 
 
 def _usage_errors():
@@ -193,6 +208,12 @@ def cmd_contacts(args):
 
 @_one_line
 def cmd_run(args):
+    from bench.run.threads_env import check_size
+    too_big = check_size(args.mapping, local_ranks=False)  # threads: before numba starts them (P x T: launch)
+    if too_big:
+        raise UsageError(too_big)
+    if args.out is not None and not args.out.strip():
+        raise UsageError("--out must be a folder, got an empty string")
     configure_threads(args.mapping, args.pin)  # before numba starts
     from bench.run.driver import run
     return run(args)
@@ -215,6 +236,11 @@ def _sweep_file(args):
         raise UsageError(f"cannot read sweep file {args.file}: {e.strerror}") from None
     except tomllib.TOMLDecodeError as e:
         raise UsageError(f"malformed TOML in {args.file}: {e}") from None
+    except UnicodeDecodeError as e:
+        raise UsageError(f"sweep file {args.file} is not UTF-8 text (byte {e.object[e.start:e.start + 1]!r} at "
+                         f"offset {e.start}); TOML files are UTF-8") from None
+    except RecursionError:
+        raise UsageError(f"malformed TOML in {args.file}: arrays or tables nested too deep") from None
     table = doc.get("sweep", doc)
     if not isinstance(table, dict):
         raise UsageError(f"sweep in {args.file} must be a table ([sweep]), got {table!r}")
@@ -227,18 +253,29 @@ def _sweep_file(args):
             except ValueError as e:
                 raise UsageError(str(e)) from None
             continue
-        if SWEEP_FIELDS[key] is str and not isinstance(value, (str, list)):
-            raise UsageError(f"{key} in {args.file} must be a string, got {value!r}")
+        listed = key in ("mappings", "schemes")
+        if SWEEP_FIELDS[key] is str and not (isinstance(value, str) or listed and isinstance(value, list)):
+            raise UsageError(f"{key} in {args.file} must be a string{' or a list of strings' if listed else ''}, "
+                             f"got {_short(value)}")
         if isinstance(value, list):
-            value = ",".join(str(v) for v in value)
+            if not all(isinstance(v, str) for v in value):
+                raise UsageError(f"{key} in {args.file} must be a list of strings, got {_short(value)}")
+            value = ",".join(value)
         want = SWEEP_FIELDS[key]
-        if want is int and (isinstance(value, bool) or not isinstance(value, int) or value <= 0 and key != "warmup"):
-            raise UsageError(f"{key} in {args.file} must be a positive integer, got {value!r}")
+        if want is int and (isinstance(value, bool) or not isinstance(value, int) or value < 0 or
+                            value == 0 and key != "warmup" or value > 2**62):
+            raise UsageError(f"{key} in {args.file} must be a {'non-negative' if key == 'warmup' else 'positive'} "
+                             f"integer, got {_short(value)}")
         if want is bool and not isinstance(value, bool):
             raise UsageError(f"{key} in {args.file} must be true or false, got {value!r}")
         default = build_parser()._subparsers._group_actions[0].choices["sweep"].get_default(key)
         if getattr(args, key, None) in (None, default, False):
             setattr(args, key, value)
+
+
+def _short(value, limit=60):
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + "..."
 
 
 def _slurm_options(args):
@@ -267,8 +304,11 @@ def cmd_sweep(args):
     if args.file:
         _sweep_file(args)
     for need in ("mappings", "scene", "out"):
-        if not getattr(args, need):
+        if not getattr(args, need) or not str(getattr(args, need)).strip():
             raise UsageError(f"bench sweep: --{need} is required (or set it in the sweep file)")
+    mappings = [m.strip() for m in args.mappings.split(",") if m.strip()]
+    if not mappings:
+        raise UsageError(f"bench sweep: --mappings {args.mappings!r} lists no mapping")
     from bench.sweep.driver import sweep
     from bench.sweep.launchers import LAUNCHERS
     if args.launcher not in LAUNCHERS:
@@ -281,6 +321,11 @@ def cmd_sweep(args):
     if args.launcher != "slurm" and (args.slurm or args.no_submit):
         given = ", ".join(sorted(args.slurm)) or "no_submit"
         raise UsageError(f"bench sweep: Slurm options ({given}) need --launcher slurm")
+    from bench.run.threads_env import check_size
+    for m in mappings:  # the threads start on the node of the job under Slurm (its bench run checks them)
+        too_big = check_size(m, local_ranks=args.launcher == "local")
+        if too_big and args.launcher == "local":
+            raise UsageError(f"bench sweep: {too_big}")
     from dem.scene import load_scene
     load_scene(args.scene, particles=args.particles, shape=args.shape)  # a bad scene fails here, once
     return sweep(args)
@@ -291,7 +336,11 @@ def cmd_plot(args):
         raise UsageError(f"bench plot: {args.dir} has no runs.csv (not a sweep folder)")
     from bench.studies.paper_figures import plot_paper
     from bench.sweep.figures import plot_sweep
-    figs = plot_sweep(args.dir) + (plot_paper(args.dir) if args.paper else [])
+    from bench.sweep.records import RunsFileError
+    try:
+        figs = plot_sweep(args.dir) + (plot_paper(args.dir) if args.paper else [])
+    except RunsFileError as e:
+        raise UsageError(f"bench plot: {e}") from None
     print("\n".join(figs))
     return 0
 
@@ -299,7 +348,11 @@ def cmd_plot(args):
 @_one_line
 def cmd_collect(args):
     from bench.sweep.collect import collect
-    return collect(args)
+    from bench.sweep.lock import SweepLock
+    if not os.path.isdir(args.dir):
+        raise UsageError(f"bench collect: {args.dir} is not a folder")
+    with SweepLock(args.dir):
+        return collect(args)
 
 
 @_one_line

@@ -22,7 +22,9 @@ Format (DESIGN.md): [domain] box, walls, gravity; [materials.NAME]; [time] dt, s
     material = "default"
     seed = 1
 
-Errors in a scene raise SceneError with one line naming the problem.
+Errors in a scene raise SceneError with one line naming the problem and the field (a type
+checked before it is used, a number finite and at most NUM_MAX in magnitude; dem/limits.py: the
+size ratio the contact solver resolves and the memory a particle count needs).
 """
 import math
 import os
@@ -31,6 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dem.limits import LimitError, check_particle_count, check_size_ratio
 from dem.materials import Material, MaterialTable
 from dem.quaternion import quat_to_matrices, random_quaternions
 from dem.shapes import POLY, POLY_LEN, SHAPE_CODES, SPHERE
@@ -75,20 +78,40 @@ def builtin_scenes():
     return out
 
 
+NUM_MAX = 1e30  # no SI quantity of a DEM scene comes near it; beyond it products overflow
+
+
 def _num(v, what, positive=False):
     if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise SceneError(f"{what} must be a number, got {v!r}")
+        raise SceneError(f"{what} must be a number, got {_show(v)}")
     v = float(v)
     if not math.isfinite(v):
         raise SceneError(f"{what} must be finite, got {v!r}")
+    if abs(v) > NUM_MAX:
+        raise SceneError(f"{what} = {v:g} is beyond any physical value (at most {NUM_MAX:g} in SI units)")
     if positive and v <= 0:
         raise SceneError(f"{what} must be positive, got {v!r}")
     return v
 
 
+def _show(v, limit=60):
+    """repr of a value, cut to `limit` characters (a message stays one short line)."""
+    text = repr(v)
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def _name(v, what, choices=None):
+    """A string field (a name or a keyword); choices: the allowed ones."""
+    if not isinstance(v, str):
+        raise SceneError(f"{what} must be a string{' (' + ', '.join(choices) + ')' if choices else ''}, got {_show(v)}")
+    if choices is not None and v not in choices:
+        raise SceneError(f"{what}: unknown {v!r} ({', '.join(choices)})")
+    return v
+
+
 def _vec(v, n, what):
     if not isinstance(v, list) or len(v) != n:
-        raise SceneError(f"{what} must be a list of {n} numbers, got {v!r}")
+        raise SceneError(f"{what} must be a list of {n} numbers, got {_show(v)}")
     return np.array([_num(x, f"{what}[{k}]") for k, x in enumerate(v)])
 
 
@@ -124,6 +147,11 @@ def load_scene(spec, particles=None, shape=None, seed=None):
             doc = tomllib.load(fh)
     except tomllib.TOMLDecodeError as e:
         raise SceneError(f"malformed TOML in {path}: {e}") from None
+    except UnicodeDecodeError as e:
+        raise SceneError(f"scene {path} is not UTF-8 text (byte {e.object[e.start:e.start + 1]!r} at offset "
+                         f"{e.start}); TOML files are UTF-8") from None
+    except RecursionError:
+        raise SceneError(f"malformed TOML in {path}: arrays or tables nested too deep") from None
     except OSError as e:
         raise SceneError(f"cannot read scene {path}: {e.strerror}") from None
     name = os.path.splitext(os.path.basename(path))[0]
@@ -188,6 +216,8 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
     gens = doc.get("generate", [])
     if isinstance(gens, dict):
         gens = [gens]
+    if not isinstance(gens, list):
+        raise SceneError(f"[[generate]] must be an array of tables, got {_show(gens)}")
     if (particles is not None or shape is not None) and len(gens) != 1:
         raise SceneError("--particles/--shape need a scene with exactly one [[generate]] block")
     box_doc = dom.get("box")
@@ -206,6 +236,10 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
             box = gbox if box is None else np.array([np.minimum(box[0], gbox[0]), np.maximum(box[1], gbox[1])])
     if not rows:
         raise SceneError("scene has no particles ([[particles]] or [[generate]])")
+    try:
+        check_size_ratio([r["axes"] for r in rows])
+    except LimitError as e:
+        raise SceneError(str(e)) from None
     if box is None:
         raise SceneError("domain.box = \"fit\" needs a lattice [[generate]] block")
     # --- walls, gravity
@@ -213,7 +247,7 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
     if not isinstance(walls, list):
         raise SceneError(f"domain.walls must be a list of faces, got {walls!r}")
     for w in walls:
-        if w not in WALL_FACES:
+        if not isinstance(w, str) or w not in WALL_FACES:
             raise SceneError(f"unknown wall {w!r} (faces: {', '.join(WALL_FACES)})")
     if len(set(walls)) != len(walls):
         raise SceneError("domain.walls lists a face twice")
@@ -274,8 +308,8 @@ def _explicit_particle(p, k, table):
         raise SceneError(f"{what} must be a table")
     _check_keys(p, {"shape", "axes", "pos", "quat", "vel", "omega", "material"}, what)
     shape = p.get("shape", "sphere")
-    if shape not in SHAPE_CODES:
-        raise SceneError(f"{what}: unknown shape {shape!r} ({', '.join(SHAPE_CODES)})")
+    if not isinstance(shape, str) or shape not in SHAPE_CODES:
+        raise SceneError(f"{what}: unknown shape {_show(shape)} ({', '.join(SHAPE_CODES)})")
     code = SHAPE_CODES[shape]
     if "axes" not in p or "pos" not in p:
         raise SceneError(f"{what} needs 'axes' and 'pos'")
@@ -302,7 +336,7 @@ def _explicit_particle(p, k, table):
     if qn == 0:
         raise SceneError(f"{what}: quat must be non-zero")
     mname = p.get("material", "default" if "default" in table.index else table.materials[0].name)
-    if mname not in table.index:
+    if not isinstance(mname, str) or mname not in table.index:
         raise SceneError(f"{what}: unknown material {mname!r} (defined: {', '.join(table.index)})")
     return {"shape": code, "axes": axes, "pos": _vec(p["pos"], 3, f"{what}.pos"), "quat": quat / qn,
             "vel": _vec(p.get("vel", [0.0, 0.0, 0.0]), 3, f"{what}.vel"),
@@ -334,12 +368,18 @@ def _generate(g, table, box, particles, shape_override, seed_override, first_ind
                     "columns", "region", "orientation", "speed", "material", "seed"}, what)
     count = particles if particles is not None else g.get("count")
     if isinstance(count, bool) or not isinstance(count, int) or count <= 0:
-        raise SceneError(f"particle count must be a positive integer, got {count!r}")
+        raise SceneError(f"particle count must be a positive integer, got {_show(count)}")
+    try:
+        check_particle_count(count, "particle count" if particles is not None else f"{what}.count")
+    except LimitError as e:
+        raise SceneError(str(e)) from None
     shape = shape_override or g.get("shape", "sphere")
-    if shape not in SHAPE_CODES:
-        raise SceneError(f"unknown shape {shape!r} ({', '.join(SHAPE_CODES)})")
+    if not isinstance(shape, str) or shape not in SHAPE_CODES:
+        raise SceneError(f"unknown shape {_show(shape)} ({', '.join(SHAPE_CODES)})")
     code = SHAPE_CODES[shape]
     seed = seed_override if seed_override is not None else g.get("seed", 1)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise SceneError(f"{what}.seed must be a non-negative integer, got {_show(seed)}")
     rng = np.random.default_rng(seed)
     diam = _sample_gradation(g.get("gradation"), count, rng, what)
     a = diam / 2.0
@@ -373,7 +413,7 @@ def _generate(g, table, box, particles, shape_override, seed_override, first_ind
     else:
         raise SceneError(f"{what}.orientation must be 'random' or 'aligned', got {orient!r}")
     mname = g.get("material", "default" if "default" in table.index else table.materials[0].name)
-    if mname not in table.index:
+    if not isinstance(mname, str) or mname not in table.index:
         raise SceneError(f"{what}: unknown material {mname!r} (defined: {', '.join(table.index)})")
     placement = g.get("placement", "lattice")
     dmax = 2.0 * float(rb.max())
@@ -422,6 +462,8 @@ def _generate(g, table, box, particles, shape_override, seed_override, first_ind
     else:
         raise SceneError(f"{what}.placement must be 'lattice' or 'random', got {placement!r}")
     speed = _num(g.get("speed", 0.0), f"{what}.speed")
+    if speed < 0:
+        raise SceneError(f"{what}.speed must be >= 0 (a magnitude [m/s]), got {speed:g}")
     vel = np.zeros((count, 3))
     if speed > 0:
         d = rng.standard_normal((count, 3))

@@ -3,17 +3,26 @@
 run(args) validates the inputs, builds (or loads) the scene, chooses the time step once
 (dem.timestep.choose_time_step) and either runs the mode here or hands P > 1 to the launcher
 (bench.run.launch), whose ranks each run execute() (bench.run.rank).
+
+Faults (issue 15): a run started by a launcher dies with it (bench.run.lifeline); SIGTERM and
+SIGHUP stop a run here as Ctrl-C does, with its records kept and run.json `interrupted`; a record
+that cannot be written (full disk) ends the run with one line, run.json `failed` (written in the
+space of bench.run.records.Reserve), every earlier row kept.
 """
 import os
+import socket
 import sys
 import time
 
 from bench.run.figure import plot_run
 from bench.run.guard import StabilityGuard
 from bench.run.launch import launch_mpi
+from bench.run.lifeline import Interrupted, die_with_parent, raise_on_signals, signal_name
+from bench.run.load import LoadMeter, step_spread
 from bench.run.options import mode_options
 from bench.run.prepare import prepare
-from bench.run.records import StepWriter, environment, merge_step_files, prepare_output, write_json, write_state
+from bench.run.records import (RecordError, Reserve, StepWriter, environment, merge_step_files, prepare_output,
+                               read_step_rows, write_json, write_state)
 from bench.run.snapshots import write_snapshot
 from dem.scene import load_scene
 from dem.timestep import choose_time_step
@@ -32,6 +41,8 @@ def _threading_info():
 
 
 def run(args):
+    die_with_parent()  # started by a launcher: end with it
+    raise_on_signals()  # SIGTERM, SIGHUP: stop like Ctrl-C, records kept
     mapping = parse_mapping(args.mapping)
     mode_cls = mode_for(mapping)
     if args.scheme is not None and mapping.threads == 1:
@@ -45,29 +56,59 @@ def run(args):
     scene = load_scene(args.scene, particles=args.particles, shape=args.shape, seed=args.seed)
     if scene.extras.get("build") and (args.dt if args.dt is not None else scene.dt) != "auto":
         choose_time_step(scene, args.dt)  # a numeric dt is refused before the (expensive) build
-    out = args.out or os.path.join("results", f"run-{scene.name}")
-    prepare_output(out)
+    out = args.out if args.out is not None else os.path.join("results", f"run-{scene.name}")
+    steps = scene.steps if args.steps is None else args.steps
+    prepare_output(out, need=record_bytes(scene.n, steps, mapping.procs))
     prepare(scene, log=log)
-    ts = choose_time_step(scene, args.dt)  # the run's one time step (the ranks receive it)
+    ts = time_step(scene, args.dt)  # the run's one time step (the ranks receive it)
     if mapping.procs > 1:
         return launch_mpi(args, mapping, scene, out, ts)
     mode = mode_cls().setup(scene, dt=ts.dt, **mode_options(mapping, args, scheme))
     return execute(args, scene, mapping, scheme, mode, out, ts)
 
 
-def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
+def record_bytes(n, steps, procs):
+    """Estimated bytes of a run's records: steps.csv (about 250 B a row, one row per step and
+    rank, twice under MPI while the rank files are merged), state.npz (about 150 B a particle),
+    run.json and the reserve (1 MiB)."""
+    return 250 * steps * procs * (2 if procs > 1 else 1) + 150 * n + 2**20
+
+
+def time_step(scene, dt):
+    """dem.timestep.choose_time_step, with a time step that cannot be computed (an overflow, or not
+    a positive number) explained by the input that makes it so (dem.limits.explain_time_step)."""
+    from dem.scene import SceneError
+    try:
+        ts = choose_time_step(scene, dt)
+    except (OverflowError, ZeroDivisionError, FloatingPointError, SceneError) as e:
+        if isinstance(e, SceneError) and "must be positive" not in str(e):
+            raise
+        from dem.limits import explain_time_step
+        raise SceneError(explain_time_step(scene, dt, e)) from None
+    return ts
+
+
+def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
     """The timed run loop of one process, or of every rank (comm given): warm-up, steps, records.
 
     Rank 0 writes run.json, state.npz and (merged) steps.csv; each rank writes its own rows.
-    Decisions that end the loop are taken collectively so that no rank waits for a dead one."""
+    Decisions that end the loop are taken collectively so that no rank waits for a dead one.
+    beat: the rank's bench.run.heartbeat.Heartbeat (its step is set as the loop goes)."""
     dt = ts.dt
     rank = comm.Get_rank() if comm is not None else 0
     steps = scene.steps if args.steps is None else args.steps
     t_compile = time.perf_counter()
     mode.warmup()
     t_compile = time.perf_counter() - t_compile
-    for _ in range(getattr(args, "warmup", 0)):  # untimed, unrecorded: the state advances
-        mode.step()
+    # the guard watches the warm-up steps too (untimed, unrecorded: the state advances), so that the
+    # first step it checks resolves the starting positions (an overlap there was in the scene)
+    guard = StabilityGuard(mode, dt, ts.critical, scene.gravity, comm=comm, overlap=getattr(args, "guard_overlap", 0.05))
+    ke0 = guard.ke0
+    reason = None
+    for w in range(1, getattr(args, "warmup", 0) + 1):
+        reason = guard.check(f"{w} of the warm-up", mode.step())
+        if reason:
+            break
     try:
         import numba
         layer = numba.threading_layer()
@@ -92,7 +133,8 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
             "dt_critical": ts.critical, "dt_details": ts.details, "walls": scene.walls, "gravity": scene.gravity.tolist(),
             "materials": [m.__dict__ for m in scene.materials.materials],
             "environment": environment(), "warmup_s": t_compile, "warmup_steps": getattr(args, "warmup", 0), "threading_layer": layer,
-            "build": scene.extras.get("built"), "stable": None, "max_overlap_ratio": 0.0, "status": "running"}
+            "build": scene.extras.get("built"), "stable": None, "max_overlap_ratio": 0.0, "status": "running",
+            "pid": os.getpid(), "host": socket.gethostname()}
     if comm is not None:
         from mpi4py import MPI  # here, not at the top: importing it starts MPI
         info["mpi_library"] = MPI.Get_library_version().strip().splitlines()[0]
@@ -102,23 +144,26 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
         info["forward_bytes_per_ghost"] = 8 * sum(WIDTH[f] for f in moving_fields(mode.all_spheres))
         wires = comm.gather(mode.wire.as_dict() if mode.wire is not None else None, root=0)
         info["wire"] = {str(r): w for r, w in enumerate(wires)} if rank == 0 else None
+    reserve = Reserve(out) if rank == 0 else None
+    run_json = os.path.join(out, "run.json")
     if rank == 0:
-        write_json(os.path.join(out, "run.json"), info)
+        write_json(run_json, info)
     step_file = os.path.join(out, "steps.csv" if comm is None else f"steps.rank{rank}.csv")
     writer = StepWriter(step_file)
     snap_dir = os.path.join(out, "snapshots")
     if args.snapshot_every and rank == 0:
         os.makedirs(snap_dir, exist_ok=True)
-    guard = StabilityGuard(mode, dt, ts.critical, scene.gravity, comm=comm, overlap=getattr(args, "guard_overlap", 0.05))
-    ke0 = guard.ke0
     series = {"step": [], "totalT": [], "n_contacts": [], "ke": []}
+    meter = LoadMeter().start()
     t_wall = time.perf_counter()
-    stable = True
-    reason = None
+    stable = reason is None
+    k = 0
     try:
-        for k in range(1, steps + 1):
+        for k in (range(1, steps + 1) if stable else ()):
             row = mode.step()
             writer.write(k, rank, row)
+            if beat is not None:
+                beat.step = k
             reason = guard.check(k, row)  # collective: every rank stops at the same step
             if args.plot:
                 series["step"].append(k)
@@ -130,29 +175,67 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
                 break
             if args.snapshot_every and k % args.snapshot_every == 0:
                 write_snapshot(mode, snap_dir, k, dt, rank)
-    finally:
         writer.close()
+    except (KeyboardInterrupt, Interrupted, RecordError) as e:
+        # one process (a rank's own SIGTERM ends it at once: its supervisor keeps the records)
+        try:
+            writer.close()
+        except RecordError:
+            pass
+        if reserve is not None:
+            reserve.release()  # room for run.json on a full disk
+        if isinstance(e, RecordError):
+            info.update(status="failed", reason=f"{e} at step {k}")
+        else:
+            info.update(status="interrupted", reason=f"interrupted by {signal_name(e)} at step {k}; the records "
+                                                     f"up to step {writer.last_step} are kept")
+        info.update(steps_done=writer.last_step, wall_s=time.perf_counter() - t_wall)
+        try:
+            write_json(run_json, info)
+        except RecordError:
+            pass
+        raise
     wall = time.perf_counter() - t_wall
+    meter.stop()
     mode.release()  # MPI: complete the exchange the last step started, free its requests
     snap = mode.snapshot()
     worst = mode.max_overlap_ratio if comm is None else comm.allreduce(mode.max_overlap_ratio, op=_max_op())
     energy = guard.balance()
     ke1 = energy["kinetic_final"]
-    if comm is not None:
+    host = socket.gethostname()
+    own = meter.own
+    if comm is not None:  # the CPU of every rank on rank 0's host is the run's own
+        root_host = comm.bcast(host, root=0)
+        own = sum(cpu for h, cpu in comm.allgather((host, meter.own)) if h == root_host)
         comm.Barrier()
+    if beat is not None:
+        beat.stop()
     if rank != 0:
         return 0
-    if comm is not None:
-        merge_step_files(out, comm.Get_size())
-    write_state(os.path.join(out, "state.npz"), snap)
+    try:
+        if comm is not None:
+            merge_step_files(out, comm.Get_size())
+        write_state(os.path.join(out, "state.npz"), snap)
+    except RecordError as e:
+        reserve.release()
+        info.update(status="failed", reason=str(e))
+        try:
+            write_json(run_json, info)
+        except RecordError:
+            pass
+        raise
+    rows = read_step_rows(os.path.join(out, "steps.csv"))
+    spread = step_spread(rows.groupby("step")["totalT"].max().to_numpy() if len(rows) else [])
     info.update({"stable": stable, "stability_reason": reason, "status": "done" if stable else "unstable",
+                 "load": dict(meter.foreign(own), wall_s=meter.wall), "step_time": spread,
                  "max_overlap_ratio": worst, "wall_s": wall,
                  "neighbor_rebuilds": mode.pairs.rebuilds,
                  "grid_updates": getattr(mode, "grid_updates", None),
                  "kinetic_energy_initial": ke0, "kinetic_energy_final": ke1, "energy_balance": energy,
                  "guard": {"overlap_limit": guard.overlap, "energy_factor": guard.energy_factor},
                  "simulated_time": steps * dt})
-    write_json(os.path.join(out, "run.json"), info)
+    reserve.release()
+    write_json(run_json, info)
     if args.plot:
         plot_run(series, os.path.join(out, "run.png"), title=f"{scene.name}, {n_total} particles, {mapping}")
     if not args.quiet:

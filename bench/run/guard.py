@@ -9,6 +9,18 @@ contact (contact-mechanics.md §4.3): overlaps and energy grow by orders of magn
 few steps, so these thresholds are crossed long before anything else is written.
 The run then stops with one line naming the step, the particles and the likely cause; every
 record up to that step is kept and run.json says stable: false.
+
+The cause of an overlap (issue 15) is named from what can be known:
+- present at the start: the first checked step resolves the contacts of the starting positions
+  (leapfrog: forces at x_0, then the move), so an overlap above the limit there was in the scene;
+- an impact too fast for the material: the pair's present approach speed v along the line of
+  centres (a lower bound of its impact speed, the contact slows it) gives a Hertz peak overlap
+  delta_max = (15 m* v^2 / (16 E* sqrt(R*)))^(2/5) (Johnson 1985, §11.4; m* = m_i m_j / (m_i + m_j),
+  E* the pair's mixed modulus, R* from the largest radii of curvature a^2/c, a lower bound of
+  the peak) above the limit: the time step cannot help, and the message gives the speed at which
+  the peak stays under it, sqrt(16 E* sqrt(R*) (limit a_min)^(5/2) / (15 m*));
+- else the time step when it is above a quarter of the critical one (explicit integration fails
+  near it), else a material too soft for its loads (gravity, confinement).
 """
 import numpy as np
 
@@ -29,6 +41,7 @@ class StabilityGuard:
         self.ke_max = self.ke0
         self.ke_last = self.ke0
         self.gravity_work = 0.0
+        self.checked = 0  # steps checked so far (the first resolves the starting positions)
         mode.guard_overlap = overlap  # the mode flags the step with the same limit
 
     def _sum(self, x):
@@ -40,6 +53,7 @@ class StabilityGuard:
         max_overlap_ratio, all computed by the kernels as they pass over the particles), so a
         check costs a few comparisons and, under MPI, one allreduce."""
         reason = None
+        self.checked += 1
         if row["n_bad"]:
             reason = (f"non-finite position or velocity of particle {row['first_bad']}; likely cause: "
                       f"time step {self.dt:.3g} s too large (critical {self.dt_critical:.3g} s)")
@@ -48,8 +62,7 @@ class StabilityGuard:
             where = (f"particle {who[0]} and a wall" if who and who[1] == "wall" else
                      f"particles {who[0]} and {who[1]}" if who else "a contact")
             reason = (f"overlap {row['max_overlap_ratio']:.3g} of the smallest semi-axis between {where} "
-                      f"(limit {self.overlap:g}); likely cause: time step {self.dt:.3g} s too large for the stiffest "
-                      f"contact (critical {self.dt_critical:.3g} s) or a material too soft for its loads")
+                      f"(limit {self.overlap:g}); {self._overlap_cause(who)}")
         # the mode's step ended with the run's sums (one allreduce under MPI, with its rebuild
         # decision): flagged ranks, kinetic energy, gravity work
         flagged, ke, wg = self.mode.sums
@@ -69,6 +82,68 @@ class StabilityGuard:
         self.ke_max = max(self.ke_max, ke)
         self.ke_last = ke
         return None
+
+    def _overlap_cause(self, who):
+        """The likely cause of an overlap above the limit between who = (i, j) or (i, "wall") (global
+        ids), as the module docstring sets out."""
+        if self.checked == 1:
+            return ("it was there at the start of the run (the first step resolves the starting positions): the "
+                    "scene places these bodies overlapping; move them apart")
+        impact = self._impact(who) if who else None
+        if impact is not None and impact[1] > self.overlap:
+            v, peak, v_ok = impact
+            return (f"likely cause: an impact too fast for the material: they approach at {v:.3g} m/s, at which Hertz "
+                    f"theory puts the peak overlap at {peak:.3g} of the smallest semi-axis (under the limit up to "
+                    f"about {v_ok:.3g} m/s); a stiffer material or slower particles, not a smaller time step")
+        if self.dt > 0.25 * self.dt_critical:
+            return (f"likely cause: time step {self.dt:.3g} s too large for the stiffest contact (critical "
+                    f"{self.dt_critical:.3g} s)")
+        return (f"likely cause: a material too soft for its loads (gravity, confinement): the time step "
+                f"{self.dt:.3g} s is {self.dt_critical / self.dt:.3g} times below the critical one")
+
+    def _impact(self, who):
+        """(approach speed v [m/s], Hertz peak overlap over the smaller smallest semi-axis, the speed
+        [m/s] whose peak is the limit) of the contact who, from this process's rows of the two bodies
+        (owned or ghost), or None when they do not approach or are not here."""
+        s = self.mode.state
+        scene = getattr(self.mode, "scene", None)
+        if scene is None:
+            return None
+        gid = s.gid[:s.n]
+        rows = np.flatnonzero(gid == who[0])
+        if not len(rows):
+            return None
+        i = int(rows[0])
+        amin_i = float(s.axes[i].min())
+        r_i = float(s.axes[i].max()) ** 2 / amin_i  # largest radius of curvature a^2 / c
+        mats = scene.materials
+        if who[1] == "wall":
+            if not len(scene.wall_m):
+                return None
+            gap = scene.wall_m @ s.pos[i] - scene.wall_d
+            w = int(np.argmin(gap))
+            v = -float(s.vel[i] @ scene.wall_m[w])
+            mstar, estar, rstar, amin = float(s.mass[i]), float(mats.estar_w[s.material[i]]), r_i, amin_i
+        else:
+            rows = np.flatnonzero(gid == who[1])
+            if not len(rows):
+                return None
+            j = int(rows[0])
+            d = s.pos[j] - s.pos[i]
+            dn = float(np.linalg.norm(d))
+            if dn == 0.0:
+                return None
+            v = float((s.vel[i] - s.vel[j]) @ d) / dn
+            amin_j = float(s.axes[j].min())
+            r_j = float(s.axes[j].max()) ** 2 / amin_j
+            mi, mj = float(s.mass[i]), float(s.mass[j])
+            mstar, estar = mi * mj / (mi + mj), float(mats.estar[s.material[i], s.material[j]])
+            rstar, amin = r_i * r_j / (r_i + r_j), min(amin_i, amin_j)
+        if not v > 0.0:
+            return None
+        peak = (15.0 * mstar * v * v / (16.0 * estar * np.sqrt(rstar))) ** 0.4 / amin
+        v_ok = float(np.sqrt(16.0 * estar * np.sqrt(rstar) * (self.overlap * amin) ** 2.5 / (15.0 * mstar)))
+        return v, float(peak), v_ok
 
     def balance(self):
         """Energy balance for run.json [J]: what came in (initial KE + gravity work) and went out."""

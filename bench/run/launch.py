@@ -3,9 +3,11 @@
 The parent process has already validated the inputs, built the scene's cache, chosen the time
 step (handed to the ranks, which do not choose it again) and created the output folder; here it
 refuses a decomposition that cannot work (one line), compiles numba's
-cache once so that P ranks do not compile at the same time, and runs mpiexec with a timeout
-(`python -m mpi4py` aborts every rank when one raises; at the timeout the starter gets SIGTERM,
-which mpiexec and srun forward to the ranks, and SIGKILL 10 s later). Environment:
+cache once so that P ranks do not compile at the same time, and runs mpiexec under its supervisor
+(bench.run.supervise, in a session of its own; `python -m mpi4py` aborts every rank when one
+raises): the supervisor forwards signals, stops the ranks at the timeout, names a rank that died
+or stopped responding (heartbeats), keeps and marks the records, and dies with this process, which
+forwards SIGINT, SIGTERM and SIGHUP to it and waits for it (issue 15). Environment:
 NUMBA_NUM_THREADS = T; more ranks x threads than usable CPUs get a one-line warning and
 OMP_WAIT_POLICY=PASSIVE. --pin binds each rank to T cores: Hydra (MPICH) `-bind-to core:T`; the
 Open MPI equivalent is `--map-by slot:PE=T --bind-to core`, and Slurm's `srun --cpus-per-task=T
@@ -22,7 +24,8 @@ import signal
 import subprocess
 import sys
 
-from bench.run.threads_env import usable_cpus
+from bench.run.lifeline import Interrupted, child_env, inherited_lock
+from bench.run.threads_env import check_size, usable_cpus
 from modes.base import ModeError
 from modes.decomposition import BlockGrid, DecompositionError, border_width, fit_skin
 from modes.halo import compile_kernels
@@ -59,6 +62,9 @@ def launch_mpi(args, mapping, scene, out, ts):
     except DecompositionError as e:
         raise ModeError(str(e)) from None
     starter = getattr(args, "mpi_starter", None)
+    too_big = None if starter else check_size(str(mapping))
+    if too_big:
+        raise ModeError(too_big)
     if starter:
         cmd = shlex.split(starter)
         if not cmd or shutil.which(cmd[0]) is None:
@@ -79,18 +85,20 @@ def launch_mpi(args, mapping, scene, out, ts):
               f"oversubscribes them (MPI busy-polls): fine for correctness, not for timings", file=sys.stderr)
     cmd += [sys.executable, "-m", "mpi4py", "-m", "bench.run.rank"] + _run_argv(args, out)
     cmd += ["--time-step", json.dumps(ts.as_dict())]
-    try:
-        proc = subprocess.Popen(cmd, env=env, start_new_session=True)
-        rc = proc.wait(timeout=args.timeout)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGTERM)  # mpiexec and srun forward it to the ranks
+    sup = [sys.executable, "-m", "bench.run.supervise", "--out", out, "--procs", str(mapping.procs),
+           "--timeout", str(args.timeout), "--hang", str(getattr(args, "hang_timeout", 30)), "--"] + cmd
+    locks = inherited_lock()
+    proc = subprocess.Popen(sup, env=child_env(env, locks[0] if locks else None), start_new_session=True,
+                            pass_fds=locks)
+    rc = None
+    while rc is None:
         try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-        print(f"bench: error: {mapping.procs} MPI ranks did not finish within {args.timeout} s; killed", file=sys.stderr)
-        return 3
+            rc = proc.wait()
+        except (KeyboardInterrupt, Interrupted) as e:  # to the supervisor, which stops the ranks
+            try:
+                proc.send_signal(e.signum if isinstance(e, Interrupted) else signal.SIGINT)
+            except OSError:
+                pass
     if rc == 0:
         try:
             with open(os.path.join(out, "run.json")) as fh:

@@ -40,6 +40,39 @@ def skin_fraction(text):
     return v
 
 
+def overlap_fraction(text):
+    """--guard-overlap: a finite fraction in (0, 1] (nan would turn the guard off)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a fraction in (0, 1], got {text!r}") from None
+    if not (0.0 < v <= 1.0):
+        raise argparse.ArgumentTypeError(f"expected a fraction in (0, 1], got {text!r}")
+    return v
+
+
+def seconds(text):
+    """A finite number of seconds >= 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds >= 0, got {text!r}") from None
+    if not (0.0 <= v < 1e9):
+        raise argparse.ArgumentTypeError(f"expected seconds >= 0, got {text!r}")
+    return v
+
+
+def time_step_arg(text):
+    """--dt: a positive finite number of seconds."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a time step [s] > 0, got {text!r}") from None
+    if not (0.0 < v < 1e30):
+        raise argparse.ArgumentTypeError(f"expected a finite time step [s] > 0, got {text!r}")
+    return v
+
+
 def add_run_arguments(r):
     """The `bench run` options on parser r."""
     r.add_argument("--scene", required=True, help="built-in scene name or a .toml file")
@@ -49,7 +82,7 @@ def add_run_arguments(r):
     r.add_argument("--steps", type=nonneg_int, help="override the scene's step count")
     r.add_argument("--warmup", type=nonneg_int, default=0, metavar="W",
                    help="untimed steps before the timed ones (after JIT compilation, which is never timed)")
-    r.add_argument("--dt", type=float, help="time step [s] (default: the scene's, usually auto)")
+    r.add_argument("--dt", type=time_step_arg, help="time step [s] (default: the scene's, usually auto)")
     r.add_argument("--mapping", default="1-1-1-1-1", help="P-px-py-pz-T (default 1-1-1-1-1)")
     r.add_argument("--scheme", default=None, help="thread scheme: partition, frogleap, headtail, static, "
                                                   "dynamic (default dynamic; mappings with T > 1)")
@@ -67,7 +100,7 @@ def add_run_arguments(r):
                    help="write VTK + npz snapshots every K steps")
     r.add_argument("--plot", action="store_true", help="draw DIR/run.png (timings, contacts, energy)")
     r.add_argument("--out", default=None, help="output folder (default results/run-<scene>)")
-    r.add_argument("--guard-overlap", type=float, default=0.05, metavar="F",
+    r.add_argument("--guard-overlap", type=overlap_fraction, default=0.05, metavar="F",
                    help="stop when a contact overlaps more than F of the smaller body's smallest semi-axis (default 0.05)")
     r.add_argument("--halo", choices=["26", "6"], default="26",
                    help="ghost exchange: 26 direct messages (default, the paper's) or 3 sweeps of 6")
@@ -75,6 +108,9 @@ def add_run_arguments(r):
                    help="re-fit the block grid to the particles' extent every K steps (the paper's "
                         "updateGrid; default 0: off)")
     r.add_argument("--timeout", type=positive_int, default=3600, help="seconds before MPI ranks are killed")
+    r.add_argument("--hang-timeout", type=seconds, default=30.0, metavar="S",
+                   help="P > 1: stop the run when a rank's heartbeat is S seconds old while a peer's is fresh "
+                        "(a rank stopped or stuck; default 30, 0: off)")
     r.add_argument("--mpi-starter", default=None, metavar="CMD",
                    help="P > 1: the command that starts the P ranks instead of `mpiexec -n P`, the rank program "
                         "appended (inside a Slurm allocation: 'srun --mpi=pmi2 --ntasks=P --cpus-per-task=T "

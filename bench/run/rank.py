@@ -1,13 +1,21 @@
 """One MPI rank of `bench run` (started by bench.run.launch as `python -m mpi4py -m bench.run.rank`,
 or by srun in a batch job): the same options as `bench run`, and the TimeStep the launcher chose
-(--time-step, JSON; computed here only when a batch job starts the ranks without it)."""
+(--time-step, JSON; computed here only when a batch job starts the ranks without it).
+
+A rank dies with its parent (the starter's proxy: PR_SET_PDEATHSIG, SIGKILL) and keeps the
+default SIGTERM (an immediate end: a rank waiting in MPI could not run a handler); it beats a
+heartbeat (bench.run.heartbeat) for its supervisor, which keeps and marks the records of a run
+whose ranks it had to stop (issue 15)."""
 import argparse
 import json
+import signal
 import sys
 
 from mpi4py import MPI
 
 from bench.run.driver import execute
+from bench.run.heartbeat import Heartbeat
+from bench.run.lifeline import PR_SET_PDEATHSIG, _prctl
 from bench.run.options import add_run_arguments, mode_options
 from bench.run.prepare import load_prepared
 from dem.timestep import TimeStep, choose_time_step
@@ -20,14 +28,17 @@ def main(argv):
     args = parser.parse_args(argv)
     mapping = parse_mapping(args.mapping)
     comm = MPI.COMM_WORLD
+    _prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL))
     if comm.Get_size() != mapping.procs:
         raise SystemExit(f"bench: error: started with {comm.Get_size()} ranks for mapping {mapping}")
+    beat = Heartbeat(args.out, comm.Get_rank())
     cart = comm.Create_cart([mapping.px, mapping.py, mapping.pz], periods=[False] * 3, reorder=False)
     scene = load_prepared(args.scene, particles=args.particles, shape=args.shape, seed=args.seed)  # cached
     ts = TimeStep.from_dict(json.loads(args.time_step)) if args.time_step else choose_time_step(scene, args.dt)
     scheme = args.scheme or ("dynamic" if mapping.threads > 1 else None)
     mode = mode_for(mapping)().setup(scene, dt=ts.dt, cart=cart, **mode_options(mapping, args, scheme))
-    execute(args, scene, mapping, scheme, mode, args.out, ts, comm=cart)
+    beat.phase = "running"
+    execute(args, scene, mapping, scheme, mode, args.out, ts, comm=cart, beat=beat)
     # an unstable run has written its records and its one line (rank 0): end normally, since a
     # non-zero exit makes `python -m mpi4py` abort every rank; the launcher reads run.json
     return 0

@@ -1,5 +1,14 @@
 """Run records: run.json (inputs, environment, stability), steps.csv (per step and rank),
-state.npz (final state sorted by global id). Schema: results/README.md."""
+state.npz (final state sorted by global id). Schema: results/README.md.
+
+Records survive (issue 15): every file is written atomically (a temporary file in the same
+folder, then os.replace), so a reader sees the old or the new content, never half of one; steps.csv
+is appended every FLUSH_ROWS rows or FLUSH_S seconds, and cut back to its last whole row when a
+write fails; a write that fails (a full disk) raises RecordError, one line naming the file and
+the cause, with every earlier file intact; run.json always ends in a final status (`done`,
+`unstable`, `failed`, `timeout`, `interrupted`), written by the run, or by the supervisor of its
+ranks (finalize_run) when they could not.
+"""
 import csv
 import operator
 import json
@@ -11,6 +20,15 @@ import time
 import numpy as np
 
 from dem.scene import SceneError
+
+FLUSH_ROWS = 100   # steps.csv rows kept in memory at most ...
+FLUSH_S = 1.0      # ... and seconds between appends
+RESERVE_BYTES = 64 * 1024  # kept free for the final records when the disk fills (Reserve)
+FINAL = ("done", "unstable", "failed", "timeout", "interrupted")
+
+
+class RecordError(OSError):
+    """A record that could not be written (full disk, permissions); str() is one line."""
 
 STEP_COLUMNS = ["step", "rank", "totalT", "commuT", "migraT", "compuT", "neighborT", "resolveT",
                 "n_owned", "n_ghost", "n_contacts", "n_wall_contacts", "n_candidates", "neighbor_rebuilt", "n_migrated",
@@ -39,11 +57,25 @@ def environment():
     return info
 
 
+def atomic_write(path, fill, mode="w"):
+    """Write path atomically: fill(fh) writes a temporary file beside it, then os.replace. A failure
+    (OSError) removes the temporary file, leaves path as it was and raises RecordError."""
+    tmp = f"{path}.{os.getpid()}.tmp"
+    try:
+        with open(tmp, mode, **({"newline": ""} if "b" not in mode else {})) as fh:
+            fill(fh)
+            fh.flush()
+        os.replace(tmp, path)
+    except OSError as e:
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        raise RecordError(f"cannot write {path}: {e.strerror or e}") from None
+
+
 def write_json(path, obj):
-    tmp = path + ".tmp"
-    with open(tmp, "w") as fh:
-        json.dump(obj, fh, indent=2, default=_jsonable)
-    os.replace(tmp, path)
+    atomic_write(path, lambda fh: json.dump(obj, fh, indent=2, default=_jsonable))
 
 
 def _jsonable(o):
@@ -64,12 +96,18 @@ class StepWriter:
     operation, fixed by the first row: integers in full, floats to 7 significant digits (times
     to 0.1 us in 1 s), empty for a column the mode leaves out."""
 
-    def __init__(self, path, flush_rows=1000, flush_s=5.0):
+    def __init__(self, path, flush_rows=FLUSH_ROWS, flush_s=FLUSH_S):
         import psutil
         self.proc = psutil.Process()
-        self.fh = open(path, "w", newline="")
-        self.fh.write(",".join(STEP_COLUMNS) + "\n")
-        self.fh.flush()
+        self.path = path
+        self.last_step = 0  # the last step whose row is on disk
+        try:
+            self.fh = open(path, "w", newline="")
+            self.fh.write(",".join(STEP_COLUMNS) + "\n")
+            self.fh.flush()
+        except OSError as e:
+            raise RecordError(f"cannot write {path}: {e.strerror or e}") from None
+        self.good = self.fh.tell()  # bytes of whole rows on disk
         self.rows = []
         self.flush_rows = flush_rows
         self.flush_s = flush_s
@@ -92,6 +130,10 @@ class StepWriter:
                              for c in STEP_COLUMNS) + "\n"
 
     def flush(self):
+        """Append the rows in memory; a failed write cuts the file back to its last whole row and
+        raises RecordError (the rows not written are dropped)."""
+        if self.fh is None:
+            return
         self.rss = self.proc.memory_info().rss / 2**20
         lines = []
         for row in self.rows:
@@ -101,51 +143,209 @@ class StepWriter:
             if self.line is None:
                 self._layout(row)
             lines.append(self.line % self.values(row))
-        self.fh.write("".join(lines))
-        self.fh.flush()
+        last = self.rows[-1]["step"] if self.rows else self.last_step
         self.rows = []
         self.last = time.monotonic()
+        if not lines:
+            return
+        try:
+            self.fh.write("".join(lines))
+            self.fh.flush()
+        except OSError as e:
+            self._cut()
+            raise RecordError(f"cannot write {self.path}: {e.strerror or e} (rows up to step {self.last_step} "
+                              f"kept)") from None
+        self.good = self.fh.tell()
+        self.last_step = last
+
+    def _cut(self):
+        """Back to the last whole row (a failed write may leave part of one), and stop writing."""
+        fh, self.fh = self.fh, None
+        try:
+            os.truncate(self.path, self.good)
+        except OSError:
+            pass
+        try:
+            fh.close()
+        except OSError:  # the buffer that could not be written: dropped, the file cut above
+            try:
+                os.truncate(self.path, self.good)
+            except OSError:
+                pass
 
     def close(self):
-        self.flush()
-        self.fh.close()
+        if self.fh is None:
+            return
+        try:
+            self.flush()
+        finally:
+            if self.fh is not None:
+                fh, self.fh = self.fh, None
+                fh.close()
+
+
+class Reserve:
+    """RESERVE_BYTES of disk held in DIR/.reserve from the start of a run, and given back when a
+    write fails for lack of space, so that run.json can still say how the run ended."""
+
+    def __init__(self, out):
+        self.path = os.path.join(out, ".reserve")
+        try:
+            with open(self.path, "wb") as fh:
+                fh.write(b"\0" * RESERVE_BYTES)
+        except OSError:
+            self.release()
+
+    def release(self):
+        try:
+            os.remove(self.path)
+        except OSError:
+            pass
 
 
 def write_state(path, snap):
     """state.npz: id [n], pos [n,3], quat [n,4], vel [n,3], omega [n,3] (+ axes, shape)."""
-    tmp = path + ".tmp.npz"
-    np.savez(tmp, **snap)
-    os.replace(tmp, path)
+    atomic_write(path, lambda fh: np.savez(fh, **snap), mode="wb")
 
 
 def write_rows_csv(path, rows, columns):
     """Write dict rows as CSV with the given columns (floats to 6 significant digits), atomically."""
-    tmp = path + ".tmp"
-    with open(tmp, "w", newline="") as fh:
+    def fill(fh):
         w = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
         w.writeheader()
         for r in rows:
             w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-    os.replace(tmp, path)
+    atomic_write(path, fill)
 
 
-def prepare_output(out):
-    """Create the output folder and check that it is writable (SceneError, one line, if not)."""
+PROBE_BYTES = 64 * 1024
+
+
+def prepare_output(out, need=0):
+    """Create the output folder and check that it takes a write: a PROBE_BYTES probe written and
+    flushed to disk (an empty one passes on a full disk), and `need` bytes more free (the
+    estimated records). SceneError, one line, if not."""
+    if not isinstance(out, str) or not out.strip():
+        raise SceneError(f"output folder must be a non-empty path, got {out!r}")
+    probe = os.path.join(out, f".write-test.{os.getpid()}")
     try:
         os.makedirs(out, exist_ok=True)
-        probe = os.path.join(out, ".write-test")
-        with open(probe, "w"):
-            pass
-        os.remove(probe)
+        with open(probe, "wb") as fh:
+            fh.write(b"\0" * PROBE_BYTES)
+            fh.flush()
+            os.fsync(fh.fileno())
     except OSError as e:
-        raise SceneError(f"output folder {out!r} is not writable: {e.strerror}") from None
+        raise SceneError(f"output folder {out!r} is not writable: {e.strerror or e}") from None
+    finally:
+        try:
+            os.remove(probe)
+        except OSError:
+            pass
+    try:
+        st = os.statvfs(out)
+        free = st.f_bavail * st.f_frsize
+    except (OSError, AttributeError):
+        return
+    if need and free < need:
+        raise SceneError(f"output folder {out!r} has {free / 2**20:.3g} MiB free, the records need about "
+                         f"{need / 2**20:.3g} MiB")
+
+
+def read_step_rows(path):
+    """The whole rows of a steps.csv being written or cut short (a last line without its newline, or
+    with fewer fields, is left out): a DataFrame, empty when the file has none."""
+    import io
+    import pandas as pd
+    try:
+        with open(path, newline="") as fh:
+            text = fh.read()
+    except OSError:
+        return pd.DataFrame(columns=STEP_COLUMNS)
+    if not text.endswith("\n"):
+        text = text[:text.rfind("\n") + 1]
+    lines = text.splitlines(keepends=True)
+    if not lines:
+        return pd.DataFrame(columns=STEP_COLUMNS)
+    width = lines[0].count(",")
+    body = [l for l in lines[1:] if l.count(",") == width]
+    try:
+        return pd.read_csv(io.StringIO(lines[0] + "".join(body)))
+    except Exception:  # noqa: BLE001  (a damaged header: no rows to keep)
+        return pd.DataFrame(columns=STEP_COLUMNS)
 
 
 def merge_step_files(out, size):
-    """Merge the ranks' step rows (steps.rank<r>.csv) into one steps.csv ordered by (step, rank)."""
+    """Merge the ranks' step rows (steps.rank<r>.csv) into one steps.csv ordered by (step, rank),
+    atomically; a rank's file that is missing or cut short gives the whole rows it has. Returns
+    {rank: rows} of the merged files; the rank files are removed once steps.csv is written."""
     import pandas as pd
-    parts = [pd.read_csv(os.path.join(out, f"steps.rank{r}.csv")) for r in range(size)]
-    merged = pd.concat(parts).sort_values(["step", "rank"], kind="stable")
-    merged.to_csv(os.path.join(out, "steps.csv"), index=False)
+    counts, parts = {}, []
     for r in range(size):
+        path = os.path.join(out, f"steps.rank{r}.csv")
+        if os.path.exists(path):
+            part = read_step_rows(path)
+            counts[r] = len(part)
+            parts.append(part)
+    if not parts:
+        return counts
+    merged = pd.concat(parts).sort_values(["step", "rank"], kind="stable")
+    atomic_write(os.path.join(out, "steps.csv"), lambda fh: merged.to_csv(fh, index=False))
+    for r in counts:
         os.remove(os.path.join(out, f"steps.rank{r}.csv"))
+    return counts
+
+
+def read_json_file(path):
+    try:
+        with open(path) as fh:
+            return json.load(fh)
+    except (OSError, ValueError):
+        return None
+
+
+def finalize_run(out, size, status, reason):
+    """Keep and mark the records of a run that did not end by itself (the supervisor of its ranks, or
+    a launcher whose run was killed): the ranks' step rows merged into steps.csv, and run.json's
+    status set to `status` with `reason` unless the run wrote a final one. Never raises: a record
+    that cannot be written is named in run.json where possible."""
+    notes = []
+    try:
+        os.remove(os.path.join(out, ".reserve"))  # the run's reserve, if it could not give it back
+    except OSError:
+        pass
+    try:
+        counts = merge_step_files(out, size) if size > 1 else {}
+    except (OSError, ValueError) as e:
+        counts, notes = {}, [f"steps.rank<r>.csv not merged: {e}"]
+    path = os.path.join(out, "run.json")
+    info = read_json_file(path) or {}
+    if info.get("status") in FINAL:
+        return info
+    info.update(status=status, stable=info.get("stable"), reason=reason, ended=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+    if counts:
+        info["rank_step_rows"] = {str(r): n for r, n in counts.items()}
+    if notes:
+        info["record_notes"] = notes
+    try:
+        write_json(path, info)
+    except RecordError:
+        pass
+    return info
+
+
+def process_alive(pid, host=None):
+    """Whether process pid still runs (on this host: another host's pid cannot be asked)."""
+    import socket
+    if host is not None and host != socket.gethostname():
+        return True
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, ValueError, TypeError):
+        return True
+    try:
+        with open(f"/proc/{int(pid)}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return True

@@ -9,6 +9,35 @@ import os
 import re
 import sys
 
+# threads (or local ranks x threads) per CPU of the node beyond which a run is refused: numba starts
+# every thread at once (10^5 of them crashed the process) and correctness runs need only a few
+MAX_PER_CPU = 8
+
+
+def size_limit():
+    """The most threads a process, or ranks x threads started here, may ask for: MAX_PER_CPU x the
+    node's CPUs."""
+    return MAX_PER_CPU * (os.cpu_count() or 1)
+
+
+def check_size(mapping_text, local_ranks=True):
+    """None, or the one-line reason a mapping 'P-px-py-pz-T' asks for more threads (T, and P x T when
+    the ranks start here) than size_limit(); a malformed mapping passes (the run refuses it)."""
+    m = re.fullmatch(r"\s*(\d+)-(\d+)-(\d+)-(\d+)-(\d+)\s*", mapping_text or "")
+    if not m:
+        return None
+    procs, px, py, pz, threads = (int(g) for g in m.groups())
+    if min(procs, px, py, pz, threads) < 1 or procs != px * py * pz:
+        return None  # malformed: the mapping parser says why
+    limit = size_limit()
+    if threads > limit:
+        return (f"mapping {mapping_text.strip()}: {threads} threads a process is more than {MAX_PER_CPU} per CPU "
+                f"({os.cpu_count()} CPUs: at most {limit})")
+    if local_ranks and procs * threads > limit:
+        return (f"mapping {mapping_text.strip()}: {procs} ranks x {threads} threads started here is more than "
+                f"{MAX_PER_CPU} per CPU ({os.cpu_count()} CPUs: at most {limit}); under Slurm they spread over nodes")
+    return None
+
 
 def usable_cpus():
     try:

@@ -9,7 +9,6 @@ compute nodes (each node's CPU model and core count, from the jobs; `cpu_model` 
 the nodes' own when they are alike), the MPI library and numba's threading layer the runs
 recorded. Exit status 0 when every point is done, 4 otherwise (the points not done are listed).
 """
-import json
 import os
 import time
 
@@ -17,8 +16,8 @@ import numpy as np
 
 from bench.run.records import write_json
 from bench.sweep.figures import plot_sweep
-from bench.sweep.points import SERIAL, Point
-from bench.sweep.records import amdahl, summarise, with_speedup, write_runs
+from bench.sweep.points import SERIAL, point_from_dict
+from bench.sweep.records import amdahl, reference_key, summarise, with_speedup, write_runs
 from bench.sweep.status import PRIORITY, read_json, sweep_outcomes
 from dem.scene import SceneError
 
@@ -47,28 +46,36 @@ def collect(args):
     from bench.sweep.slurm import Scheduler
     if not os.path.exists(os.path.join(args.dir, "manifest.json")):
         raise SceneError(f"{args.dir} has no manifest.json (not a sweep folder)")
-    info = json.load(open(os.path.join(args.dir, "manifest.json")))
+    info = read_json(os.path.join(args.dir, "manifest.json"))
+    if not isinstance(info, dict) or not isinstance(info.get("points"), list):
+        raise SceneError(f"{os.path.join(args.dir, 'manifest.json')} cannot be read as a sweep manifest (not JSON, "
+                         f"or no points list); it can be rebuilt by running the sweep again with --resume")
     batch = info.get("launcher") == "slurm"
     info, outcomes = sweep_outcomes(args.dir, Scheduler.here() if batch else None)
     rows = []
-    ref_state, t1 = None, None
+    ref_state, t1 = {}, {}  # per serial point: its state and totalT (each group's reference)
     for p, reps in outcomes:
-        point = Point(**{k: v for k, v in p.items() if k != "key"})
+        point = point_from_dict(p)
         dirs = [o["dir"] for o in reps]
-        ordered = sorted(reps, key=lambda o: PRIORITY.index(o["status"]) if o["status"] in PRIORITY else 0)
         if point.mapping == SERIAL and os.path.exists(os.path.join(dirs[0], "state.npz")) and \
                 all(o["status"] == "done" for o in reps):
-            ref_state = dict(np.load(os.path.join(dirs[0], "state.npz")))
-        row = summarise(point, dirs, ref_state, t1, statuses=ordered)
+            ref_state[point.key] = dict(np.load(os.path.join(dirs[0], "state.npz")))
+    keys = []
+    for p, reps in outcomes:
+        point = point_from_dict(p)
+        dirs = [o["dir"] for o in reps]
+        ordered = sorted(reps, key=lambda o: PRIORITY.index(o["status"]) if o["status"] in PRIORITY else 0)
+        row = summarise(point, dirs, ref_state.get(reference_key(point)), None, statuses=ordered)
         loads = [read_json(os.path.join(d, "status.json")) or {} for d in dirs]
         if any("load_before" in s for s in loads):
             row["load_before"] = float(np.median([s["load_before"] for s in loads if "load_before" in s]))
             row["load_after"] = float(np.median([s["load_after"] for s in loads if "load_after" in s] or [np.nan]))
         if point.mapping == SERIAL and row["status"] == "done":
-            t1 = row["totalT"]
+            t1[point.key] = row["totalT"]
         rows.append(row)
-    for row in rows:  # the serial row too (speedup 1.0), against the T(1) of this collection
-        with_speedup(row, t1)
+        keys.append(reference_key(point))
+    for row, ref in zip(rows, keys):  # the serial row too (speedup 1.0), against its group's T(1)
+        with_speedup(row, t1.get(ref))
     runs_path = os.path.join(args.dir, "runs.csv")
     write_runs(runs_path, rows)
     write_json(os.path.join(args.dir, "summary.json"), amdahl(rows))

@@ -3,25 +3,43 @@
 Every point (mapping x scheme, bench.sweep.points) runs as its own `bench run` in
 DIR/<point>/rep<r>/ through the chosen launcher (bench.sweep.launchers). The serial point
 1-1-1-1-1 is the reference T(1) and the reference state for the error columns; it is added (and
-run first) when missing. After every point DIR/runs.csv is rewritten atomically, so an
-interrupted sweep leaves a consistent file; --resume skips the points already done (identified
-by their parameters). A point that crashes, hangs past its timeout or goes unstable is recorded
-with its status and reason, and the sweep goes on. A batch launcher (slurm) instead writes and
-submits jobs and returns; `bench collect DIR` then records them the same way. The columns are bench.sweep.records'; the
-figures (bench.sweep.figures) are drawn from runs.csv at the end.
+run first) when missing. A point that crashes, hangs past its timeout or goes unstable is
+recorded with its status and reason, and the sweep goes on. A batch launcher (slurm) instead
+writes and submits jobs and returns; `bench collect DIR` then records them the same way. The
+columns are bench.sweep.records'; the figures (bench.sweep.figures) are drawn from runs.csv at the
+end.
+
+Faults and trust (issue 15):
+- the folder is locked for the sweep's life (bench.sweep.lock): a second sweep or collect into it
+  gets one line and exit 2;
+- repeats are interleaved: round r runs repeat r of every point (serial first), so that a load
+  that comes and goes spreads over the points instead of falling on one;
+- DIR/runs.csv (rewritten atomically whenever a point completes) keeps every point ever done in
+  the folder: the rows of points outside this sweep are carried over (rebuilt from their folders
+  when runs.csv cannot be read or a row is cut short), and manifest.json accumulates its points,
+  their load and the history of sweeps (`sweeps`);
+- --resume skips the repeats whose folders hold a finished, recorded run (status.json done and its
+  run.json, steps.csv and state.npz), whatever runs.csv says; a repeat folder whose run.json says
+  running with its process still alive here is refused (one line);
+- SIGINT, SIGTERM and SIGHUP stop the point running (its bench run stops its ranks), record it,
+  write runs.csv and the manifest, and exit 128 + the signal with one line; `--resume` continues.
 """
-import json
 import math
 import os
+import sys
 import time
 
 import numpy as np
 
-from bench.run.records import prepare_output, write_json
+from bench.run.lifeline import Interrupted, exit_status, raise_on_signals, signal_name
+from bench.run.records import prepare_output, process_alive, read_json_file, write_json
 from bench.sweep.figures import plot_sweep
 from bench.sweep.launchers import LAUNCHERS
-from bench.sweep.points import SERIAL, make_points
-from bench.sweep.records import RUN_COLUMNS, amdahl, manifest, summarise, with_speedup, write_runs
+from bench.sweep.lock import SweepLock
+from bench.sweep.points import SERIAL, make_points, point_from_dict
+from bench.sweep.records import (RUN_COLUMNS, RunsFileError, amdahl, manifest, merge_manifest, read_runs_rows,
+                                 reference_key, summarise, with_speedup, write_runs)
+from modes.base import ModeError
 
 
 def sweep(args):
@@ -34,71 +52,170 @@ def sweep(args):
     points = make_points(mappings, schemes, args.scene, args.particles, args.steps, args.warmup,
                          args.neighbor, args.shape, args.pin, args.halo, getattr(args, "contact_method", "exact"))
     out = args.out
-    prepare_output(out)
-    runs_path = os.path.join(out, "runs.csv")
-    done = {}
-    if args.resume and os.path.exists(runs_path):
-        import pandas as pd
-        old = pd.read_csv(runs_path, keep_default_na=False)
-        done = {r["point"]: r for r in old.to_dict("records") if r["status"] == "done"}
     if args.dry_run:
         return launcher.dry_run(points, out, args.repeats)
-    if launcher.batch:
-        return launcher.submit(points, out, args.repeats, args.resume)
+    prepare_output(out)
+    raise_on_signals()
+    with SweepLock(out) as lock:
+        if launcher.batch:
+            return launcher.submit(points, out, args.repeats, args.resume)
+        return local_sweep(args, launcher, points, out, lock.fd)
+
+
+def repeat_done(rep):
+    """A finished, recorded repeat: status.json done and its run.json, steps.csv and state.npz."""
+    st = read_json_file(os.path.join(rep, "status.json")) or {}
+    return st.get("status") == "done" and all(os.path.exists(os.path.join(rep, f))
+                                              for f in ("run.json", "steps.csv", "state.npz"))
+
+
+def earlier_rows(out, points):
+    """{point key: row} of DIR/runs.csv for the given points, each a whole row (bench.sweep.records.
+    read_runs_rows) whose `done` is borne out by its folders; and a warning line or None."""
+    path = os.path.join(out, "runs.csv")
+    if not os.path.exists(path):
+        return {}, None
+    try:
+        header, rows, cut = read_runs_rows(path)
+    except RunsFileError as e:
+        return {}, f"{e}: its rows are rebuilt from the point folders"
+    keep = {}
+    for r in rows:
+        p = points.get(r.get("point"))
+        if p is None:
+            continue
+        if r.get("status") == "done" and not all(repeat_done(d) for d in p["dirs"]):
+            continue  # a row that says done without the records to back it
+        keep[r["point"]] = {c: _typed(r.get(c, "")) for c in RUN_COLUMNS}
+    note = f"{path}: {cut} row(s) cut short, rebuilt from the point folders" if cut else None
+    return keep, note
+
+
+def _typed(text):
+    if text == "":
+        return math.nan
+    try:
+        return float(text) if text.strip().lower() not in ("true", "false") else text
+    except ValueError:
+        return text
+
+
+def local_sweep(args, launcher, points, out, lock_fd):
+    runs_path = os.path.join(out, "runs.csv")
+    repeats = args.repeats
     info = manifest(out, points)
-    info.update(launcher=launcher.name, repeats=args.repeats, load={})
+    for p in info["points"]:
+        p["repeats"] = repeats
+    entry = {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "command": " ".join(sys.argv),
+             "points": [p.key for p in points], "repeats": repeats, "resume": bool(args.resume),
+             "launcher": launcher.name}
+    info = merge_manifest(out, info, entry)
+    info.update(launcher=launcher.name, repeats=repeats)
+    everything = {}
+    for d in info["points"]:
+        n = int(d.get("repeats") or repeats)
+        everything[d["key"]] = {"point": point_from_dict(d), "dirs": [os.path.join(out, d["key"], f"rep{r}")
+                                                                        for r in range(n)]}
+    old, note = earlier_rows(out, everything)
+    if note:
+        print(f"bench: warning: {note}", flush=True)
+    # the repeats to run: all of this sweep's, or with --resume those without a finished record
+    todo = {}
+    for p in points:
+        reps = everything[p.key]["dirs"]
+        todo[p.key] = [r for r, d in enumerate(reps) if not (args.resume and repeat_done(d))]
+        for r in todo[p.key]:
+            run = read_json_file(os.path.join(reps[r], "run.json")) or {}
+            if run.get("status") == "running" and run.get("pid") and process_alive(run["pid"], run.get("host")):
+                raise ModeError(f"{reps[r]} is still being run by process {run['pid']} on {run.get('host')} (left "
+                                f"by an earlier sweep?): stop it before running this point again")
     write_json(os.path.join(out, "manifest.json"), info)
-    env = dict(os.environ)
     rows = {}
-    ref_state = None
-    t1 = None
+    for key, e in everything.items():  # every earlier point keeps its row
+        if key not in todo:
+            rows[key] = old.get(key) or summarise(e["point"], e["dirs"], None, None)
+    for p in points:
+        if not todo[p.key]:
+            rows[p.key] = old.get(p.key) or summarise(p, everything[p.key]["dirs"], None, None)
+    env = dict(os.environ)
+    n_runs = sum(len(v) for v in todo.values())
+    print(f"sweep: {len(points)} points x {repeats} repeats ({sum(repeats - len(v) for v in todo.values())} "
+          f"repeats already done) of {args.scene} into {out}", flush=True)
     start = time.perf_counter()
-    todo = [p for p in points if p.key not in done]
-    print(f"sweep: {len(points)} points ({len(points) - len(todo)} already done) of {args.scene} into {out}",
-          flush=True)
-    for k, p in enumerate(points, 1):
-        reps = [os.path.join(out, p.key, f"rep{r}") for r in range(args.repeats)]
-        if p.key in done:
-            row = {c: done[p.key].get(c, math.nan) for c in RUN_COLUMNS}
-        else:
-            load0 = os.getloadavg()[0]
-            for r in reps:
-                st = launcher.run_point(p, r, env)
-                if st["status"] != "done":
-                    break
-            load1 = os.getloadavg()[0]
-            info["load"][p.key] = {"before": load0, "after": load1}
-            write_json(os.path.join(out, "manifest.json"), info)
-            row = None
-        if p.mapping == SERIAL and ref_state is None and os.path.exists(os.path.join(reps[0], "state.npz")):
-            ref_state = dict(np.load(os.path.join(reps[0], "state.npz")))
-        if row is None:
-            row = summarise(p, reps, ref_state, t1)
-            row.update(load_before=load0, load_after=load1)
+    failed = {}
+    ran = 0
+    ref_state, t1 = {}, {}
+
+    def record(p):
+        """Summarise a point whose repeats are all run (or one failed) into its runs.csv row."""
+        reps = everything[p.key]["dirs"]
+        if p.mapping == SERIAL and os.path.exists(os.path.join(reps[0], "state.npz")):
+            ref_state[p.key] = dict(np.load(os.path.join(reps[0], "state.npz")))
+        ref = reference_key(p)
+        row = summarise(p, reps, ref_state.get(ref), t1.get(ref))
         if p.mapping == SERIAL and row["status"] == "done":
-            t1 = float(row["totalT"])
+            t1[p.key] = float(row["totalT"])
+        load = info["load"].get(p.key) or {}
+        row.update(load_before=load.get("before", math.nan), load_after=load.get("after", math.nan))
         rows[p.key] = row
-        write_runs(runs_path, [rows[q.key] for q in points if q.key in rows])
-        el = time.perf_counter() - start
-        ran = sum(1 for q in points[:k] if q.key not in done)
-        eta = el / ran * (len(todo) - ran) if ran else 0.0
-        print(f"point {k}/{len(points)} {p.mapping}{' ' + p.scheme if p.scheme else ''}: {row['status']}"
-              f"{' (' + str(row['reason']) + ')' if row['status'] != 'done' else ''}, "
-              f"totalT {row['totalT'] * 1e3 if row['totalT'] == row['totalT'] else float('nan'):.3f} ms/step, "
-              f"elapsed {el:.0f} s, estimate {eta:.0f} s left", flush=True)
-    # speedups of resumed rows against this T(1)
-    if t1:
-        for r in rows.values():
-            with_speedup(r, t1)
-        write_runs(runs_path, [rows[q.key] for q in points])
-    # the threading layer numba used, as the runs recorded it (a parallel region must have run)
+        write_runs(runs_path, [rows[k] for k in everything if k in rows])
+        return row
+
+    for key, e in everything.items():  # serial references done before this sweep
+        row = rows.get(key)
+        if e["point"].mapping == SERIAL and row is not None and row.get("status") == "done":
+            t1[key] = float(row["totalT"])
+            if os.path.exists(os.path.join(e["dirs"][0], "state.npz")):
+                ref_state[key] = dict(np.load(os.path.join(e["dirs"][0], "state.npz")))
+    stopped = current = None
+    try:
+        for r in range(repeats):
+            for k, p in enumerate(points, 1):
+                if r not in todo[p.key] or p.key in failed:
+                    continue
+                rep = everything[p.key]["dirs"][r]
+                load0 = os.getloadavg()[0]
+                current = p
+                st = launcher.run_point(p, rep, env, lock_fd)
+                current = None
+                ran += 1
+                load = info["load"].setdefault(p.key, {})
+                load.setdefault("before", load0)
+                load["after"] = os.getloadavg()[0]
+                write_json(os.path.join(out, "manifest.json"), info)
+                if st["status"] != "done":
+                    failed[p.key] = st
+                last = st["status"] != "done" or r == max(todo[p.key])
+                row = record(p) if last else None
+                el = time.perf_counter() - start
+                eta = el / ran * (n_runs - ran) if ran else 0.0
+                print(_progress(k, len(points), p, r, repeats, st, row, rep, el, eta), flush=True)
+    except (KeyboardInterrupt, Interrupted) as e:
+        stopped = e
+        if current is not None:  # the point that was running: its repeat is recorded (interrupted)
+            failed[current.key] = True
+            record(current)
+    # speedups against each group's T(1) (this sweep's serial point, or the row carried over)
+    for key, row in rows.items():
+        ref = rows.get(reference_key(everything[key]["point"]))
+        if ref is not None and ref.get("status") == "done":
+            with_speedup(row, float(ref["totalT"]))
+    write_runs(runs_path, [rows[k] for k in everything if k in rows])
     layers = set()
     for p in points:
         f = os.path.join(out, p.key, "rep0", "run.json")
-        if os.path.exists(f):
-            layers.add(json.load(open(f)).get("threading_layer"))
-    info["numba_threading_layer"] = sorted(x for x in layers if x) or None
+        run = read_json_file(f) or {}
+        if run.get("threading_layer"):
+            layers.add(run["threading_layer"])
+    info["numba_threading_layer"] = sorted(layers) or None
+    info["sweeps"][-1]["ended"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    info["sweeps"][-1]["outcome"] = "interrupted" if stopped is not None else "ended"
     write_json(os.path.join(out, "manifest.json"), info)
+    if stopped is not None:
+        print(f"bench: error: sweep interrupted by {signal_name(stopped)}: the point running was stopped and "
+              f"recorded; runs.csv has every point done; `bench sweep ... --resume` continues", file=sys.stderr,
+              flush=True)
+        return exit_status(stopped)
     summary = amdahl(list(rows.values()))
     write_json(os.path.join(out, "summary.json"), summary)
     if summary.get("serial_fraction") is not None:
@@ -106,5 +223,29 @@ def sweep(args):
               + ("" if summary["valid"] else f" ({summary['note']})"))
     figs = plot_sweep(out)
     print(f"records: {runs_path}; figures: {', '.join(os.path.basename(f) for f in figs)}")
-    failed = [r for r in rows.values() if r["status"] != "done"]
-    return 0 if not failed else 4
+    flagged = [r for r in rows.values() if isinstance(r.get("flag"), str) and r["flag"]]
+    if flagged:
+        print(f"flagged: {len(flagged)} point(s) measured under foreign load or with a wide spread (runs.csv "
+              f"flag): " + ", ".join(f"{r['mapping']}{' ' + r['scheme'] if isinstance(r['scheme'], str) and r['scheme'] else ''}"
+                                      f" [{r['flag']}]" for r in flagged))
+    failed_rows = [r for r in rows.values() if r["status"] != "done"]
+    return 0 if not failed_rows else 4
+
+
+def _progress(k, n, p, r, repeats, st, row, rep, elapsed, eta):
+    """The progress line of one repeat: the point, its outcome, its time and what makes it doubtful."""
+    name = f"point {k}/{n} {p.mapping}{' ' + p.scheme if p.scheme else ''}"
+    if repeats > 1:
+        name += f" rep {r + 1}/{repeats}"
+    text = f"{name}: {st['status']}" + (f" ({st['reason']})" if st["status"] != "done" else "")
+    run = read_json_file(os.path.join(rep, "run.json")) or {}
+    if st["status"] == "done":
+        if row is not None and math.isfinite(row["totalT"]):
+            text += f", totalT {row['totalT'] * 1e3:.3f} ms/step"
+        load = run.get("load") or {}
+        fc = load.get("foreign_cores")
+        if fc is not None:
+            text += f", foreign load {fc:.2f} CPUs"
+        if row is not None and row.get("flag"):
+            text += f" [FLAG {row['flag']}]"
+    return text + f", elapsed {elapsed:.0f} s, estimate {eta:.0f} s left"

@@ -21,7 +21,11 @@ plot_sweep(DIR) writes, in DIR:
   drawn hollow on a dashed floor line a decade below the smallest non-zero error.
 
 Points with status != done are not plotted; they are listed in a note at the foot of each
-figure (and once on stdout by plot_sweep). No figure raises on a runs.csv with only the
+figure (and once on stdout by plot_sweep). Points whose runs.csv `flag` is set (measured under
+foreign load, or with a wide spread: bench.sweep.records) are ringed in red on the speedup,
+efficiency, EDSF and error figures (a Line2D labelled FLAG_LABEL), their labels and the modules
+figure's tick labels end in `[flag]`, and each figure's foot note lists them with their foreign
+load and spreads. No figure raises on a runs.csv with only the
 serial point, with every point failed, with NaN columns or with a single core count.
 """
 import math
@@ -51,6 +55,37 @@ WIRE_SPLIT = (("compuT", "compuT (computation)", "C0", None),
 ABOVE_WIRE_OLD = "above_wireT: software above the wire = commuT + migraT - wireT"  # no syncT recorded
 DPI = 120
 FONT = 7
+FLAG_LABEL = "flagged: timing measured under foreign load or with a wide spread (runs.csv flag)"
+FLAG_RING = dict(ls="none", marker="o", ms=14, mfc="none", mec="red", mew=1.3, zorder=4)
+
+
+def flagged(d):
+    """The rows of d whose runs.csv flag is set."""
+    return d[d["flag"].astype(str).str.strip() != ""] if "flag" in d else d.iloc[0:0]
+
+
+def flag_suffix(r):
+    f = str(r.get("flag", "") or "").strip()
+    return f" [{f}]" if f else ""
+
+
+def flag_notes(d):
+    """'mapping scheme: flag (foreign load, spreads)' of the flagged rows of d."""
+    out = []
+    for _, r in flagged(d).iterrows():
+        bits = []
+        for col, text in (("foreign_cores", "foreign load {:.2f} CPUs"), ("totalT_spread", "repeat spread {:.0%}"),
+                          ("step_spread", "step spread {:.0%}")):
+            v = r.get(col)
+            if v is not None and np.isfinite(v):
+                bits.append(text.format(v))
+        out.append(f"{_point_name(r)}: {r['flag']}" + (f" ({', '.join(bits)})" if bits else ""))
+    return out
+
+
+def figure_notes(done, skipped, width):
+    return note_lines(skipped, width) + note_lines(flag_notes(done), width,
+                                                   head="Flagged, timing doubtful (runs.csv flag): ")
 
 
 def done_rows(df):
@@ -161,8 +196,13 @@ def finish_figure(fig, note):
 
 
 def save_figure(fig, path):
-    fig.savefig(path, dpi=DPI, bbox_inches="tight", pad_inches=0.08)
-    plt.close(fig)
+    """Write the figure atomically (a full disk leaves the old file and raises RecordError)."""
+    from bench.run.records import atomic_write
+    try:
+        atomic_write(path, lambda fh: fig.savefig(fh, format="png", dpi=DPI, bbox_inches="tight", pad_inches=0.08),
+                     mode="wb")
+    finally:
+        plt.close(fig)
     return path
 
 
@@ -286,7 +326,10 @@ def _metric_figure(done, skipped, ctx, fit, metric):
         if len(xs) > 1:
             ax.plot(xs, ys, color=color, lw=1.0, alpha=0.6, zorder=2)
         for _, r in rows.iterrows():
-            labels.append((r["cores"], r[metric], r["mapping"] or r["point"], color))
+            labels.append((r["cores"], r[metric], (r["mapping"] or r["point"]) + flag_suffix(r), color))
+    fl = flagged(d)
+    if len(fl):
+        ax.plot(fl["cores"], fl[metric], label=FLAG_LABEL, **FLAG_RING)
     cores = _log2_cores_axis(ax, list(d["cores"]) + ([] if metric == "edsf" and len(d) else [1]))
     xlo, xhi = ax.get_xlim()
     pp = np.geomspace(max(xlo, 1.0), xhi, 100)
@@ -335,7 +378,7 @@ def _metric_figure(done, skipped, ctx, fit, metric):
         empty_axes(ax, msg)
     ax.grid(True, which="major", lw=0.4, alpha=0.5)
     ax.legend(fontsize=FONT, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
-    finish_figure(fig, note_lines(skipped, 8.6))
+    finish_figure(fig, figure_notes(d, skipped, 8.6))
     _place_labels(ax, labels)
     return fig
 
@@ -450,7 +493,7 @@ def _modules_figure(done, skipped, ctx):
                 fontsize=FONT + 1, fontweight="bold", color="0.3")
     ticks = []
     for _, r in d.iterrows():
-        t = r["mapping"] or r["point"]
+        t = (r["mapping"] or r["point"]) + flag_suffix(r)
         extra = [s for s, on in ((r["scheme"], split_scheme and r["threads"] > 1), (r["neighbor"], split_nb))
                  if on and s]
         ticks.append(t + ("\n" + ", ".join(extra) if extra else ""))
@@ -477,7 +520,7 @@ def _modules_figure(done, skipped, ctx):
         ax.set_xlim(-0.6, n - 0.4)
     for a in (ax, ax2):
         a.grid(True, axis="y", lw=0.4, alpha=0.5)
-    finish_figure(fig, note_lines(skipped, width))
+    finish_figure(fig, figure_notes(d, skipped, width))
     return fig
 
 
@@ -529,7 +572,11 @@ def _error_figure(done, skipped, ctx):
             name = r["mapping"] or r["point"]
             if fam == "serial":
                 name += " (reference)"
-            labels.append((1e3 * r["totalT"], yy, name, color))
+            labels.append((1e3 * r["totalT"], yy, name + flag_suffix(r), color))
+    fl = flagged(d)
+    if len(fl):
+        ax.plot(1e3 * fl["totalT"].to_numpy(), np.where(fl["err_max"] > 0, fl["err_max"], floor), label=FLAG_LABEL,
+                **FLAG_RING)
     ax.set_xscale("log")
     ax.set_yscale("log")
     if len(d):
@@ -554,7 +601,7 @@ def _error_figure(done, skipped, ctx):
     ax.set_title(f"Final-position error against time per step\n{ctx}", fontsize=9)
     ax.grid(True, which="major", lw=0.4, alpha=0.5)
     ax.legend(fontsize=FONT, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
-    note = note_lines(skipped, 8.6)
+    note = figure_notes(d, skipped, 8.6)
     if noerr:
         note += note_lines(noerr, 8.6, head="Done, no error recorded (not plotted): ")
     finish_figure(fig, note)

@@ -17,10 +17,12 @@ a class with those methods and `from_args(args)` (its options from `bench sweep`
 """
 import os
 import shlex
+import signal
 import subprocess
 import sys
 
-from bench.run.records import write_json
+from bench.run.lifeline import Interrupted, child_env
+from bench.run.records import finalize_run, read_json_file, write_json
 from bench.sweep.points import point_env
 from bench.sweep.status import judge
 
@@ -58,27 +60,70 @@ class Local:
                 print(f"{env} {shlex.join(self.command(p, os.path.join(out, p.key, f'rep{r}')))}")
         return 0
 
-    def run_point(self, point, rep_dir, env):
+    def run_point(self, point, rep_dir, env, lock_fd=None):
         """Run one repeat of a point in rep_dir; write cmd.txt, stdout.txt, stderr.txt, status.json;
-        returns the status {"status", "reason"}."""
+        returns the status {"status", "reason"}.
+
+        The child `bench run` runs in a session of its own (a Ctrl-C at the terminal reaches the
+        sweep alone, which forwards it once), dies with the sweep (bench.run.lifeline) and holds
+        the sweep's lock (lock_fd) while it lives. Interrupted here (SIGINT, SIGTERM, SIGHUP), the
+        signal goes to the child, whose end is waited for and recorded before it is raised again.
+        A child that ended without a final run.json status (killed) gets one (finalize_run)."""
         os.makedirs(rep_dir, exist_ok=True)
         cmd = self.command(point, rep_dir)
         timeout = self.timeout
         with open(os.path.join(rep_dir, "cmd.txt"), "w") as fh:
             fh.write(shlex.join(cmd) + "\n")
-        if os.path.exists(os.path.join(rep_dir, "status.json")):
-            os.remove(os.path.join(rep_dir, "status.json"))
+        for stale in ("status.json", "run.json"):
+            if os.path.exists(os.path.join(rep_dir, stale)):
+                os.remove(os.path.join(rep_dir, stale))
+        stopped = None
         with open(os.path.join(rep_dir, "stdout.txt"), "w") as so, \
                 open(os.path.join(rep_dir, "stderr.txt"), "w") as se:
-            try:
-                # bench run kills its own MPI ranks at `timeout`; this outer limit only catches a stuck start
-                rc = subprocess.run(cmd, stdout=so, stderr=se, env=env,
-                                    timeout=timeout + min(120, timeout)).returncode
-            except subprocess.TimeoutExpired:
-                rc = None
+            fds = (lock_fd,) if lock_fd is not None else ()
+            proc = subprocess.Popen(cmd, stdout=so, stderr=se, env=child_env(env, lock_fd), start_new_session=True,
+                                    pass_fds=fds)
+            # bench run stops its own MPI ranks at `timeout`; this outer limit catches a stuck start
+            limit = timeout + min(120, timeout)
+            rc = None
+            while rc is None:
+                try:
+                    rc = proc.wait(timeout=limit)
+                except subprocess.TimeoutExpired:
+                    _end(proc, signal.SIGTERM)
+                    rc = None
+                    break
+                except (KeyboardInterrupt, Interrupted) as e:
+                    stopped = e
+                    _end(proc, e.signum if isinstance(e, Interrupted) else signal.SIGINT)
+                    rc = proc.returncode
         status = judge(rep_dir, rc, timeout)
+        run = read_json_file(os.path.join(rep_dir, "run.json")) or {}
+        if run.get("status") == "running" or (not run and rc != 0):
+            finalize_run(rep_dir, int(point.mapping.split("-")[0]), status["status"], status["reason"])
         write_json(os.path.join(rep_dir, "status.json"), status)
+        if stopped is not None:
+            raise stopped
         return status
+
+
+def _end(proc, sig, grace=20.0):
+    """Send sig to a child `bench run` (which stops what it started and marks its records), wait
+    grace seconds for it, then kill its session (SIGKILL)."""
+    try:
+        proc.send_signal(sig)
+    except OSError:
+        pass
+    try:
+        proc.wait(timeout=grace)
+        return
+    except subprocess.TimeoutExpired:
+        pass
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except OSError:
+        pass
+    proc.wait()
 
 
 @launcher("slurm")

@@ -5,7 +5,7 @@ scheme and hashes every parameter, so --resume recognises a point by what it run
 """
 import hashlib
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 from modes.base import ModeError, parse_mapping
 from modes.parallel import SCHEMES
@@ -48,6 +48,12 @@ class Point:
         if self.mapping.split("-")[0] != "1":
             args += ["--halo", self.halo]
         return args
+
+
+def point_from_dict(d):
+    """The Point of a manifest entry (its other keys, such as key and repeats, left out)."""
+    names = {f.name for f in fields(Point)}
+    return Point(**{k: v for k, v in d.items() if k in names})
 
 
 def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, shape, pin, halo,

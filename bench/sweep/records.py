@@ -9,7 +9,21 @@ wireT = mean over steps of the per-rank mean of wire_s (the modelled wire time o
 sent, modes/wire.py), above_wireT = commuT + migraT - syncT - wireT (the software above the wire
 in the exchanges; commuT + migraT - wireT where syncT is NaN, older records; both NaN without
 MPI or when steps.csv has no wire_s); with --repeats R the median over the R runs.
+
+Whether a point's times can be trusted (issue 15; results/README.md): foreign_cores (the most CPUs
+other processes kept busy during any repeat's timed steps, bench.run.load), foreign_cpu_s (their
+CPU seconds over all repeats), step_spread (the median over repeats of (p90 - p10) / p50 of the
+step times), totalT_spread ((max - min) / median of totalT over the repeats; NaN with one) and
+`flag`: `load` when a repeat ran beside more than LOAD_FLAG_CORES of foreign CPU (above the
+measurement's resolution), `spread` when totalT_spread > SPREAD_FLAG_REPEATS or step_spread >
+SPREAD_FLAG_STEPS, both comma-separated, empty for a clean point.
+
+runs.csv keeps every point ever done in its folder (rows of earlier sweeps are carried over,
+read_runs_rows), and a row cut short (a last line without its newline, or with fewer fields than
+the header) is never taken as a point's result.
 """
+import csv
+import io
 import json
 import math
 import os
@@ -25,10 +39,50 @@ from modes.base import parse_mapping
 RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores", "scheme", "neighbor", "scene",
                "particles", "steps", "repeats", "status", "reason", "totalT", "commuT", "migraT", "compuT",
                "syncT", "wireT", "above_wireT", "neighborT", "resolveT", "overhead_pct", "speedup", "efficiency", "edsf", "rss_mb", "err_max",
-               "err_rms", "stable", "wall_s", "load_before", "load_after", "contact_method"]
+               "err_rms", "stable", "wall_s", "load_before", "load_after", "contact_method",
+               "foreign_cores", "foreign_cpu_s", "step_spread", "totalT_spread", "flag"]
 
 
-TEXT_COLUMNS = ("point", "mapping", "scheme", "neighbor", "scene", "status", "reason", "stable", "contact_method")
+TEXT_COLUMNS = ("point", "mapping", "scheme", "neighbor", "scene", "status", "reason", "stable", "contact_method",
+                "flag")
+
+LOAD_FLAG_CORES = 0.25      # foreign CPUs busy on average during a repeat's timed steps
+SPREAD_FLAG_REPEATS = 0.10  # (max - min) / median of totalT over the repeats
+SPREAD_FLAG_STEPS = 0.5     # (p90 - p10) / p50 of the step times (median over repeats)
+
+
+class RunsFileError(ValueError):
+    """A runs.csv that cannot be read as a table; str() is one line."""
+
+
+def read_runs_rows(path):
+    """(header, rows as dicts of str, cut) of a runs.csv read as CSV: rows with as many fields as
+    the header, a last line without its newline left out (cut counts those left out).
+    RunsFileError when the file is empty or has no header with a `point` column."""
+    try:
+        with open(path, newline="", encoding="utf-8", errors="replace") as fh:
+            text = fh.read()
+    except OSError as e:
+        raise RunsFileError(f"{path} cannot be read: {e.strerror}") from None
+    if not text.strip():
+        raise RunsFileError(f"{path} is empty (0 rows, no header)")
+    complete = text.endswith("\n")
+    try:
+        lines = list(csv.reader(io.StringIO(text)))
+    except csv.Error as e:
+        raise RunsFileError(f"{path} is not a CSV table: {e}") from None
+    header = lines[0] if lines else []
+    if "point" not in header or "status" not in header:
+        raise RunsFileError(f"{path} is not a runs table (its header has no point and status columns)")
+    rows, cut = [], 0
+    body = lines[1:]
+    for k, fields in enumerate(body):
+        last = k == len(body) - 1
+        if len(fields) != len(header) or (last and not complete):
+            cut += 1
+            continue
+        rows.append(dict(zip(header, fields)))
+    return header, rows, cut
 
 
 NUMERIC_COLUMNS = [c for c in RUN_COLUMNS if c not in TEXT_COLUMNS]
@@ -42,7 +96,11 @@ def read_runs(directory):
     path = os.path.join(directory, "runs.csv")
     if not os.path.exists(path):
         raise FileNotFoundError(f"{path}: no runs.csv (run `bench sweep` first)")
-    df = pd.read_csv(path, keep_default_na=True)
+    header, rows, cut = read_runs_rows(path)
+    if cut:
+        print(f"bench: warning: {path}: {cut} row(s) cut short (fewer fields than the header, or no final "
+              f"newline) left out", file=sys.stderr)
+    df = pd.DataFrame(rows, columns=header).replace("", math.nan)
     for c in RUN_COLUMNS:
         if c not in df:
             df[c] = math.nan
@@ -125,7 +183,7 @@ def summarise(point, rep_dirs, ref_state, t1, statuses=None):
                cores=m.procs * m.threads, scheme=point.scheme, neighbor=point.neighbor, scene=point.scene,
                contact_method=point.contact_method,
                repeats=len(rep_dirs), status="done", reason="")
-    times, walls = [], []
+    times, walls, loads, spreads = [], [], [], []
     state = None
     statuses = statuses or [read_status(d) for d in rep_dirs]
     for status in statuses:
@@ -136,6 +194,8 @@ def summarise(point, rep_dirs, ref_state, t1, statuses=None):
         info = json.load(open(os.path.join(d, "run.json")))
         times.append(module_times(pd.read_csv(os.path.join(d, "steps.csv"))))
         walls.append(info.get("wall_s", math.nan))
+        loads.append(info.get("load") or {})
+        spreads.append((info.get("step_time") or {}).get("spread"))
         row.update(particles=info["particles"], steps=info["steps"], stable=info["stable"])
         state = dict(np.load(os.path.join(d, "state.npz")))
     for k in times[0]:
@@ -143,9 +203,43 @@ def summarise(point, rep_dirs, ref_state, t1, statuses=None):
     if m.procs == 1:  # no MPI, no wire, no allreduce (a serial steps.csv may carry wire_s = 0)
         row["syncT"] = row["wireT"] = row["above_wireT"] = math.nan
     row["wall_s"] = float(np.median(walls))
+    trust(row, [t["totalT"] for t in times], loads, spreads)
     row["overhead_pct"] = 100.0 * (row["commuT"] + row["migraT"]) / row["totalT"] if row["totalT"] > 0 else math.nan
     with_speedup(row, t1)
     row["err_max"], row["err_rms"] = state_error(ref_state, state)
+    return row
+
+
+def _num(v):
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return math.nan
+    return v
+
+
+def trust(row, totals, loads, spreads):
+    """Set foreign_cores, foreign_cpu_s, step_spread, totalT_spread and flag of a row from its
+    repeats' totalT [s], run.json `load` dicts and step spreads (module docstring)."""
+    cores = [_num(l.get("foreign_cores")) for l in loads]
+    cpu = [_num(l.get("foreign_cpu_s")) for l in loads]
+    res = [_num(l.get("resolution_s")) for l in loads]
+    fc = [c for c in cores if math.isfinite(c)]
+    row["foreign_cores"] = max(fc) if fc else math.nan
+    fs = [c for c in cpu if math.isfinite(c)]
+    row["foreign_cpu_s"] = float(sum(fs)) if fs else math.nan
+    sp = [_num(s) for s in spreads if math.isfinite(_num(s))]
+    row["step_spread"] = float(np.median(sp)) if sp else math.nan
+    t = [x for x in totals if math.isfinite(x)]
+    med = float(np.median(t)) if t else math.nan
+    row["totalT_spread"] = (max(t) - min(t)) / med if len(t) > 1 and med > 0 else math.nan
+    flags = []
+    if any(c > LOAD_FLAG_CORES and u > (r if math.isfinite(r) else 0.0) for c, u, r in zip(cores, cpu, res)
+           if math.isfinite(c) and math.isfinite(u)):
+        flags.append("load")
+    if row["totalT_spread"] > SPREAD_FLAG_REPEATS or row["step_spread"] > SPREAD_FLAG_STEPS:
+        flags.append("spread")
+    row["flag"] = ",".join(flags)
     return row
 
 
@@ -169,11 +263,12 @@ def read_status(d):
 
 
 def write_runs(path, rows):
-    """runs.csv, atomically (tmp file + rename): an interrupted sweep never leaves half a file."""
+    """runs.csv, atomically (tmp file + rename): an interrupted sweep never leaves half a file, and a
+    full disk leaves the old one (bench.run.records.RecordError)."""
     import pandas as pd
-    tmp = path + ".tmp"
-    pd.DataFrame(rows, columns=RUN_COLUMNS).to_csv(tmp, index=False)
-    os.replace(tmp, path)
+    from bench.run.records import atomic_write
+    frame = pd.DataFrame(rows, columns=RUN_COLUMNS)
+    atomic_write(path, lambda fh: frame.to_csv(fh, index=False))
 
 
 def manifest(out, points):
@@ -207,6 +302,47 @@ def manifest(out, points):
                                             text=True, timeout=10).stdout.strip() or None
     except Exception:  # noqa: BLE001
         info["git_commit"] = None
+    return info
+
+
+def reference_key(point):
+    """The key of the serial point with the same run parameters (the reference T(1) and state of its
+    speedup and error columns)."""
+    from dataclasses import replace
+    from bench.sweep.points import SERIAL
+    return replace(point, mapping=SERIAL, scheme="").key
+
+
+def merge_manifest(out, info, entry):
+    """This sweep's manifest `info` with the folder's earlier one folded in (issue 15: the manifest
+    accumulates): the earlier points kept in their order, then this sweep's new ones (a point's
+    entry is this sweep's when it runs it again), `load` per point merged, `created` the first
+    sweep's, and `sweeps` the history, one entry per sweep (`entry`: its start, command, points
+    and repeats) appended. An unreadable earlier manifest is kept as manifest.json.broken."""
+    path = os.path.join(out, "manifest.json")
+    old = {}
+    if os.path.exists(path):
+        try:
+            with open(path) as fh:
+                old = json.load(fh)
+            if not isinstance(old, dict):
+                raise ValueError("not a JSON object")
+        except (OSError, ValueError):
+            try:
+                os.replace(path, path + ".broken")
+            except OSError:
+                pass
+            old = {}
+    points = {p["key"]: p for p in old.get("points", []) if isinstance(p, dict) and "key" in p}
+    order = list(points)
+    for p in info["points"]:
+        if p["key"] not in points:
+            order.append(p["key"])
+        points[p["key"]] = p
+    info["points"] = [points[k] for k in order]
+    info["load"] = dict(old.get("load") or {}, **(info.get("load") or {}))
+    info["created"] = old.get("created", info.get("created"))
+    info["sweeps"] = list(old.get("sweeps") or []) + [entry]
     return info
 
 

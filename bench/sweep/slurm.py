@@ -30,6 +30,7 @@ import shlex
 import shutil
 import subprocess
 import sys
+import time
 
 from bench.sweep.slurm_options import DEFAULT_MPI
 from modes.base import parse_mapping
@@ -529,6 +530,7 @@ def generate(points, out, repeats, resume, opts, timeout, submit=True, dry_run=F
     from bench.run.launch import mpiexec_path
     from bench.run.records import write_json
     from bench.sweep.points import point_env
+    from bench.sweep.records import merge_manifest
     from modes.base import ModeError
     out = os.path.abspath(out)
     opts = dict(opts)
@@ -564,7 +566,12 @@ def generate(points, out, repeats, resume, opts, timeout, submit=True, dry_run=F
                     raise ModeError(f"sbatch --test-only refuses {name}: {refusal}")
     elif have_slurm("sbatch"):
         print(f"bench: note: {why}: the job scripts are not checked by sbatch --test-only")
-    write_json(os.path.join(out, "manifest.json"), slurm_manifest(out, points, repeats, opts, timeout))
+    info = slurm_manifest(out, points, repeats, opts, timeout)
+    for p in info["points"]:
+        p["repeats"] = repeats
+    entry = {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "command": " ".join(sys.argv),
+             "points": [p.key for p in points], "repeats": repeats, "resume": bool(resume), "launcher": "slurm"}
+    write_json(os.path.join(out, "manifest.json"), merge_manifest(out, info, entry))
     if not plan:
         print(f"nothing to submit: every repeat of the {len(points)} points is done"
               f"{' or still queued' if active else ''}; bench sweep --status {out}")

@@ -50,7 +50,21 @@ def judge(rep_dir, rc, timeout):
         return {"status": "done", "reason": ""}
     if rc == 1 and run.get("stable") is False:
         return {"status": "unstable", "reason": last}
-    return {"status": "failed", "reason": last or f"exit status {rc}"}
+    return {"status": "failed", "reason": last or exit_text(rc)}
+
+
+def exit_text(rc):
+    """What an exit status says: a signal that killed the process (rc < 0), or 128 + a signal."""
+    import signal
+    for sig, how in ((-rc, "killed by"), (rc - 128, "ended by")):
+        if sig > 0:
+            try:
+                name = signal.Signals(sig).name
+            except ValueError:
+                continue
+            if how == "killed by" or rc > 128:
+                return f"{how} {name} (exit status {rc})"
+    return f"exit status {rc}"
 
 
 def from_files(rep_dir):
@@ -65,6 +79,14 @@ def from_files(rep_dir):
             return {"status": "done", "reason": ""}
         if run.get("stable") is False:
             return {"status": "unstable", "reason": run.get("stability_reason") or "unstable"}
+        if run.get("status") in ("failed", "timeout", "interrupted"):
+            status = "timeout" if run["status"] == "timeout" else "failed"
+            return {"status": status, "reason": run.get("reason") or run["status"]}
+        if run.get("status") == "running" and run.get("pid"):
+            from bench.run.records import process_alive
+            if not process_alive(run["pid"], run.get("host")):
+                return {"status": "failed", "reason": f"run.json says running, but its process {run['pid']} on "
+                                                      f"{run.get('host')} is gone (killed)"}
     return None
 
 
@@ -127,7 +149,7 @@ def sweep_outcomes(directory, scheduler=None):
     rows = []
     for p in info["points"]:
         pdir = os.path.join(directory, p["key"])
-        repeats = info.get("repeats")
+        repeats = p.get("repeats") or info.get("repeats")
         if repeats:
             reps = [os.path.join(pdir, f"rep{r}") for r in range(int(repeats))]
         else:  # older manifests: the folders there are

@@ -299,6 +299,28 @@ def _mean_curv_radius(c, rot, ax, p):
     return 2.0 / (k[0] + k[2])
 
 
+@njit(cache=True, _nrt=False)
+def _centre_inside(c, rot, ax, p):
+    """True when point p [3] lies inside the ellipsoid (centre c [3], rotation rot [3, 3] body ->
+    world, semi-axes ax [3]): sum_k ((R^T (p - c))_k / a_k)^2 < 1."""
+    s = 0.0
+    for k in range(3):
+        u = (rot[0, k] * (p[0] - c[0]) + rot[1, k] * (p[1] - c[1]) + rot[2, k] * (p[2] - c[2])) / ax[k]
+        s += u * u
+    return s < 1.0
+
+
+@njit(cache=True, _nrt=False)
+def _sextic_missed(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out):
+    """Where the sextic finds no contact: 0, unless a centre lies inside the other body. That deep
+    overlap is outside the method's regime (its deepest-point solve fails there, concentric
+    bodies included), and it is handed to the exact solver, so that it is never missed and the
+    stability guard names it (issue 15). Every contact the sextic finds is left as it was."""
+    if _centre_inside(c1, rot1, ax1, c2) or _centre_inside(c2, rot2, ax2, c1):
+        return ellipsoid_contact(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out)
+    return 0
+
+
 @njit(cache=True, _nrt=True)  # it allocates: not inherit the callers' _nrt=False (dem.forces)
 def sextic_contact(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out, minoverlap=MINOVERLAP):
     """Yan (2010) sextic contact; returns 1 and fills out [OUT_LEN] on a valid contact, else 0.
@@ -320,10 +342,10 @@ def sextic_contact(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out, minoverlap=MINOV
     A2, b2, f2c = _quadric(c2, rot2, ax2, o, L)
     ok2, x2, f1_at_2, lam2 = _deepest(A1, b1, f1c, A2, b2, f2c)     # of body 2, deepest in 1
     if ok2 == 0 or not (f1_at_2 < 0.0):
-        return 0
+        return _sextic_missed(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out)
     ok1, x1, f2_at_1, _ = _deepest(A2, b2, f2c, A1, b1, f1c)         # of body 1, deepest in 2
     if ok1 == 0 or not (f2_at_1 < 0.0):
-        return 0
+        return _sextic_missed(c1, rot1, ax1, c2, rot2, ax2, lam0, n0, out)
     p1 = o + L * x1
     p2 = o + L * x2
     d0 = p1[0] - p2[0]

@@ -9,16 +9,23 @@ def sphere_contact(x1, y1, z1, r1, x2, y2, z2, r2):
 
     depth = r1 + r2 - |c2 - c1|, n = (c2 - c1)/|c2 - c1| (from 1 towards 2), contact point at the
     middle of the overlap c1 + (r1 - depth/2) n, R_e = r1 r2/(r1 + r2).
-    Returns (hit, depth, nx, ny, nz, xcx, xcy, xcz, r_e); hit is False for no overlap or
-    coincident centres (no defined normal).
+    Coincident centres (|c2 - c1| = 0) are a contact too, of depth r1 + r2, with the fixed normal
+    n = +z: every caller passes the pair in canonical order (body 1 = the lower global id,
+    DESIGN.md Determinism), so the normal points from the lower id to the higher one in every mode
+    and memory order, and the stability guard then stops the run naming the overlap (a contact
+    that is never missed, issue 15).
+    Returns (hit, depth, nx, ny, nz, xcx, xcy, xcz, r_e); hit is False only for no overlap.
     """
     dx = x2 - x1
     dy = y2 - y1
     dz = z2 - z1
     d2 = dx * dx + dy * dy + dz * dz
     rs = r1 + r2
-    if d2 >= rs * rs or d2 == 0.0:
+    if d2 >= rs * rs:
         return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    if d2 == 0.0:  # coincident centres: the fixed normal +z, from body 1 (lower gid) to body 2
+        t = r1 - 0.5 * rs
+        return True, rs, 0.0, 0.0, 1.0, x1, y1, z1 + t, r1 * r2 / rs
     d = math.sqrt(d2)
     depth = rs - d
     nx, ny, nz = dx / d, dy / d, dz / d
