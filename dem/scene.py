@@ -105,7 +105,7 @@ def _check_keys(d, allowed, what):
             raise SceneError(f"unknown key {k!r} in {what} (allowed: {', '.join(sorted(allowed))})")
 
 
-def load_scene(spec, particles=None, shape=None, seed=None):
+def load_scene(spec, particles=None, shape=None, seed=None, overlap_limit=None):
     """Build a Scene from a built-in name or a TOML path.
 
     particles: override the count of the (single) [[generate]] block; shape: override the shape
@@ -127,10 +127,11 @@ def load_scene(spec, particles=None, shape=None, seed=None):
     except OSError as e:
         raise SceneError(f"cannot read scene {path}: {e.strerror}") from None
     name = os.path.splitext(os.path.basename(path))[0]
-    return build_scene(doc, name=name, source=path, particles=particles, shape=shape, seed=seed)
+    return build_scene(doc, name=name, source=path, particles=particles, shape=shape, seed=seed,
+                       overlap_limit=overlap_limit)
 
 
-def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=None):
+def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=None, overlap_limit=None):
     _check_keys(doc, {"domain", "materials", "time", "particles", "generate", "build"}, "scene")
     dom = _table(doc, "domain", "[domain]")
     _check_keys(dom, {"box", "walls", "gravity"}, "[domain]")

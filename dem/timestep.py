@@ -34,6 +34,11 @@ class TimeStep:
     critical: float
     details: dict
 
+    @property
+    def warnings(self):
+        """One-line warnings about the chosen dt (details["warnings"])."""
+        return list(self.details.get("warnings", []))
+
     def as_dict(self):
         return asdict(self)
 

@@ -8,6 +8,7 @@ import os
 import sys
 import time
 
+from bench.run.checkpoint import load_checkpoint, write_checkpoint
 from bench.run.figure import plot_run
 from bench.run.guard import StabilityGuard
 from bench.run.launch import launch_mpi
@@ -15,8 +16,8 @@ from bench.run.options import mode_options
 from bench.run.prepare import prepare
 from bench.run.records import StepWriter, environment, merge_step_files, prepare_output, write_json, write_state
 from bench.run.snapshots import write_snapshot
-from dem.scene import load_scene
-from dem.timestep import choose_time_step
+from dem.scene import SceneError, load_scene
+from dem.timestep import TimeStep, choose_time_step
 from modes.base import ModeError, mode_for, parse_mapping
 from modes.halo import WIDTH, ghost_fields, moving_fields
 from modes.parallel import SCHEMES
@@ -42,17 +43,40 @@ def run(args):
             raise ModeError(f"unknown scheme {scheme!r} (schemes: {', '.join(SCHEMES)})")
     # progress of a scene build only on a terminal: logs and tests see one line per outcome
     log = None if args.quiet or not sys.stderr.isatty() else (lambda msg: print(msg, file=sys.stderr, flush=True))
-    scene = load_scene(args.scene, particles=args.particles, shape=args.shape, seed=args.seed)
-    if scene.extras.get("build") and (args.dt if args.dt is not None else scene.dt) != "auto":
-        choose_time_step(scene, args.dt)  # a numeric dt is refused before the (expensive) build
+    if args.restart:
+        scene, ts = load_restart(args)
+    else:
+        if not args.scene:
+            raise SceneError("bench run needs --scene NAME|FILE.toml (or --restart FILE)")
+        args.contact_method = args.contact_method or "exact"
+        scene = load_scene(args.scene, particles=args.particles, shape=args.shape, seed=args.seed,
+                           overlap_limit=args.guard_overlap)
+        if scene.extras.get("build") and (args.dt if args.dt is not None else scene.dt) != "auto":
+            choose_time_step(scene, args.dt)  # a numeric dt is refused before the (expensive) build
     out = args.out or os.path.join("results", f"run-{scene.name}")
     prepare_output(out)
-    prepare(scene, log=log)
-    ts = choose_time_step(scene, args.dt)  # the run's one time step (the ranks receive it)
+    if not args.restart:
+        prepare(scene, log=log)
+        ts = choose_time_step(scene, args.dt)  # the run's one time step (the ranks receive it)
+        for w in ts.warnings:
+            print(f"bench: warning: {w}", file=sys.stderr)
     if mapping.procs > 1:
         return launch_mpi(args, mapping, scene, out, ts)
     mode = mode_cls().setup(scene, dt=ts.dt, **mode_options(mapping, args, scheme))
     return execute(args, scene, mapping, scheme, mode, out, ts)
+
+
+def load_restart(args):
+    """The scene and TimeStep of `--restart FILE` (bench.run.checkpoint). The scene, its particles
+    and the time step are the checkpoint's: options that would change them are refused in one
+    line; the contact method defaults to the checkpoint's."""
+    for name in ("scene", "particles", "shape", "seed", "dt"):
+        if getattr(args, name, None) is not None:
+            raise SceneError(f"--restart continues the checkpoint's scene and time step: --{name} cannot be given "
+                             f"with it")
+    scene, meta = load_checkpoint(args.restart)
+    args.contact_method = args.contact_method or meta.get("contact_method") or "exact"
+    return scene, TimeStep.from_dict(meta["time_step"])
 
 
 def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
@@ -62,11 +86,20 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
     Decisions that end the loop are taken collectively so that no rank waits for a dead one."""
     dt = ts.dt
     rank = comm.Get_rank() if comm is not None else 0
-    steps = scene.steps if args.steps is None else args.steps
+    resume = scene.extras.get("restart")  # a checkpoint's meta (bench.run.checkpoint), or None
+    step0 = int(resume["step"]) if resume else 0            # the records' step number reached so far
+    time0 = float(resume["time"]) if resume else 0.0        # simulated time [s] so far
+    warm0 = int(resume.get("warmup_total", 0)) if resume else 0
+    if args.steps is not None:
+        steps = args.steps
+    else:
+        steps = max(0, int(resume["steps_target"]) - step0) if resume else scene.steps
+    every = getattr(args, "checkpoint_every", 0) or 0
     t_compile = time.perf_counter()
     mode.warmup()
     t_compile = time.perf_counter() - t_compile
-    for _ in range(getattr(args, "warmup", 0)):  # untimed, unrecorded: the state advances
+    warm = getattr(args, "warmup", 0) or 0
+    for _ in range(warm):  # untimed, unrecorded: the state advances
         mode.step()
     try:
         import numba
@@ -92,7 +125,11 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
             "dt_critical": ts.critical, "dt_details": ts.details, "walls": scene.walls, "gravity": scene.gravity.tolist(),
             "materials": [m.__dict__ for m in scene.materials.materials],
             "environment": environment(), "warmup_s": t_compile, "warmup_steps": getattr(args, "warmup", 0), "threading_layer": layer,
-            "build": scene.extras.get("built"), "stable": None, "max_overlap_ratio": 0.0, "status": "running"}
+            "build": scene.extras.get("built"), "stable": None, "max_overlap_ratio": 0.0, "status": "running",
+            "restart": ({"from": resume["path"], "step": step0, "time": time0, "written_by": resume.get("mapping")}
+                        if resume else None),
+            "checkpoint_every": every or None, "step_first": step0 + 1, "step_last": step0 + steps,
+            "time_start": time0 + warm * dt}
     if comm is not None:
         from mpi4py import MPI  # here, not at the top: importing it starts MPI
         info["mpi_library"] = MPI.Get_library_version().strip().splitlines()[0]
@@ -109,8 +146,24 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
     snap_dir = os.path.join(out, "snapshots")
     if args.snapshot_every and rank == 0:
         os.makedirs(snap_dir, exist_ok=True)
-    guard = StabilityGuard(mode, dt, ts.critical, scene.gravity, comm=comm, overlap=getattr(args, "guard_overlap", 0.05))
+    guard = StabilityGuard(mode, dt, ts.critical, scene.gravity, comm=comm, overlap=getattr(args, "guard_overlap", 0.05),
+                           resume=resume["guard"] if resume else None)
     ke0 = guard.ke0
+    ckpt_path = os.path.join(out, "checkpoint.npz")
+    ckpt = {"written": 0, "seconds": 0.0, "bytes": 0, "step": None}
+
+    def checkpoint(k):
+        """Write DIR/checkpoint.npz after timed step k (collective under MPI); its time is outside the
+        step timers (it is recorded in run.json)."""
+        t = time.perf_counter()
+        meta = {"step": step0 + k, "time": time0 + (warm + k) * dt, "warmup_total": warm0 + warm,
+                "steps_target": step0 + steps, "time_step": ts.as_dict(), "guard": guard.sums(),
+                "contact_method": args.contact_method or "exact", "neighbor": args.neighbor,
+                "mapping": str(mapping), "scheme": scheme}
+        ckpt["bytes"] = write_checkpoint(ckpt_path, mode, scene, meta, comm=comm)
+        ckpt["seconds"] += time.perf_counter() - t
+        ckpt["written"] += 1
+        ckpt["step"] = step0 + k
     series = {"step": [], "totalT": [], "n_contacts": [], "ke": []}
     t_wall = time.perf_counter()
     stable = True
@@ -118,18 +171,20 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
     try:
         for k in range(1, steps + 1):
             row = mode.step()
-            writer.write(k, rank, row)
-            reason = guard.check(k, row)  # collective: every rank stops at the same step
+            writer.write(step0 + k, rank, row)
+            reason = guard.check(step0 + k, row)  # collective: every rank stops at the same step
             if args.plot:
-                series["step"].append(k)
+                series["step"].append(step0 + k)
                 series["totalT"].append(row["totalT"])
                 series["n_contacts"].append(total(row["n_contacts"]))
                 series["ke"].append(getattr(guard, "ke_last", 0.0))
             if reason:
                 stable = False
                 break
-            if args.snapshot_every and k % args.snapshot_every == 0:
-                write_snapshot(mode, snap_dir, k, dt, rank)
+            if args.snapshot_every and (step0 + k) % args.snapshot_every == 0:
+                write_snapshot(mode, snap_dir, step0 + k, dt, rank)
+            if every and ((step0 + k) % every == 0 or k == steps):
+                checkpoint(k)
     finally:
         writer.close()
     wall = time.perf_counter() - t_wall
@@ -151,7 +206,9 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
                  "grid_updates": getattr(mode, "grid_updates", None),
                  "kinetic_energy_initial": ke0, "kinetic_energy_final": ke1, "energy_balance": energy,
                  "guard": {"overlap_limit": guard.overlap, "energy_factor": guard.energy_factor},
-                 "simulated_time": steps * dt})
+                 "simulated_time": steps * dt, "time_end": time0 + (warm + (k if steps else 0)) * dt,
+                 "checkpoint": ({"path": ckpt_path, "written": ckpt["written"], "last_step": ckpt["step"],
+                                 "bytes": ckpt["bytes"], "seconds": ckpt["seconds"]} if every else None)})
     write_json(os.path.join(out, "run.json"), info)
     if args.plot:
         plot_run(series, os.path.join(out, "run.png"), title=f"{scene.name}, {n_total} particles, {mapping}")

@@ -58,9 +58,9 @@ def cache_dir():
     return os.environ.get("DEM_BENCH_CACHE", os.path.join(os.path.expanduser("~"), ".cache", "dem-mapping-bench"))
 
 
-def load_prepared(spec, particles=None, shape=None, seed=None, log=None):
+def load_prepared(spec, particles=None, shape=None, seed=None, log=None, overlap_limit=None):
     """load_scene + its build stage (from the cache when possible). Returns the Scene."""
-    return prepare(load_scene(spec, particles=particles, shape=shape, seed=seed), log=log)
+    return prepare(load_scene(spec, particles=particles, shape=shape, seed=seed, overlap_limit=overlap_limit), log=log)
 
 
 def prepare(scene, log=None):

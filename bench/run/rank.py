@@ -7,6 +7,7 @@ import sys
 
 from mpi4py import MPI
 
+from bench.run.checkpoint import load_checkpoint
 from bench.run.driver import execute
 from bench.run.options import add_run_arguments, mode_options
 from bench.run.prepare import load_prepared
@@ -23,8 +24,14 @@ def main(argv):
     if comm.Get_size() != mapping.procs:
         raise SystemExit(f"bench: error: started with {comm.Get_size()} ranks for mapping {mapping}")
     cart = comm.Create_cart([mapping.px, mapping.py, mapping.pz], periods=[False] * 3, reorder=False)
-    scene = load_prepared(args.scene, particles=args.particles, shape=args.shape, seed=args.seed)  # cached
-    ts = TimeStep.from_dict(json.loads(args.time_step)) if args.time_step else choose_time_step(scene, args.dt)
+    if args.restart:  # every rank reads the checkpoint; the mode keeps the particles of its block
+        scene, meta = load_checkpoint(args.restart)
+        ts = TimeStep.from_dict(meta["time_step"])
+        args.contact_method = args.contact_method or meta.get("contact_method") or "exact"
+    else:
+        scene = load_prepared(args.scene, particles=args.particles, shape=args.shape, seed=args.seed,
+                              overlap_limit=args.guard_overlap)  # cached
+        ts = TimeStep.from_dict(json.loads(args.time_step)) if args.time_step else choose_time_step(scene, args.dt)
     scheme = args.scheme or ("dynamic" if mapping.threads > 1 else None)
     mode = mode_for(mapping)().setup(scene, dt=ts.dt, cart=cart, **mode_options(mapping, args, scheme))
     execute(args, scene, mapping, scheme, mode, args.out, ts, comm=cart)
