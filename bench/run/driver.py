@@ -33,6 +33,7 @@ def _threading_info():
 
 
 def run(args):
+    clock0 = time.perf_counter()
     mapping = parse_mapping(args.mapping)
     mode_cls = mode_for(mapping)
     if args.scheme is not None and mapping.threads == 1:
@@ -53,6 +54,8 @@ def run(args):
                            overlap_limit=args.guard_overlap)
         if scene.extras.get("build") and (args.dt if args.dt is not None else scene.dt) != "auto":
             choose_time_step(scene, args.dt)  # a numeric dt is refused before the (expensive) build
+    scene.extras["clock0"] = clock0
+    scene.extras["load_s"] = time.perf_counter() - clock0
     out = args.out or os.path.join("results", f"run-{scene.name}")
     prepare_output(out)
     if not args.restart:
@@ -101,6 +104,7 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
     warm = getattr(args, "warmup", 0) or 0
     for _ in range(warm):  # untimed, unrecorded: the state advances
         mode.step()
+    clock0 = scene.extras.get("clock0")
     try:
         import numba
         layer = numba.threading_layer()
@@ -166,6 +170,9 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
         ckpt["step"] = step0 + k
     series = {"step": [], "totalT": [], "n_contacts": [], "ke": []}
     t_wall = time.perf_counter()
+    # setup: from the start of the run (this process) to its first step: scene load or checkpoint, build
+    # (or its cache), time step, mode set-up, JIT warm-up
+    setup = {"load_s": scene.extras.get("load_s"), "setup_s": (t_wall - clock0) if clock0 is not None else None}
     stable = True
     reason = None
     try:
@@ -206,7 +213,7 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
                  "grid_updates": getattr(mode, "grid_updates", None),
                  "kinetic_energy_initial": ke0, "kinetic_energy_final": ke1, "energy_balance": energy,
                  "guard": {"overlap_limit": guard.overlap, "energy_factor": guard.energy_factor},
-                 "simulated_time": steps * dt, "time_end": time0 + (warm + (k if steps else 0)) * dt,
+                 **setup, "simulated_time": steps * dt, "time_end": time0 + (warm + (k if steps else 0)) * dt,
                  "checkpoint": ({"path": ckpt_path, "written": ckpt["written"], "last_step": ckpt["step"],
                                  "bytes": ckpt["bytes"], "seconds": ckpt["seconds"]} if every else None)})
     write_json(os.path.join(out, "run.json"), info)

@@ -4,6 +4,7 @@ or by srun in a batch job): the same options as `bench run`, and the TimeStep th
 import argparse
 import json
 import sys
+import time
 
 from mpi4py import MPI
 
@@ -16,6 +17,7 @@ from modes.base import mode_for, parse_mapping
 
 
 def main(argv):
+    clock0 = time.perf_counter()
     parser = add_run_arguments(argparse.ArgumentParser(prog="bench.run.rank"))
     parser.add_argument("--time-step", default=None, help="the launcher's TimeStep as JSON (dem.timestep)")
     args = parser.parse_args(argv)
@@ -32,6 +34,8 @@ def main(argv):
         scene = load_prepared(args.scene, particles=args.particles, shape=args.shape, seed=args.seed,
                               overlap_limit=args.guard_overlap)  # cached
         ts = TimeStep.from_dict(json.loads(args.time_step)) if args.time_step else choose_time_step(scene, args.dt)
+    scene.extras["clock0"] = clock0
+    scene.extras["load_s"] = time.perf_counter() - clock0
     scheme = args.scheme or ("dynamic" if mapping.threads > 1 else None)
     mode = mode_for(mapping)().setup(scene, dt=ts.dt, cart=cart, **mode_options(mapping, args, scheme))
     execute(args, scene, mapping, scheme, mode, args.out, ts, comm=cart)
