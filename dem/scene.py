@@ -172,7 +172,7 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
         raise SceneError(f"time.steps must be a non-negative integer, got {steps!r}")
     # --- build stage (settling before step 0, done and cached by the harness)
     build = _table(doc, "build", "[build]")
-    _check_keys(build, {"method", "max_steps", "ke_tol", "rate", "coordination"}, "[build]")
+    _check_keys(build, {"method", "max_steps", "ke_tol", "rate", "coordination", "rest", "tile"}, "[build]")
     if build:
         if build.get("method") not in ("settle", "compress"):
             raise SceneError(f"build.method must be 'settle' or 'compress', got {build.get('method')!r}")
@@ -181,6 +181,9 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
             raise SceneError(f"build.max_steps must be a positive integer, got {ss!r}")
         for key, default in (("ke_tol", 1e-4), ("rate", 2e-4), ("coordination", 4.5)):
             _num(build.get(key, default), f"build.{key}", positive=True)
+        for key in ("rest", "tile"):
+            if not isinstance(build.get(key, True), bool):
+                raise SceneError(f"build.{key} must be true or false, got {build.get(key)!r}")
     # --- particles: explicit tables, generated blocks and particle files, in that order
     blocks = []
     plist = doc.get("particles", [])
@@ -248,7 +251,8 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
                       "files": [_file_stamp(f, base_dir(source)) for f in files]}, sort_keys=True, default=str)
     return Scene(name=name, box=box, walls=list(walls), wall_m=wall_m, wall_d=wall_d, gravity=gravity,
                  materials=table, dt=dt, steps=steps, state=state, source=source,
-                 extras={"build": dict(build), "key": hashlib.sha256(key.encode()).hexdigest()[:16]})
+                 extras={"build": dict(build), "key": hashlib.sha256(key.encode()).hexdigest()[:16],
+                         "doc": doc, "overrides": {"particles": particles, "shape": shape, "seed": seed}})
 
 
 def base_dir(source):
