@@ -181,3 +181,12 @@ def test_checkpoint_fields_round_trip(tmp_path):
         assert np.array_equal(b.hist_partner[rows_b], s.hist_partner[rows])
         assert np.array_equal(b.hist_val[rows_b], s.hist_val[rows])
     assert len(b.hist_partner) > 100
+
+
+def test_restart_polyellipsoids_bit_identical(tmp_path):
+    """Poly-ellipsoids (the gas scene with --shape polyellipsoid: flying, colliding, their octant
+    records in the checkpoint): 150 + restart + 150 steps equal 300 steps."""
+    ref, _, _ = run(tmp_path / "full", "--scene", "gas", "--shape", "polyellipsoid", "--steps", "300")
+    run(tmp_path / "a", "--scene", "gas", "--shape", "polyellipsoid", "--steps", "150", "--checkpoint-every", "150")
+    got, _, _ = run(tmp_path / "b", "--restart", str(tmp_path / "a" / "checkpoint.npz"), "--steps", "150")
+    assert_same(ref, got)

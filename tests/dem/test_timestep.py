@@ -48,3 +48,32 @@ def test_rayleigh_is_a_warning_inside_the_contact_limit():
     assert "above the Rayleigh time" in paper.warnings[0] and "\n" not in paper.warnings[0]
     with pytest.raises(SceneError, match="exceeds the critical step"):
         choose_time_step(sc, 1.01 * ts.critical)
+
+
+def test_rayleigh_warning_is_one_line_and_the_run_goes_on(tmp_path):
+    """`bench run --dt` between the Rayleigh time and dt_critical: exit 0, one warning line on stderr."""
+    from tests.helpers import bench
+    scene = tmp_path / "quartz.toml"
+    scene.write_text("""
+[domain]
+box = [[0.0, 0.0, 0.0], [0.005, 0.005, 0.005]]
+walls = ["z-"]
+gravity = [0.0, 0.0, -9.81]
+[materials.default]
+density = 2650.0
+young = 29e9
+poisson = 0.25
+friction = 0.5
+restitution = 0.8
+[time]
+dt = 1e-6
+steps = 3
+[[particles]]
+shape = "sphere"
+axes = [5e-4]
+pos = [0.0025, 0.0025, 0.001]
+""")
+    res = bench("run", "--scene", str(scene), "--out", str(tmp_path / "o"), "--quiet")
+    assert res.returncode == 0, res.stderr
+    lines = [l for l in res.stderr.splitlines() if l.strip()]
+    assert len(lines) == 1 and lines[0].startswith("bench: warning: time step 1e-06 s is above the Rayleigh time")
