@@ -163,10 +163,9 @@ def _load_cache(scene, path):
         n_walls = len(scene.walls)
         state = State(a["gid"], a["shape"], a["axes"], a["mass"], a["inertia"], a["material"], a["pos"], a["vel"],
                       a["quat"], a["angmom"], n_walls=n_walls, poly=a["poly"] if a["poly"].size else None)
-        state.hist_start, state.hist_partner, state.hist_val = (a["hist_start"].copy(), a["hist_partner"].copy(),
-                                                                a["hist_val"].copy())
+        state.hist_start, state.hist_partner, state.hist_val = a["hist_start"], a["hist_partner"], a["hist_val"]
         state.wall_hist[z["wall_rows"]] = z["wall_vals"]
-        box = z["box"].copy()
+        box = z["box"]
         info = {k[5:]: z[k].item() for k in z.files if k.startswith("info_")}
     scene.state = state
     _set_box(scene, box)
