@@ -100,10 +100,12 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
     every = getattr(args, "checkpoint_every", 0) or 0
     t_compile = time.perf_counter()
     mode.warmup()
-    t_compile = time.perf_counter() - t_compile
+    t_ready = time.perf_counter()
+    t_compile = t_ready - t_compile
     warm = getattr(args, "warmup", 0) or 0
     for _ in range(warm):  # untimed, unrecorded: the state advances
         mode.step()
+    t_warm_steps = time.perf_counter() - t_ready
     clock0 = scene.extras.get("clock0")
     try:
         import numba
@@ -171,8 +173,9 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
     series = {"step": [], "totalT": [], "n_contacts": [], "ke": []}
     t_wall = time.perf_counter()
     # setup: from the start of the run (this process) to its first step: scene load or checkpoint, build
-    # (or its cache), time step, mode set-up, JIT warm-up
-    setup = {"load_s": scene.extras.get("load_s"), "setup_s": (t_wall - clock0) if clock0 is not None else None}
+    # (or its cache), time step, mode set-up, JIT warm-up (the --warmup steps apart: warmup_steps_s)
+    setup = {"load_s": scene.extras.get("load_s"), "setup_s": (t_ready - clock0) if clock0 is not None else None,
+             "warmup_steps_s": t_warm_steps}
     stable = True
     reason = None
     try:
