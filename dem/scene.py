@@ -601,7 +601,7 @@ def _random_placement(region, rb, rng, what, attempts=200):
 def _check_pair_overlaps(state, limit, label):
     """Refuse (SceneError, one line) the deepest particle-particle overlap above `limit` of the smaller
     body's smallest semi-axis (dem.overlaps); resting contacts below it are accepted."""
-    worst = worst_pair_overlap(state)
+    worst = worst_pair_overlap(state, limit)
     if worst is None:
         return
     ratio, depth, a, b = worst
@@ -651,6 +651,6 @@ def _validate_positions(state, box, wall_m, wall_d, walls, limit, label=lambda k
             worst = (float(ratio[k]), k, w, float(depth[k]))
     ratio, k, w, depth = worst
     if ratio > limit * (1.0 + 1e-9):
-        raise SceneError(f"{label(k)} overlaps a wall ({walls[w]}) by {depth:.3g} m, {100 * ratio:.3g} % of its smallest "
-                         f"semi-axis (resting contacts up to {100 * limit:g} %, the stability guard's limit, are "
-                         f"accepted)")
+        raise SceneError(f"{label(k)} overlaps a wall ({walls[w]}) by {depth:.3g} m, {100 * ratio:.3g} % of its "
+                         f"smallest semi-axis (resting contacts up to {100 * limit:g} %, the stability guard's limit, "
+                         f"are accepted)")

@@ -196,5 +196,6 @@ def load_checkpoint(path):
                   extras={"build": {}, "key": sc.get("key"), "built": sc.get("built"),
                           "restart": dict(meta, path=os.path.abspath(path))})
     if n != meta.get("particles"):
-        raise SceneError(f"checkpoint {path!r} is damaged (holds {n} particles, its record says {meta.get('particles')})")
+        raise SceneError(f"checkpoint {path!r} is damaged (holds {n} particles, its record says "
+                         f"{meta.get('particles')})")
     return scene, meta

@@ -152,8 +152,8 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None):
     snap_dir = os.path.join(out, "snapshots")
     if args.snapshot_every and rank == 0:
         os.makedirs(snap_dir, exist_ok=True)
-    guard = StabilityGuard(mode, dt, ts.critical, scene.gravity, comm=comm, overlap=getattr(args, "guard_overlap", 0.05),
-                           resume=resume["guard"] if resume else None)
+    guard = StabilityGuard(mode, dt, ts.critical, scene.gravity, comm=comm,
+                           overlap=getattr(args, "guard_overlap", 0.05), resume=resume["guard"] if resume else None)
     ke0 = guard.ke0
     ckpt_path = os.path.join(out, "checkpoint.npz")
     ckpt = {"written": 0, "seconds": 0.0, "bytes": 0, "step": None}

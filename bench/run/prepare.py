@@ -297,7 +297,8 @@ def rest(scene, rounds=10, damped=300, frictionless_walls=False, log=None):
     """Bring the scene's state to rest in place (module docstring). Each round: `damped` steps of local
     non-viscous damping (alpha = LOCAL_DAMPING) plus a viscous VISCOUS_DAMPING per step (which stops
     the steady sliding that local damping leaves alone), rattlers stopped (without gravity), walls
-    frictionless where frictionless_walls (a cell to be mirror-tiled); then every velocity and angular momentum set to zero and CHECK_STEPS plain steps:
+    frictionless where frictionless_walls (a cell to be mirror-tiled); then every velocity and angular
+    momentum set to zero and CHECK_STEPS plain steps:
     at rest when the kinetic energy they end with is below KE_rest = M v_rest^2 / 2 (the rms point
     speed below v_rest); then zeroed again.
     Returns rest_* statistics."""

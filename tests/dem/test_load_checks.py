@@ -16,7 +16,8 @@ R = 1e-3
 def spheres(gap_ratio, shape="sphere", axes=(R,)):
     """Two bodies on the x axis whose surfaces overlap by gap_ratio x R (negative: apart)."""
     d = 2 * R * (1.0 - 0.5 * gap_ratio)
-    return [dict(shape=shape, axes=list(axes), pos=[0.0, 0.0, 0.0]), dict(shape=shape, axes=list(axes), pos=[d, 0.0, 0.0])]
+    return [dict(shape=shape, axes=list(axes), pos=[0.0, 0.0, 0.0]),
+            dict(shape=shape, axes=list(axes), pos=[d, 0.0, 0.0])]
 
 
 def test_resting_pair_overlaps_accepted_up_to_the_guard_limit():
