@@ -180,10 +180,10 @@ from dem.forces import finish_range, resolve_range
 from modes import parallel as par
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
-def arrays(t):  # the arrays of an argument type, inside the argument groups (tuples) too
-    return 1 if isinstance(t, types.Array) else sum(arrays(e) for e in t) if isinstance(t, types.BaseTuple) else 0
+def leaf_arrays(t):  # the arrays of an argument type, inside the argument groups (tuples) too
+    return 1 if isinstance(t, types.Array) else sum(leaf_arrays(e) for e in t) if isinstance(t, types.BaseTuple) else 0
 def wrappers(*kernels):  # numba wraps each array argument of a kernel that uses its runtime in one meminfo per call
-    return sum(arrays(t) for k in kernels if k.targetoptions.get("_nrt", True) for t in k.signatures[0])
+    return sum(leaf_arrays(t) for k in kernels if k.targetoptions.get("_nrt", True) for t in k.signatures[0])
 sc = load_prepared("packed", particles=300)
 out = []
 for mode, opts, kernels in ((SerialMode, {}, (resolve_range, finish_range)),
