@@ -59,7 +59,7 @@ def pair_overlaps(state, screen=0.0):
     if n < 2:
         z = np.zeros(0, dtype=np.int64)
         return z, z, np.zeros(0), np.zeros(0)
-    pi, pj = candidate_pairs("linkcell", s.pos, s.rbound, s.gid, n, PairBuffer(max(1024, 4 * n)))
+    pi, pj = candidate_pairs("linkcell", s.pos, s.rbound, s.gid, n, PairBuffer(max(1024, 8 * n)))  # one scan
     amin = smallest_semi_axes(s.axes, s.shape, s.poly)
     flag = _screen(pi, pj, s.pos, s.rbound, amin, float(screen))
     keep = flag > 0 if screen > 0 else np.ones(len(pi), dtype=bool)

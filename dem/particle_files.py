@@ -308,10 +308,11 @@ def _finish(path, code, axes, pos, quat, vel, omega, mat, ids, box):
     off = np.abs(qn - 1.0) > 1e-12   # unit to round-off (a file written at full precision) stays as written
     quat[off] = quat[off] / qn[off, None]
     if ids is not None:
-        if len(np.unique(ids)) != n:
-            u, c = np.unique(ids, return_counts=True)
-            raise _err(path, f"id {int(u[c > 1][0])} appears twice")
         order = np.argsort(ids, kind="stable")
+        sid = ids[order]
+        twice = np.flatnonzero(sid[1:] == sid[:-1])
+        if len(twice):
+            raise _err(path, f"id {int(sid[twice[0]])} appears twice")
         if np.any(order != np.arange(n)):
             code, axes, pos, quat, vel, omega, mat, ids = (a[order] for a in (code, axes, pos, quat, vel, omega, mat,
                                                                                 ids))
