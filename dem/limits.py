@@ -23,6 +23,8 @@ is allocated (instead of a MemoryError deep inside numpy).
 """
 import os
 
+import numpy as np
+
 SIZE_RATIO_MAX = 1e7
 LOAD_BYTES_PER_PARTICLE = 2048
 
@@ -35,20 +37,25 @@ def check_size_ratio(axes_rows):
     """Refuse (LimitError) a scene whose largest semi-axis over its smallest exceeds SIZE_RATIO_MAX.
 
     axes_rows: per particle, its semi-axes [m] (a sphere [r] or (r, r, r), an ellipsoid (a, b, c),
-    a poly-ellipsoid [a+, a-, b+, b-, c+, c-]), in particle order. Returns the ratio."""
-    lo = hi = None
-    for k, ax in enumerate(axes_rows):
-        a_min = float(min(ax))
-        a_max = float(max(ax))
-        if lo is None or a_min < lo[0]:
-            lo = (a_min, k)
-        if hi is None or a_max > hi[0]:
-            hi = (a_max, k)
-    if lo is None:
+    a poly-ellipsoid [a+, a-, b+, b-, c+, c-]), in particle order: a list of rows, or an array
+    [n, k] whose zero entries are absent axes (the scene's particle blocks pad to 6). Returns the
+    ratio."""
+    if isinstance(axes_rows, np.ndarray):
+        table = np.asarray(axes_rows, dtype=np.float64).reshape(len(axes_rows), -1)
+    else:
+        rows = [np.ravel(np.asarray(ax, dtype=np.float64)) for ax in axes_rows]
+        table = np.zeros((len(rows), max((len(r) for r in rows), default=0)))
+        for k, r in enumerate(rows):
+            table[k, :len(r)] = r
+    if table.size == 0:
         return 1.0
-    ratio = hi[0] / lo[0]
+    smallest = np.where(table > 0, table, np.inf).min(axis=1)
+    largest = table.max(axis=1)
+    lo_k, hi_k = int(np.argmin(smallest)), int(np.argmax(largest))
+    lo, hi = float(smallest[lo_k]), float(largest[hi_k])
+    ratio = hi / lo
     if not ratio <= SIZE_RATIO_MAX:
-        raise LimitError(f"semi-axes from {lo[0]:.3g} m (particle {lo[1]}) to {hi[0]:.3g} m (particle {hi[1]}): "
+        raise LimitError(f"semi-axes from {lo:.3g} m (particle {lo_k}) to {hi:.3g} m (particle {hi_k}): "
                          f"a size ratio of {ratio:.3g}, above the {SIZE_RATIO_MAX:.0e} up to which the contact "
                          f"solver was measured to resolve contacts (dem/limits.py); rescale the smallest or "
                          f"the largest bodies")

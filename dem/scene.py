@@ -37,7 +37,9 @@ from dem.limits import LimitError, check_particle_count, check_size_ratio
 from dem.materials import Material, MaterialTable
 from dem.quaternion import quat_to_matrices, random_quaternions
 from dem.shapes import POLY, POLY_LEN, SHAPE_CODES, SPHERE
-from dem.state import State, mass_properties, octant_pose, poly_from_octant
+from dem.overlaps import DEFAULT_OVERLAP_LIMIT, worst_pair_overlap
+from dem.particle_files import ParticleBlock, ParticleFileError, read_particle_file
+from dem.state import State, octant_pose, poly_from_octant, smallest_semi_axes
 
 WALL_FACES = {"x-": (0, +1), "x+": (0, -1), "y-": (1, +1), "y+": (1, -1), "z-": (2, +1), "z+": (2, -1)}
 BUILTIN_DIR = os.path.join(os.path.dirname(__file__), "scenes")
@@ -128,7 +130,7 @@ def _check_keys(d, allowed, what):
             raise SceneError(f"unknown key {k!r} in {what} (allowed: {', '.join(sorted(allowed))})")
 
 
-def load_scene(spec, particles=None, shape=None, seed=None):
+def load_scene(spec, particles=None, shape=None, seed=None, overlap_limit=None):
     """Build a Scene from a built-in name or a TOML path.
 
     particles: override the count of the (single) [[generate]] block; shape: override the shape
@@ -155,11 +157,12 @@ def load_scene(spec, particles=None, shape=None, seed=None):
     except OSError as e:
         raise SceneError(f"cannot read scene {path}: {e.strerror}") from None
     name = os.path.splitext(os.path.basename(path))[0]
-    return build_scene(doc, name=name, source=path, particles=particles, shape=shape, seed=seed)
+    return build_scene(doc, name=name, source=path, particles=particles, shape=shape, seed=seed,
+                       overlap_limit=overlap_limit)
 
 
-def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=None):
-    _check_keys(doc, {"domain", "materials", "time", "particles", "generate", "build"}, "scene")
+def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=None, overlap_limit=None):
+    _check_keys(doc, {"domain", "materials", "time", "particles", "generate", "particle_file", "build"}, "scene")
     dom = _table(doc, "domain", "[domain]")
     _check_keys(dom, {"box", "walls", "gravity"}, "[domain]")
     # --- materials
@@ -197,7 +200,7 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
         raise SceneError(f"time.steps must be a non-negative integer, got {steps!r}")
     # --- build stage (settling before step 0, done and cached by the harness)
     build = _table(doc, "build", "[build]")
-    _check_keys(build, {"method", "max_steps", "ke_tol", "rate", "coordination"}, "[build]")
+    _check_keys(build, {"method", "max_steps", "ke_tol", "rate", "coordination", "rest", "tile"}, "[build]")
     if build:
         if build.get("method") not in ("settle", "compress"):
             raise SceneError(f"build.method must be 'settle' or 'compress', got {build.get('method')!r}")
@@ -206,13 +209,16 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
             raise SceneError(f"build.max_steps must be a positive integer, got {ss!r}")
         for key, default in (("ke_tol", 1e-4), ("rate", 2e-4), ("coordination", 4.5)):
             _num(build.get(key, default), f"build.{key}", positive=True)
-    # --- particles
-    rows = []
+        for key in ("rest", "tile"):
+            if not isinstance(build.get(key, True), bool):
+                raise SceneError(f"build.{key} must be true or false, got {build.get(key)!r}")
+    # --- particles: explicit tables, generated blocks and particle files, in that order
+    blocks = []
     plist = doc.get("particles", [])
     if not isinstance(plist, list):
         raise SceneError("[[particles]] must be an array of tables")
-    for k, p in enumerate(plist):
-        rows.append(_explicit_particle(p, k, table))
+    if plist:
+        blocks.append(_rows_block([_explicit_particle(p, k, table) for k, p in enumerate(plist)]))
     gens = doc.get("generate", [])
     if isinstance(gens, dict):
         gens = [gens]
@@ -222,22 +228,37 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
         raise SceneError("--particles/--shape need a scene with exactly one [[generate]] block")
     box_doc = dom.get("box")
     fit_box = box_doc == "fit"
+    file_box = box_doc == "file"
     box = None
-    if not fit_box:
+    if not fit_box and not file_box:
         if not isinstance(box_doc, list) or len(box_doc) != 2:
-            raise SceneError("domain.box must be [[x0, y0, z0], [x1, y1, z1]] or \"fit\"")
+            raise SceneError("domain.box must be [[x0, y0, z0], [x1, y1, z1]], \"fit\" or \"file\"")
         box = np.array([_vec(box_doc[0], 3, "domain.box[0]"), _vec(box_doc[1], 3, "domain.box[1]")])
         if np.any(box[1] <= box[0]):
             raise SceneError("domain.box upper corner must exceed the lower corner on every axis")
+    files = doc.get("particle_file", [])
+    if isinstance(files, dict):
+        files = [files]
+    if not isinstance(files, list):
+        raise SceneError("[[particle_file]] must be an array of tables")
+    file_blocks = [_file_block(f, k, table, base_dir(source)) for k, f in enumerate(files)]
+    if file_box:
+        boxes = [b.box for b in file_blocks if b.box is not None]
+        if not boxes:
+            raise SceneError("domain.box = \"file\" needs a [[particle_file]] in LAMMPS dump format (its BOX BOUNDS)")
+        box = np.array([np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)])
+    first = sum(b.n for b in blocks)
     for g in gens:
-        new_rows, gbox = _generate(g, table, box, particles, shape, seed, len(rows))
-        rows.extend(new_rows)
+        block, gbox = _generate(g, table, box, particles, shape, seed, first)
+        blocks.append(block)
+        first += block.n
         if fit_box:
             box = gbox if box is None else np.array([np.minimum(box[0], gbox[0]), np.maximum(box[1], gbox[1])])
-    if not rows:
-        raise SceneError("scene has no particles ([[particles]] or [[generate]])")
+    blocks.extend(file_blocks)
+    if not blocks or sum(b.n for b in blocks) == 0:
+        raise SceneError("scene has no particles ([[particles]], [[generate]] or [[particle_file]])")
     try:
-        check_size_ratio([r["axes"] for r in rows])
+        check_size_ratio(np.concatenate([b.axes for b in blocks]))
     except LimitError as e:
         raise SceneError(str(e)) from None
     if box is None:
@@ -253,42 +274,143 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
         raise SceneError("domain.walls lists a face twice")
     wall_m, wall_d = wall_planes(walls, box)
     gravity = _vec(dom.get("gravity", [0.0, 0.0, 0.0]), 3, "domain.gravity")
-    # --- assemble the state
-    n = len(rows)
-    gid = np.arange(n, dtype=np.int64)
-    shape_arr = np.array([r["shape"] for r in rows], dtype=np.int8)
-    mat = np.array([r["material"] for r in rows], dtype=np.int32)
-    axes = np.empty((n, 3))
-    mass = np.empty(n)
-    inertia = np.empty((n, 3))
-    pos = np.array([r["pos"] for r in rows])
-    quat = np.array([r["quat"] for r in rows])
-    vel = np.array([r["vel"] for r in rows])
-    omega = np.array([r["omega"] for r in rows])
-    poly = np.zeros((n, POLY_LEN)) if np.any(shape_arr == POLY) else None
-    for k, r in enumerate(rows):
-        rho = table.materials[r["material"]].density
-        if r["shape"] == POLY:
-            # internally the rigid body at its mass centre, in its principal frame
-            axes[k], mass[k], inertia[k], pos[k], quat[k], poly[k] = poly_from_octant(r["axes"], rho, r["pos"],
-                                                                                      r["quat"])
-        else:
-            axes[k] = r["axes"]
-            mass[k], inertia[k] = mass_properties(r["shape"], r["axes"], rho)
-    state = State(gid, shape_arr, axes, mass, inertia, mat, pos, vel, quat, np.zeros((n, 3)),
-                  n_walls=len(walls), poly=poly)
-    # L = R I R^T omega (world frame)
-    rots = quat_to_matrices(quat)
-    for k in range(n):
-        r = rots[k]
-        state.angmom[k] = r @ (inertia[k] * (r.T @ omega[k]))
-    _validate_positions(state, box, wall_m, wall_d)
+    state = _assemble(blocks, table, len(walls))
+    limit = DEFAULT_OVERLAP_LIMIT if overlap_limit is None else float(overlap_limit)
+    labels = _Labels(blocks)
+    _validate_positions(state, box, wall_m, wall_d, walls, limit, labels)
+    _check_pair_overlaps(state, limit, labels)
     import hashlib
     import json
-    key = json.dumps({"doc": doc, "particles": particles, "shape": shape, "seed": seed}, sort_keys=True, default=str)
+    key = json.dumps({"doc": doc, "particles": particles, "shape": shape, "seed": seed,
+                      "files": [_file_stamp(f, base_dir(source)) for f in files]}, sort_keys=True, default=str)
     return Scene(name=name, box=box, walls=list(walls), wall_m=wall_m, wall_d=wall_d, gravity=gravity,
                  materials=table, dt=dt, steps=steps, state=state, source=source,
-                 extras={"build": dict(build), "key": hashlib.sha256(key.encode()).hexdigest()[:16]})
+                 extras={"build": dict(build), "key": hashlib.sha256(key.encode()).hexdigest()[:16],
+                         "doc": doc, "overrides": {"particles": particles, "shape": shape, "seed": seed}})
+
+
+def base_dir(source):
+    """The folder that relative particle-file paths start from: the scene file's."""
+    return os.path.dirname(os.path.abspath(source)) if source else os.getcwd()
+
+
+def _file_stamp(f, folder):
+    """What identifies a particle file's content for the build cache: path, size, modification time."""
+    if not isinstance(f, dict) or not isinstance(f.get("path"), str):
+        return None
+    path = os.path.join(folder, f["path"])
+    try:
+        st = os.stat(path)
+        return [os.path.abspath(path), st.st_size, st.st_mtime_ns]
+    except OSError:
+        return None
+
+
+def _file_block(f, k, table, folder):
+    """A [[particle_file]] table -> ParticleBlock (dem.particle_files); errors as one line."""
+    what = f"particle_file[{k}]"
+    if not isinstance(f, dict):
+        raise SceneError(f"[[particle_file]] entry {k} must be a table")
+    _check_keys(f, {"path", "format", "columns", "shape", "shape_columns", "material", "types", "timestep"}, what)
+    path = f.get("path")
+    if not isinstance(path, str) or not path:
+        raise SceneError(f"{what} needs path = \"FILE\"")
+    cols = f.get("columns")
+    if cols is not None and (not isinstance(cols, list) or not all(isinstance(c, str) for c in cols)):
+        raise SceneError(f"{what}.columns must be a list of column names")
+    mname = f.get("material", "default" if "default" in table.index else table.materials[0].name)
+    if mname not in table.index:
+        raise SceneError(f"{what}: unknown material {mname!r} (defined: {', '.join(table.index)})")
+    types = f.get("types")
+    if types is not None:
+        if not isinstance(types, dict):
+            raise SceneError(f"{what}.types must be a table {{type = \"material\"}}")
+        tmap = {}
+        for t, m in types.items():
+            if not str(t).lstrip("-").isdigit():
+                raise SceneError(f"{what}.types: keys must be LAMMPS type numbers, got {t!r}")
+            if m not in table.index:
+                raise SceneError(f"{what}.types: unknown material {m!r} (defined: {', '.join(table.index)})")
+            tmap[int(t)] = table.index[m]
+        types = tmap
+    step = f.get("timestep")
+    if step is not None and (isinstance(step, bool) or not isinstance(step, int)):
+        raise SceneError(f"{what}.timestep must be an integer, got {step!r}")
+    try:
+        block = read_particle_file(os.path.join(folder, path), f.get("format", "auto"), cols, f.get("shape", "auto"),
+                                   f.get("shape_columns", "semi-axes"), table.index[mname], types, step)
+    except ParticleFileError as e:
+        raise SceneError(str(e)) from None
+    if block.n and (block.material.min() < 0 or block.material.max() >= len(table.materials)):
+        raise SceneError(f"{what}: material indices outside 0..{len(table.materials) - 1}")
+    block.source = path
+    return block
+
+
+def _rows_block(rows):
+    """Explicit particle rows (dicts) -> ParticleBlock."""
+    n = len(rows)
+    axes = np.zeros((n, 6))
+    for k, r in enumerate(rows):
+        axes[k, :len(r["axes"])] = r["axes"]
+    return ParticleBlock(np.array([r["shape"] for r in rows], dtype=np.int8), axes,
+                         np.array([r["pos"] for r in rows], dtype=np.float64).reshape(n, 3),
+                         np.array([r["quat"] for r in rows], dtype=np.float64).reshape(n, 4),
+                         np.array([r["vel"] for r in rows], dtype=np.float64).reshape(n, 3),
+                         np.array([r["omega"] for r in rows], dtype=np.float64).reshape(n, 3),
+                         np.array([r["material"] for r in rows], dtype=np.int32))
+
+
+class _Labels:
+    """Names of particles for messages: the scene index (file order, the run's global id) and, for a
+    particle from a particle file, its id there."""
+
+    def __init__(self, blocks):
+        self.starts = np.cumsum([0] + [b.n for b in blocks])
+        self.blocks = blocks
+
+    def __call__(self, k):
+        b = int(np.searchsorted(self.starts, k, side="right") - 1)
+        block = self.blocks[b]
+        if block.source:
+            r = k - int(self.starts[b])
+            where = f"id {int(block.ids[r])}" if block.ids is not None else f"row {r}"
+            return f"particle {k} ({where} of {block.source})"
+        return f"particle {k}"
+
+
+def _assemble(blocks, table, n_walls):
+    """The State of the particle blocks, vectorised (no loop over particles but the poly-ellipsoids'
+    rigid-body set-up and the few with an initial spin): mass m = (4/3) pi rho a b c [kg], principal
+    moments m/5 (b^2 + c^2, ...) [kg m^2] (dem.state.mass_properties, the same operations in the same
+    order), angular momentum L = R diag(I) R^T omega (world)."""
+    shape_arr = np.concatenate([b.shape for b in blocks]).astype(np.int8)
+    n = len(shape_arr)
+    axes6 = np.concatenate([b.axes for b in blocks])
+    pos = np.concatenate([b.pos for b in blocks])
+    quat = np.concatenate([b.quat for b in blocks])
+    vel = np.concatenate([b.vel for b in blocks])
+    omega = np.concatenate([b.omega for b in blocks])
+    mat = np.concatenate([b.material for b in blocks]).astype(np.int32)
+    rho = np.array([m.density for m in table.materials])[mat]
+    axes = np.ascontiguousarray(axes6[:, :3])
+    a, b, c = axes[:, 0], axes[:, 1], axes[:, 2]
+    mass = 4.0 / 3.0 * math.pi * rho * a * b * c
+    inertia = np.stack([mass / 5 * (b * b + c * c), mass / 5 * (a * a + c * c), mass / 5 * (a * a + b * b)], axis=1)
+    polys = np.flatnonzero(shape_arr == POLY)
+    poly = np.zeros((n, POLY_LEN)) if len(polys) else None
+    for k in polys:
+        # internally the rigid body at its mass centre, in its principal frame
+        axes[k], mass[k], inertia[k], pos[k], quat[k], poly[k] = poly_from_octant(axes6[k], rho[k], pos[k], quat[k])
+    gid = np.arange(n, dtype=np.int64)
+    state = State(gid, shape_arr, axes, mass, inertia, mat, pos, vel, quat, np.zeros((n, 3)), n_walls=n_walls,
+                  poly=poly)
+    spin = np.flatnonzero(np.any(omega != 0.0, axis=1))
+    if len(spin):  # L = R I R^T omega (world frame)
+        rots = quat_to_matrices(state.quat[spin])
+        for r, k in zip(rots, spin):
+            state.angmom[k] = r @ (state.inertia[k] * (r.T @ omega[k]))
+    return state
 
 
 def wall_planes(walls, box):
@@ -470,9 +592,12 @@ def _generate(g, table, box, particles, shape_override, seed_override, first_ind
         vel = speed * d / np.linalg.norm(d, axis=1)[:, None]
     if code == POLY:  # the mass centre sits on the site; a row gives the octant origin (DESIGN.md)
         pos = pos - np.einsum("kab,kb->ka", quat_to_matrices(quat), cen)
-    rows = [{"shape": code, "axes": axes[k], "pos": pos[k], "quat": quat[k], "vel": vel[k],
-             "omega": np.zeros(3), "material": table.index[mname]} for k in range(count)]
-    return rows, gbox
+    ax6 = np.zeros((count, 6))
+    ax6[:, :axes.shape[1]] = axes
+    block = ParticleBlock(np.full(count, code, dtype=np.int8), ax6, np.ascontiguousarray(pos),
+                          np.ascontiguousarray(quat, dtype=np.float64), vel, np.zeros((count, 3)),
+                          np.full(count, table.index[mname], dtype=np.int32))
+    return block, gbox
 
 
 def _random_placement(region, rb, rng, what, attempts=200):
@@ -515,30 +640,59 @@ def _random_placement(region, rb, rng, what, attempts=200):
     return pos
 
 
-def _validate_positions(state, box, wall_m, wall_d):
-    """Refuse particles whose centre is outside the box or whose body crosses a wall."""
+def _check_pair_overlaps(state, limit, label):
+    """Refuse (SceneError, one line) the deepest particle-particle overlap above `limit` of the smaller
+    body's smallest semi-axis (dem.overlaps); resting contacts below it are accepted."""
+    worst = worst_pair_overlap(state, limit)
+    if worst is None:
+        return
+    ratio, depth, a, b = worst
+    if ratio <= limit * (1.0 + 1e-9):
+        return
+    if not math.isfinite(depth):
+        raise SceneError(f"{label(a)} and {label(b)} coincide (centres {state.pos[a].tolist()}): two bodies "
+                         f"cannot share a place")
+    raise SceneError(f"{label(a)} and {label(b)} overlap by {depth:.3g} m, {100 * ratio:.3g} % of the smaller "
+                     f"smallest semi-axis (resting contacts up to {100 * limit:g} %, the stability guard's limit, "
+                     f"are accepted)")
+
+
+def _validate_positions(state, box, wall_m, wall_d, walls, limit, label=lambda k: f"particle {k}"):
+    """Refuse (SceneError, one line) a particle whose centre is outside the box, or that overlaps a
+    wall by more than `limit` of its smallest semi-axis (the stability guard's overlap limit: a
+    resting contact with a wall, as a settled bed from another code has, is accepted). A wall's
+    overlap is the support distance h = |diag(a) R^T m| (m the wall normal into the box; a
+    poly-ellipsoid's support from its octant origin, contact-mechanics.md §2.2) minus the centre's
+    distance m.x - d to the plane [m]."""
     n = state.n
+    pos = state.pos
+    out = np.any(pos < box[0], axis=1) | np.any(pos > box[1], axis=1)
+    if np.any(out):
+        k = int(np.flatnonzero(out)[0])
+        raise SceneError(f"{label(k)} centre {pos[k].tolist()} is outside the box")
+    if not len(wall_m) or n == 0:
+        return
     rots = quat_to_matrices(state.quat)
-    for k in range(n):
-        c = state.pos[k]
-        if np.any(c < box[0]) or np.any(c > box[1]):
-            raise SceneError(f"particle {k} centre {c.tolist()} is outside the box")
-        if len(wall_m):
-            r = rots[k]
-            q = r @ np.diag(state.axes[k] ** 2) @ r.T
-            if state.shape[k] == POLY:
-                o, qo = octant_pose(c, state.quat[k], state.poly[k])
-                ro = quat_to_matrices(qo)[0]
-                a6 = state.poly[k, :6]
-            for w in range(len(wall_m)):
-                m = wall_m[w]
-                if state.shape[k] == POLY:
-                    # poly support along -m from the octant origin (contact-mechanics.md §2.2)
-                    nb = ro.T @ (-m)
-                    alpha = np.where(nb >= 0, a6[0::2], a6[1::2])
-                    h = float(np.linalg.norm(alpha * nb)) + m @ (c - o)
-                else:
-                    h = math.sqrt(m @ q @ m)
-                if m @ c - wall_d[w] < h * (1.0 - 1e-9):  # touching (to round-off) is fine
-                    raise SceneError(f"particle {k} overlaps a wall (centre {c.tolist()}, "
-                                     f"reach {h:.3g} m, distance {m @ c - wall_d[w]:.3g} m)")
+    amin = smallest_semi_axes(state.axes, state.shape, state.poly)
+    polys = np.flatnonzero(state.shape == POLY)
+    worst = (0.0, -1, -1, 0.0)
+    for w in range(len(wall_m)):
+        m = wall_m[w]
+        u = np.einsum("kji,j->ki", rots, m) * state.axes      # diag(a) R^T m
+        h = np.sqrt(np.sum(u * u, axis=1))
+        for k in polys:  # poly support along -m from the octant origin
+            o, qo = octant_pose(pos[k], state.quat[k], state.poly[k])
+            nb = quat_to_matrices(qo)[0].T @ (-m)
+            a6 = state.poly[k, :6]
+            alpha = np.where(nb >= 0, a6[0::2], a6[1::2])
+            h[k] = float(np.linalg.norm(alpha * nb)) + m @ (pos[k] - o)
+        depth = h - (pos @ m - wall_d[w])
+        ratio = depth / amin
+        k = int(np.argmax(ratio))
+        if ratio[k] > worst[0]:
+            worst = (float(ratio[k]), k, w, float(depth[k]))
+    ratio, k, w, depth = worst
+    if ratio > limit * (1.0 + 1e-9):
+        raise SceneError(f"{label(k)} overlaps a wall ({walls[w]}) by {depth:.3g} m, {100 * ratio:.3g} % of its "
+                         f"smallest semi-axis (resting contacts up to {100 * limit:g} %, the stability guard's limit, "
+                         f"are accepted)")

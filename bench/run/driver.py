@@ -14,6 +14,7 @@ import socket
 import sys
 import time
 
+from bench.run.checkpoint import load_checkpoint, write_checkpoint
 from bench.run.figure import plot_run
 from bench.run.guard import StabilityGuard
 from bench.run.launch import launch_mpi
@@ -24,8 +25,8 @@ from bench.run.prepare import prepare
 from bench.run.records import (RecordError, Reserve, StepWriter, environment, merge_step_files, prepare_output,
                                read_step_rows, write_json, write_state)
 from bench.run.snapshots import write_snapshot
-from dem.scene import load_scene
-from dem.timestep import choose_time_step
+from dem.scene import SceneError, load_scene
+from dem.timestep import TimeStep, choose_time_step
 from modes.base import ModeError, mode_for, parse_mapping
 from modes.halo import WIDTH, ghost_fields, moving_fields
 from modes.parallel import SCHEMES
@@ -41,6 +42,7 @@ def _threading_info():
 
 
 def run(args):
+    clock0 = time.perf_counter()
     die_with_parent()  # started by a launcher: end with it
     raise_on_signals()  # SIGTERM, SIGHUP: stop like Ctrl-C, records kept
     mapping = parse_mapping(args.mapping)
@@ -53,31 +55,46 @@ def run(args):
             raise ModeError(f"unknown scheme {scheme!r} (schemes: {', '.join(SCHEMES)})")
     # progress of a scene build only on a terminal: logs and tests see one line per outcome
     log = None if args.quiet or not sys.stderr.isatty() else (lambda msg: print(msg, file=sys.stderr, flush=True))
-    scene = load_scene(args.scene, particles=args.particles, shape=args.shape, seed=args.seed)
-    if scene.extras.get("build") and (args.dt if args.dt is not None else scene.dt) != "auto":
-        choose_time_step(scene, args.dt)  # a numeric dt is refused before the (expensive) build
+    if args.restart:
+        scene, ts = load_restart(args)
+    else:
+        if not args.scene:
+            raise SceneError("bench run needs --scene NAME|FILE.toml (or --restart FILE)")
+        args.contact_method = args.contact_method or "exact"
+        scene = load_scene(args.scene, particles=args.particles, shape=args.shape, seed=args.seed,
+                           overlap_limit=args.guard_overlap)
+        if scene.extras.get("build") and (args.dt if args.dt is not None else scene.dt) != "auto":
+            time_step(scene, args.dt)  # a numeric dt is refused before the (expensive) build
+    scene.extras["clock0"] = clock0
+    scene.extras["load_s"] = time.perf_counter() - clock0
     out = args.out if args.out is not None else os.path.join("results", f"run-{scene.name}")
-    steps = scene.steps if args.steps is None else args.steps
-    prepare_output(out, need=record_bytes(scene.n, steps, mapping.procs))
-    prepare(scene, log=log)
-    ts = time_step(scene, args.dt)  # the run's one time step (the ranks receive it)
+    steps = args.steps if args.steps is not None else (
+        max(0, int(scene.extras["restart"]["steps_target"]) - int(scene.extras["restart"]["step"]))
+        if args.restart else scene.steps)
+    prepare_output(out, need=record_bytes(scene.n, steps, mapping.procs, getattr(args, "checkpoint_every", 0)))
+    if not args.restart:
+        prepare(scene, log=log)
+        ts = time_step(scene, args.dt)  # the run's one time step (the ranks receive it)
+        for w in ts.warnings:
+            print(f"bench: warning: {w}", file=sys.stderr)
     if mapping.procs > 1:
         return launch_mpi(args, mapping, scene, out, ts)
     mode = mode_cls().setup(scene, dt=ts.dt, **mode_options(mapping, args, scheme))
     return execute(args, scene, mapping, scheme, mode, out, ts)
 
 
-def record_bytes(n, steps, procs):
+def record_bytes(n, steps, procs, checkpoint_every=0):
     """Estimated bytes of a run's records: steps.csv (about 250 B a row, one row per step and
     rank, twice under MPI while the rank files are merged), state.npz (about 150 B a particle),
+    a checkpoint (about 1 KiB a particle with its contact history, twice while it is replaced),
     run.json and the reserve (1 MiB)."""
-    return 250 * steps * procs * (2 if procs > 1 else 1) + 150 * n + 2**20
+    return (250 * steps * procs * (2 if procs > 1 else 1) + 150 * n + (2048 * n if checkpoint_every else 0)
+            + 2**20)
 
 
 def time_step(scene, dt):
     """dem.timestep.choose_time_step, with a time step that cannot be computed (an overflow, or not
     a positive number) explained by the input that makes it so (dem.limits.explain_time_step)."""
-    from dem.scene import SceneError
     try:
         ts = choose_time_step(scene, dt)
     except (OverflowError, ZeroDivisionError, FloatingPointError, SceneError) as e:
@@ -88,6 +105,19 @@ def time_step(scene, dt):
     return ts
 
 
+def load_restart(args):
+    """The scene and TimeStep of `--restart FILE` (bench.run.checkpoint). The scene, its particles
+    and the time step are the checkpoint's: options that would change them are refused in one
+    line; the contact method defaults to the checkpoint's."""
+    for name in ("scene", "particles", "shape", "seed", "dt"):
+        if getattr(args, name, None) is not None:
+            raise SceneError(f"--restart continues the checkpoint's scene and time step: --{name} cannot be given "
+                             f"with it")
+    scene, meta = load_checkpoint(args.restart)
+    args.contact_method = args.contact_method or meta.get("contact_method") or "exact"
+    return scene, TimeStep.from_dict(meta["time_step"])
+
+
 def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
     """The timed run loop of one process, or of every rank (comm given): warm-up, steps, records.
 
@@ -96,19 +126,32 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
     beat: the rank's bench.run.heartbeat.Heartbeat (its step is set as the loop goes)."""
     dt = ts.dt
     rank = comm.Get_rank() if comm is not None else 0
-    steps = scene.steps if args.steps is None else args.steps
+    resume = scene.extras.get("restart")  # a checkpoint's meta (bench.run.checkpoint), or None
+    step0 = int(resume["step"]) if resume else 0            # the records' step number reached so far
+    time0 = float(resume["time"]) if resume else 0.0        # simulated time [s] so far
+    warm0 = int(resume.get("warmup_total", 0)) if resume else 0
+    if args.steps is not None:
+        steps = args.steps
+    else:
+        steps = max(0, int(resume["steps_target"]) - step0) if resume else scene.steps
+    every = getattr(args, "checkpoint_every", 0) or 0
     t_compile = time.perf_counter()
     mode.warmup()
-    t_compile = time.perf_counter() - t_compile
+    t_ready = time.perf_counter()
+    t_compile = t_ready - t_compile
     # the guard watches the warm-up steps too (untimed, unrecorded: the state advances), so that the
     # first step it checks resolves the starting positions (an overlap there was in the scene)
-    guard = StabilityGuard(mode, dt, ts.critical, scene.gravity, comm=comm, overlap=getattr(args, "guard_overlap", 0.05))
+    guard = StabilityGuard(mode, dt, ts.critical, scene.gravity, comm=comm,
+                           overlap=getattr(args, "guard_overlap", 0.05), resume=resume["guard"] if resume else None)
     ke0 = guard.ke0
     reason = None
-    for w in range(1, getattr(args, "warmup", 0) + 1):
+    warm = getattr(args, "warmup", 0) or 0
+    for w in range(1, warm + 1):
         reason = guard.check(f"{w} of the warm-up", mode.step())
         if reason:
             break
+    t_warm_steps = time.perf_counter() - t_ready
+    clock0 = scene.extras.get("clock0")
     try:
         import numba
         layer = numba.threading_layer()
@@ -134,7 +177,11 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
             "materials": [m.__dict__ for m in scene.materials.materials],
             "environment": environment(), "warmup_s": t_compile, "warmup_steps": getattr(args, "warmup", 0), "threading_layer": layer,
             "build": scene.extras.get("built"), "stable": None, "max_overlap_ratio": 0.0, "status": "running",
-            "pid": os.getpid(), "host": socket.gethostname()}
+            "pid": os.getpid(), "host": socket.gethostname(),
+            "restart": ({"from": resume["path"], "step": step0, "time": time0, "written_by": resume.get("mapping")}
+                        if resume else None),
+            "checkpoint_every": every or None, "step_first": step0 + 1, "step_last": step0 + steps,
+            "time_start": time0 + warm * dt}
     if comm is not None:
         from mpi4py import MPI  # here, not at the top: importing it starts MPI
         info["mpi_library"] = MPI.Get_library_version().strip().splitlines()[0]
@@ -153,28 +200,49 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
     snap_dir = os.path.join(out, "snapshots")
     if args.snapshot_every and rank == 0:
         os.makedirs(snap_dir, exist_ok=True)
+    ckpt_path = os.path.join(out, "checkpoint.npz")
+    ckpt = {"written": 0, "seconds": 0.0, "bytes": 0, "step": None}
+
+    def checkpoint(k):
+        """Write DIR/checkpoint.npz after timed step k (collective under MPI); its time is outside the
+        step timers (it is recorded in run.json)."""
+        t = time.perf_counter()
+        meta = {"step": step0 + k, "time": time0 + (warm + k) * dt, "warmup_total": warm0 + warm,
+                "steps_target": step0 + steps, "time_step": ts.as_dict(), "guard": guard.sums(),
+                "contact_method": args.contact_method or "exact", "neighbor": args.neighbor,
+                "mapping": str(mapping), "scheme": scheme}
+        ckpt["bytes"] = write_checkpoint(ckpt_path, mode, scene, meta, comm=comm)
+        ckpt["seconds"] += time.perf_counter() - t
+        ckpt["written"] += 1
+        ckpt["step"] = step0 + k
     series = {"step": [], "totalT": [], "n_contacts": [], "ke": []}
     meter = LoadMeter().start()
     t_wall = time.perf_counter()
+    # setup: from the start of the run (this process) to its first step: scene load or checkpoint, build
+    # (or its cache), time step, mode set-up, JIT warm-up (the --warmup steps apart: warmup_steps_s)
+    setup = {"load_s": scene.extras.get("load_s"), "setup_s": (t_ready - clock0) if clock0 is not None else None,
+             "warmup_steps_s": t_warm_steps}
     stable = reason is None
     k = 0
     try:
         for k in (range(1, steps + 1) if stable else ()):
             row = mode.step()
-            writer.write(k, rank, row)
+            writer.write(step0 + k, rank, row)
             if beat is not None:
-                beat.step = k
-            reason = guard.check(k, row)  # collective: every rank stops at the same step
+                beat.step = step0 + k
+            reason = guard.check(step0 + k, row)  # collective: every rank stops at the same step
             if args.plot:
-                series["step"].append(k)
+                series["step"].append(step0 + k)
                 series["totalT"].append(row["totalT"])
                 series["n_contacts"].append(total(row["n_contacts"]))
                 series["ke"].append(getattr(guard, "ke_last", 0.0))
             if reason:
                 stable = False
                 break
-            if args.snapshot_every and k % args.snapshot_every == 0:
-                write_snapshot(mode, snap_dir, k, dt, rank)
+            if args.snapshot_every and (step0 + k) % args.snapshot_every == 0:
+                write_snapshot(mode, snap_dir, step0 + k, dt, rank)
+            if every and ((step0 + k) % every == 0 or k == steps):
+                checkpoint(k)
         writer.close()
     except (KeyboardInterrupt, Interrupted, RecordError) as e:
         # one process (a rank's own SIGTERM ends it at once: its supervisor keeps the records)
@@ -233,7 +301,9 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
                  "grid_updates": getattr(mode, "grid_updates", None),
                  "kinetic_energy_initial": ke0, "kinetic_energy_final": ke1, "energy_balance": energy,
                  "guard": {"overlap_limit": guard.overlap, "energy_factor": guard.energy_factor},
-                 "simulated_time": steps * dt})
+                 **setup, "simulated_time": steps * dt, "time_end": time0 + (warm + (k if steps else 0)) * dt,
+                 "checkpoint": ({"path": ckpt_path, "written": ckpt["written"], "last_step": ckpt["step"],
+                                 "bytes": ckpt["bytes"], "seconds": ckpt["seconds"]} if every else None)})
     reserve.release()
     write_json(run_json, info)
     if args.plot:

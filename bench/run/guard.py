@@ -21,12 +21,17 @@ The cause of an overlap (issue 15) is named from what can be known:
   the peak stays under it, sqrt(16 E* sqrt(R*) (limit a_min)^(5/2) / (15 m*));
 - else the time step when it is above a quarter of the critical one (explicit integration fails
   near it), else a material too soft for its loads (gravity, confinement).
+
+A restarted run (bench.run.checkpoint) continues the running sums of the run it continues (initial
+kinetic energy, largest kinetic energy, gravity work), so its energy balance and its energy test
+are those of the uninterrupted run.
 """
 import numpy as np
 
 
 class StabilityGuard:
-    def __init__(self, mode, dt, dt_critical, gravity, comm=None, overlap=0.05, energy_factor=1e4, v_floor=0.01):
+    def __init__(self, mode, dt, dt_critical, gravity, comm=None, overlap=0.05, energy_factor=1e4, v_floor=0.01,
+                 resume=None):
         self.mode = mode
         self.dt = dt
         self.dt_critical = dt_critical
@@ -42,7 +47,16 @@ class StabilityGuard:
         self.ke_last = self.ke0
         self.gravity_work = 0.0
         self.checked = 0  # steps checked so far (the first resolves the starting positions)
+        if resume:  # the sums of the run this one continues (sums())
+            self.ke0 = float(resume["ke0"])
+            self.ke_max = float(resume["ke_max"])
+            self.ke_last = float(resume["ke_last"])
+            self.gravity_work = float(resume["gravity_work"])
         mode.guard_overlap = overlap  # the mode flags the step with the same limit
+
+    def sums(self):
+        """The running sums a checkpoint keeps [J]: initial, largest and last kinetic energy, gravity work."""
+        return {"ke0": self.ke0, "ke_max": self.ke_max, "ke_last": self.ke_last, "gravity_work": self.gravity_work}
 
     def _sum(self, x):
         return self.comm.allreduce(x) if self.comm is not None else x

@@ -75,7 +75,13 @@ def time_step_arg(text):
 
 def add_run_arguments(r):
     """The `bench run` options on parser r."""
-    r.add_argument("--scene", required=True, help="built-in scene name or a .toml file")
+    r.add_argument("--scene", help="built-in scene name or a .toml file (required unless --restart)")
+    r.add_argument("--restart", metavar="FILE", default=None,
+                   help="continue the run saved in checkpoint FILE (--checkpoint-every) in this mapping: its "
+                        "scene, state, time step and energy balance; --steps N more steps (default: the rest of "
+                        "the run that wrote it)")
+    r.add_argument("--checkpoint-every", type=nonneg_int, default=0, metavar="K",
+                   help="write DIR/checkpoint.npz (atomically) every K steps and after the last step")
     r.add_argument("--particles", type=positive_int, help="override the generated particle count")
     r.add_argument("--shape", choices=SHAPE_CHOICES, help="override the generated shape")
     r.add_argument("--seed", type=nonneg_int, help="override the generator seed")
@@ -90,9 +96,10 @@ def add_run_arguments(r):
                    help="thread the whole step (default) or only contact detection (the paper's code)")
     r.add_argument("--pin", action="store_true", help="pin threads to cores (OMP_PROC_BIND/OMP_PLACES)")
     r.add_argument("--neighbor", choices=NEIGHBOR_CHOICES, default="linkcell")
-    r.add_argument("--contact-method", choices=CONTACT_METHOD_CHOICES, default="exact",
-                   help="ellipsoid contact geometry: exact (PW + Newton, default), pw (Perram-Wertheim depth, "
-                        "error O(depth/size)), sextic (the paper's Yan 2010 method, a known error)")
+    r.add_argument("--contact-method", choices=CONTACT_METHOD_CHOICES, default=None,
+                   help="ellipsoid contact geometry: exact (PW + Newton, default; a restart: the checkpoint's), "
+                        "pw (Perram-Wertheim depth, error O(depth/size)), sextic (the paper's Yan 2010 method, a "
+                        "known error)")
     r.add_argument("--skin", type=skin_fraction, default=None, metavar="F",
                    help="neighbour-list skin, fraction of the largest bounding diameter (default 0.1; "
                         "0: estimate neighbours every step, the paper's way)")
@@ -122,7 +129,7 @@ def add_run_arguments(r):
 
 def mode_options(mapping, args, scheme):
     """The setup options of the mode that runs `mapping` (each mode refuses options it lacks)."""
-    opts = {"neighbor": args.neighbor, "skin": args.skin, "contact_method": args.contact_method}
+    opts = {"neighbor": args.neighbor, "skin": args.skin, "contact_method": args.contact_method or "exact"}
     if mapping.threads > 1:
         opts.update(threads=mapping.threads, scheme=scheme, threaded=args.threaded)
     if mapping.procs > 1:

@@ -10,9 +10,11 @@ import argparse
 import json
 import signal
 import sys
+import time
 
 from mpi4py import MPI
 
+from bench.run.checkpoint import load_checkpoint
 from bench.run.driver import execute
 from bench.run.heartbeat import Heartbeat
 from bench.run.lifeline import PR_SET_PDEATHSIG, _prctl
@@ -23,6 +25,7 @@ from modes.base import mode_for, parse_mapping
 
 
 def main(argv):
+    clock0 = time.perf_counter()
     parser = add_run_arguments(argparse.ArgumentParser(prog="bench.run.rank"))
     parser.add_argument("--time-step", default=None, help="the launcher's TimeStep as JSON (dem.timestep)")
     args = parser.parse_args(argv)
@@ -33,8 +36,16 @@ def main(argv):
         raise SystemExit(f"bench: error: started with {comm.Get_size()} ranks for mapping {mapping}")
     beat = Heartbeat(args.out, comm.Get_rank())
     cart = comm.Create_cart([mapping.px, mapping.py, mapping.pz], periods=[False] * 3, reorder=False)
-    scene = load_prepared(args.scene, particles=args.particles, shape=args.shape, seed=args.seed)  # cached
-    ts = TimeStep.from_dict(json.loads(args.time_step)) if args.time_step else choose_time_step(scene, args.dt)
+    if args.restart:  # every rank reads the checkpoint; the mode keeps the particles of its block
+        scene, meta = load_checkpoint(args.restart)
+        ts = TimeStep.from_dict(meta["time_step"])
+        args.contact_method = args.contact_method or meta.get("contact_method") or "exact"
+    else:
+        scene = load_prepared(args.scene, particles=args.particles, shape=args.shape, seed=args.seed,
+                              overlap_limit=args.guard_overlap)  # cached
+        ts = TimeStep.from_dict(json.loads(args.time_step)) if args.time_step else choose_time_step(scene, args.dt)
+    scene.extras["clock0"] = clock0
+    scene.extras["load_s"] = time.perf_counter() - clock0
     scheme = args.scheme or ("dynamic" if mapping.threads > 1 else None)
     mode = mode_for(mapping)().setup(scene, dt=ts.dt, cart=cart, **mode_options(mapping, args, scheme))
     beat.phase = "running"
