@@ -63,14 +63,16 @@ def write(tmp_path, text, name="scene.toml"):
 
 
 def make_scene(particles, materials=None, box=((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)), walls=(),
-               gravity=(0.0, 0.0, 0.0), dt="auto", steps=10):
-    """Scene from explicit particle dicts (DESIGN.md format), through the real scene reader."""
+               gravity=(0.0, 0.0, 0.0), dt="auto", steps=10, overlap_limit=None):
+    """Scene from explicit particle dicts (DESIGN.md format), through the real scene reader
+    (overlap_limit: its load-time overlap check, default the guard's; inf lets a test start a mode
+    on overlaps a scene file may not have, such as coincident bodies)."""
     from dem.scene import build_scene
     materials = materials or {"default": dict(density=2650.0, young=29e9, poisson=0.25, friction=0.5,
                                               restitution=0.8)}
     doc = {"domain": {"box": [list(box[0]), list(box[1])], "walls": list(walls), "gravity": list(gravity)},
            "materials": materials, "time": {"dt": dt, "steps": steps}, "particles": particles}
-    return build_scene(doc, name="test")
+    return build_scene(doc, name="test", overlap_limit=overlap_limit)
 
 
 def serial(scene, dt, neighbor="linkcell"):

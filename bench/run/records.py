@@ -19,7 +19,6 @@ import time
 
 import numpy as np
 
-from dem.scene import SceneError
 
 FLUSH_ROWS = 100   # steps.csv rows kept in memory at most ...
 FLUSH_S = 1.0      # ... and seconds between appends
@@ -225,6 +224,7 @@ def prepare_output(out, need=0):
     """Create the output folder and check that it takes a write: a PROBE_BYTES probe written and
     flushed to disk (an empty one passes on a full disk), and `need` bytes more free (the
     estimated records). SceneError, one line, if not."""
+    from dem.scene import SceneError  # here: numba starts with dem.scene, after the thread variables are set
     if not isinstance(out, str) or not out.strip():
         raise SceneError(f"output folder must be a non-empty path, got {out!r}")
     probe = os.path.join(out, f".write-test.{os.getpid()}")

@@ -11,7 +11,9 @@
   fresh has stopped: the run is stopped and the rank named (exit 5).
 - A rank that dies is named from the starter's report (Hydra: `PID n RUNNING AT host`, `EXIT
   STRING: Killed (signal 9)`; srun: `task r: Killed`) and the ranks' heartbeats (exit 5); Hydra's
-  multi-line banner is not relayed, since the supervisor says the same in one line.
+  multi-line banner is not relayed, since the supervisor says the same in one line. A rank that
+  said why in its own `bench: error:` line before it ended (e.g. a rank started alone under
+  `srun --mpi=none`) keeps that line as the reason.
 Whenever the run ends other than by itself, the records are kept and marked: the ranks' step rows
 merged into steps.csv (bench.run.records.finalize_run) and run.json's status set (`timeout`,
 `failed`, `interrupted`) with the one-line reason, which is also printed as `bench: error: ...`.
@@ -206,7 +208,7 @@ def main(argv):
             if getattr(r, key) is not None:
                 setattr(relay, key, getattr(r, key))
     beats = read_beats(args.out)
-    if verdict is None and rc != 0:
+    if verdict is None and rc != 0 and relay.bench_error is None:  # a rank's own line, when it said one, wins
         if relay.dead_pid is not None:
             r, rec = rank_of_pid(beats, relay.dead_pid)
             who = f"rank {r} (pid {relay.dead_pid} on {relay.dead_host})" if r is not None else \
@@ -218,7 +220,7 @@ def main(argv):
             host, tasks, how = relay.srun_task
             verdict = ("failed", f"rank {tasks} on {host} died: {how}; the other ranks were stopped, records kept in "
                                  f"{args.out}", 5)
-        elif relay.bench_error is None:
+        else:
             verdict = ("failed", f"the ranks ended with exit status {rc} without a word; records kept in {args.out}",
                        rc if rc > 0 else 5)
     from bench.run.records import finalize_run

@@ -1,12 +1,25 @@
 """`bench` command line: contracts (files, columns) and error paths (one line, exit 2)."""
 import json
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from tests.helpers import GOOD, bench, one_line_error, write
+from tests.helpers import GOOD, ROOT, bench, one_line_error, write
+
+
+def test_cli_imports_leave_numba_unstarted():
+    """numba reads NUMBA_NUM_THREADS when it starts; `bench` sets it from the mapping
+    (bench.run.threads_env) after loading the CLI and the modules its error handling needs, so
+    none of them may start numba (a record module that did made a 2-thread run launch 2 threads
+    and then fail at its next compile: 'Cannot set NUMBA_NUM_THREADS ... trying to set 3')."""
+    code = ("import sys; import bench.cli, bench.run.records, bench.run.lifeline, bench.run.threads_env; "
+            "print('numba' in sys.modules)")
+    res = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0 and res.stdout.strip() == "False", res.stderr
 
 
 def test_run_writes_contract_files(tmp_path):

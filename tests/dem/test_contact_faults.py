@@ -1,5 +1,7 @@
 """Contacts that cannot be missed (issue 15, item 1): coincident and concentric bodies, and the
 size ratio up to which the exact solver resolves a contact (dem/limits.py), refused above it."""
+import re
+
 import numpy as np
 import pytest
 
@@ -38,7 +40,8 @@ def _coincident_scene(pairs=40, seed=3):
     for s in sites:
         p = list(-0.04 + 0.01 * s.astype(float))
         parts += [dict(shape="sphere", axes=[1e-3], pos=p), dict(shape="sphere", axes=[1e-3], pos=p)]
-    return make_scene(parts, materials=SOFT, box=((-0.05,) * 3, (0.05,) * 3))
+    # coincident bodies are refused at load (test below); the modes are started on them directly
+    return make_scene(parts, materials=SOFT, box=((-0.05,) * 3, (0.05,) * 3), overlap_limit=float("inf"))
 
 
 def test_coincident_spheres_are_seen_and_every_mode_agrees():
@@ -62,11 +65,11 @@ def test_coincident_spheres_are_seen_and_every_mode_agrees():
     assert np.all(v[0::2, 2] < 0) and np.all(v[1::2, 2] > 0) and np.all(v[:, :2] == 0.0)
 
 
-def test_coincident_spheres_mpi_matches_serial_and_guard_names_them(tmp_path):
-    """The same under 2 MPI ranks (pairs on both blocks): `bench run` stops at step 1 with the
-    guard's one line naming the overlap 2 that was there at the start, in serial and in 2-2-1-1-1,
-    and both write the bit-identical state.npz."""
-    import json
+def test_coincident_bodies_refused_at_load_before_any_rank(tmp_path):
+    """A scene file with coincident spheres (4 pairs at one centre each) is refused at load, in
+    serial and in 2-2-1-1-1 alike, before a rank starts: one line naming a pair (2k, 2k + 1) as
+    coinciding, exit 2, and no record written (issue 14, item 3: today such bodies were
+    caught only by the guard at step 1). The contact itself is seen by every mode (test above)."""
     from tests.helpers import bench, write
     parts = "\n".join(f"[[particles]]\nshape = \"sphere\"\naxes = [1e-3]\npos = [{x}, {y}, 0.0]\n" * 2
                       for x, y in ((-0.02, 0.0), (0.02, 0.01), (-0.01, -0.02), (0.03, 0.0)))
@@ -74,18 +77,17 @@ def test_coincident_spheres_mpi_matches_serial_and_guard_names_them(tmp_path):
             "[materials.default]\ndensity = 2650.0\nyoung = 1e7\npoisson = 0.25\nfriction = 0.5\n"
             "restitution = 0.8\n[time]\ndt = \"auto\"\nsteps = 5\n" + parts)
     scene = write(tmp_path, text)
-    states = {}
     for mapping in ("1-1-1-1-1", "2-2-1-1-1"):
         out = tmp_path / mapping
         res = bench("run", "--scene", scene, "--mapping", mapping, "--out", str(out), "--quiet", "--timeout", "300")
-        assert res.returncode == 1, res.stderr
-        line = [l for l in res.stderr.splitlines() if l.startswith("bench: error:")]
-        assert len(line) == 1 and "overlap 2 of the smallest semi-axis" in line[0], res.stderr
-        assert "there at the start of the run" in line[0]
-        assert json.loads((out / "run.json").read_text())["status"] == "unstable"
-        states[mapping] = dict(np.load(out / "state.npz"))
-    for f in ("id", "pos", "vel", "quat", "omega"):
-        assert np.array_equal(states["1-1-1-1-1"][f], states["2-2-1-1-1"][f]), f
+        assert res.returncode == 2, res.stderr
+        lines = [l for l in res.stderr.splitlines() if l.strip()]
+        assert len(lines) == 1 and lines[0].startswith("bench: error:") and "Traceback" not in res.stderr
+        named = re.search(r"particle (\d+) and particle (\d+) coincide", lines[0])
+        assert named and "cannot share a place" in lines[0], lines[0]
+        a, b = int(named.group(1)), int(named.group(2))
+        assert a % 2 == 0 and b == a + 1  # one of the four coinciding pairs (2k, 2k + 1)
+        assert not (out / "run.json").exists()
 
 
 @pytest.mark.parametrize("method", [ellipsoid_contact, pw_contact, sextic_contact])
