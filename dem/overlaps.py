@@ -11,11 +11,15 @@ ellipsoid's smallest of six), depth from the exact contact geometry of the pair'
 (dem.forces.pair_contacts: closed form for spheres, PW + Newton for ellipsoids, the octant active
 set for poly-ellipsoids), for every pair whose bounding spheres overlap (link-cell search,
 dem.neighbor). Two centres closer than 1e-9 of the smaller bounding radius are coincident (no
-contact normal exists): refused as such. A body lies inside its bounding sphere, so its overlap with
-another is at most the bounding spheres' overlap r_i + r_j - d (separating the spheres separates
-the bodies): a pair whose bounding spheres overlap by less than the limit cannot exceed it, and only
-the others go to the solver (for spheres the screen is the exact depth; a 1M-ellipsoid pack checks
-in seconds).
+contact normal exists): refused as such. The screen: the depth (the shortest translation that
+separates two convex bodies) is the minimum over unit directions n of h_i(n) + h_j(-n) - n.(x_j - x_i),
+h the support function about the centre (contact-mechanics.md §1), so any one direction bounds it
+from above; along the line of centres n = (x_j - x_i)/d that bound is h_i(n) + h_j(-n) - d, with
+h(n) = |diag(a, b, c) R^T n| for an ellipsoid (R body to world) and r for a sphere. A pair whose
+bound is below the limit cannot exceed it, and only the others go to the solver (for spheres the
+bound is the exact depth). A poly-ellipsoid pair uses its bounding spheres, r_i + r_j - d (a body
+lies inside its bounding sphere). A 1M-ellipsoid rested pack, whose resting contacts are all
+screened out, checks in about a second.
 """
 import numpy as np
 from numba import njit
@@ -23,6 +27,7 @@ from numba import njit
 from dem.forces import EXACT, pair_contacts
 from dem.integrate import derive_geometry_range, derive_range
 from dem.neighbor import PairBuffer, candidate_pairs
+from dem.shapes import POLY
 from dem.state import smallest_semi_axes
 
 # the stability guard's default overlap limit (bench run --guard-overlap)
@@ -30,21 +35,42 @@ DEFAULT_OVERLAP_LIMIT = 0.05
 
 
 @njit(cache=True)
-def _screen(pi, pj, pos, rbound, amin, limit):
+def _support_along(k, nx, ny, nz, rot, axes):
+    """h(n) = |diag(a, b, c) R^T n| [m]: particle k's support along the unit world direction n."""
+    h2 = 0.0
+    for c in range(3):
+        t = axes[k, c] * (rot[k, 0, c] * nx + rot[k, 1, c] * ny + rot[k, 2, c] * nz)
+        h2 += t * t
+    return np.sqrt(h2)
+
+
+@njit(cache=True)
+def _screen(pi, pj, pos, rbound, amin, shape, rot, axes, limit):
     """Per candidate pair: 2 when coincident (centres closer than 1e-9 of the smaller bounding radius),
-    1 when the bounding spheres overlap by more than limit x min(amin_i, amin_j), else 0."""
+    1 when the depth may exceed limit x min(amin_i, amin_j) (its upper bound along the line of
+    centres, h_i(n) + h_j(-n) - d, or for a poly-ellipsoid the bounding spheres' overlap, exceeds
+    it: module docstring), else 0."""
     out = np.zeros(pi.shape[0], dtype=np.int8)
     for k in range(pi.shape[0]):
         i = pi[k]
         j = pj[k]
         d2 = 0.0
         for c in range(3):
-            x = pos[i, c] - pos[j, c]
+            x = pos[j, c] - pos[i, c]
             d2 += x * x
         rmin = min(rbound[i], rbound[j])
         if d2 <= (1e-9 * rmin) ** 2:
             out[k] = 2
-        elif rbound[i] + rbound[j] - np.sqrt(d2) > limit * min(amin[i], amin[j]):
+            continue
+        d = np.sqrt(d2)
+        if shape[i] == POLY or shape[j] == POLY:
+            bound = rbound[i] + rbound[j] - d
+        else:
+            nx = (pos[j, 0] - pos[i, 0]) / d
+            ny = (pos[j, 1] - pos[i, 1]) / d
+            nz = (pos[j, 2] - pos[i, 2]) / d
+            bound = _support_along(i, nx, ny, nz, rot, axes) + _support_along(j, nx, ny, nz, rot, axes) - d
+        if bound > limit * min(amin[i], amin[j]):
             out[k] = 1
     return out
 
@@ -61,15 +87,15 @@ def pair_overlaps(state, screen=0.0):
         return z, z, np.zeros(0), np.zeros(0)
     pi, pj = candidate_pairs("linkcell", s.pos, s.rbound, s.gid, n, PairBuffer(max(1024, 8 * n)))  # one scan
     amin = smallest_semi_axes(s.axes, s.shape, s.poly)
-    flag = _screen(pi, pj, s.pos, s.rbound, amin, float(screen))
+    rot = np.zeros((s.n, 3, 3))
+    derive_range(0, s.n, s.quat, s.angmom, s.inertia, s.shape, rot, np.zeros((s.n, 3)))
+    flag = _screen(pi, pj, s.pos, s.rbound, amin, s.shape, rot, s.axes, float(screen))
     keep = flag > 0 if screen > 0 else np.ones(len(pi), dtype=bool)
     pi, pj, coincident = pi[keep], pj[keep], flag[keep] == 2
     m = len(pi)
     if m == 0:
         z = np.zeros(0, dtype=np.int64)
         return z, z, np.zeros(0), np.zeros(0)
-    rot = np.zeros((s.n, 3, 3))
-    derive_range(0, s.n, s.quat, s.angmom, s.inertia, s.shape, rot, np.zeros((s.n, 3)))
     g = s.n if s.has_poly else 0
     oorg, orot, ax6 = np.zeros((g, 3)), np.zeros((g, 3, 3)), np.zeros((g, 6))
     if s.has_poly:

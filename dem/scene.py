@@ -381,7 +381,7 @@ class _Labels:
 
 def _assemble(blocks, table, n_walls):
     """The State of the particle blocks, vectorised (no loop over particles but the poly-ellipsoids'
-    rigid-body set-up and the few with an initial spin): mass m = (4/3) pi rho a b c [kg], principal
+    rigid-body set-up): mass m = (4/3) pi rho a b c [kg], principal
     moments m/5 (b^2 + c^2, ...) [kg m^2] (dem.state.mass_properties, the same operations in the same
     order), angular momentum L = R diag(I) R^T omega (world)."""
     shape_arr = np.concatenate([b.shape for b in blocks]).astype(np.int8)
@@ -406,10 +406,10 @@ def _assemble(blocks, table, n_walls):
     state = State(gid, shape_arr, axes, mass, inertia, mat, pos, vel, quat, np.zeros((n, 3)), n_walls=n_walls,
                   poly=poly)
     spin = np.flatnonzero(np.any(omega != 0.0, axis=1))
-    if len(spin):  # L = R I R^T omega (world frame)
+    if len(spin):  # L = R I R^T omega (world frame), all spinning particles at once
         rots = quat_to_matrices(state.quat[spin])
-        for r, k in zip(rots, spin):
-            state.angmom[k] = r @ (state.inertia[k] * (r.T @ omega[k]))
+        body = np.einsum("kji,kj->ki", rots, omega[spin])
+        state.angmom[spin] = np.einsum("kij,kj->ki", rots, state.inertia[spin] * body)
     return state
 
 
