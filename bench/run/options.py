@@ -30,47 +30,35 @@ def nonneg_int(text):
     return _integer_at_least(text, 0, "a non-negative integer")
 
 
-def skin_fraction(text):
+def _number_in(text, ok, expected):
+    """float(text) when ok(value) (nan fails every comparison, so it never passes); else one
+    argparse line 'expected <expected>, got <text>'."""
     try:
         v = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-    if not (0.0 <= v <= 10.0):
-        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 10], got {text!r}")
+        v = None
+    if v is None or not ok(v):
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
     return v
+
+
+def skin_fraction(text):
+    return _number_in(text, lambda v: 0.0 <= v <= 10.0, "a fraction in [0, 10]")
 
 
 def overlap_fraction(text):
     """--guard-overlap: a finite fraction in (0, 1] (nan would turn the guard off)."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a fraction in (0, 1], got {text!r}") from None
-    if not (0.0 < v <= 1.0):
-        raise argparse.ArgumentTypeError(f"expected a fraction in (0, 1], got {text!r}")
-    return v
+    return _number_in(text, lambda v: 0.0 < v <= 1.0, "a fraction in (0, 1]")
 
 
 def seconds(text):
     """A finite number of seconds >= 0."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected seconds >= 0, got {text!r}") from None
-    if not (0.0 <= v < 1e9):
-        raise argparse.ArgumentTypeError(f"expected seconds >= 0, got {text!r}")
-    return v
+    return _number_in(text, lambda v: 0.0 <= v < 1e9, "seconds >= 0")
 
 
 def time_step_arg(text):
     """--dt: a positive finite number of seconds."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a time step [s] > 0, got {text!r}") from None
-    if not (0.0 < v < 1e30):
-        raise argparse.ArgumentTypeError(f"expected a finite time step [s] > 0, got {text!r}")
-    return v
+    return _number_in(text, lambda v: 0.0 < v < 1e30, "a finite time step [s] > 0")
 
 
 def add_run_arguments(r):
