@@ -100,13 +100,14 @@ class StepWriter:
         self.proc = psutil.Process()
         self.path = path
         self.last_step = 0  # the last step whose row is on disk
+        self.fd = None
         try:
-            self.fh = open(path, "w", newline="")
-            self.fh.write(",".join(STEP_COLUMNS) + "\n")
-            self.fh.flush()
+            self.fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+            self.good = 0  # bytes of whole rows on disk
+            self._append(",".join(STEP_COLUMNS) + "\n")
         except OSError as e:
+            self._cut()
             raise RecordError(f"cannot write {path}: {e.strerror or e}") from None
-        self.good = self.fh.tell()  # bytes of whole rows on disk
         self.rows = []
         self.flush_rows = flush_rows
         self.flush_s = flush_s
@@ -131,7 +132,7 @@ class StepWriter:
     def flush(self):
         """Append the rows in memory; a failed write cuts the file back to its last whole row and
         raises RecordError (the rows not written are dropped)."""
-        if self.fh is None:
+        if self.fd is None:
             return
         self.rss = self.proc.memory_info().rss / 2**20
         lines = []
@@ -148,39 +149,42 @@ class StepWriter:
         if not lines:
             return
         try:
-            self.fh.write("".join(lines))
-            self.fh.flush()
+            self._append("".join(lines))
         except OSError as e:
             self._cut()
             raise RecordError(f"cannot write {self.path}: {e.strerror or e} (rows up to step {self.last_step} "
                               f"kept)") from None
-        self.good = self.fh.tell()
         self.last_step = last
+
+    def _append(self, text):
+        """Write `text` at the end of the whole rows with os.write, no buffer between: a failed
+        write leaves nothing queued that a later close could put past the cut."""
+        data = memoryview(text.encode())
+        size = len(data)
+        while data:
+            data = data[os.write(self.fd, data):]
+        self.good += size
 
     def _cut(self):
         """Back to the last whole row (a failed write may leave part of one), and stop writing."""
-        fh, self.fh = self.fh, None
+        fd, self.fd = self.fd, None
+        if fd is None:
+            return
         try:
-            os.truncate(self.path, self.good)
+            os.ftruncate(fd, self.good)
         except OSError:
             pass
-        try:
-            fh.close()
-        except OSError:  # the buffer that could not be written: dropped, the file cut above
-            try:
-                os.truncate(self.path, self.good)
-            except OSError:
-                pass
+        os.close(fd)
 
     def close(self):
-        if self.fh is None:
+        if self.fd is None:
             return
         try:
             self.flush()
         finally:
-            if self.fh is not None:
-                fh, self.fh = self.fh, None
-                fh.close()
+            if self.fd is not None:
+                fd, self.fd = self.fd, None
+                os.close(fd)
 
 
 class Reserve:
