@@ -8,7 +8,11 @@ is resolved by exactly one thread, and nothing else reads its record meanwhile. 
 resolved concurrently (threads) it writes the pair's forces into pf [m, PF_LEN], in pair order (a
 sequential stream: scattering them to the two ends' rows was measured 3x dearer on a 10k sphere
 bed, the stores missing the cache); one thread over gid-sorted pairs adds them to the two ends
-as it goes instead, and stores no per-pair force (resolve_range, accumulate).
+as it goes instead, and stores no per-pair force (resolve_range, deliver = SUM). Threads over
+contiguous ranges of the gid-sorted list (deliver = SPLIT) do the same for every particle whose
+pairs all lie in one range, and store pf only for the pairs of the others (gat [n_owned] = 1),
+which gather: a range's thread is then the only writer of its particles' sums, and each sum
+still receives its terms in ascending partner gid.
 
 Determinism (DESIGN.md): particle p then sums its pair contributions in ascending partner gid
 (the adjacency of dem.pairs, sorted once per rebuild), then its walls in wall order. The result
@@ -35,7 +39,8 @@ measured 3x dearer per call, 4 us for 14 arrays, which a 48-particle step cannot
           wall_hist [n, w, HIST_LEN]): wall_arrays
 - plist   (pi, pj [m], hist [m, HIST_LEN], on [m] int8, pf [m, PF_LEN]): the pair list
           (dem.pairs.PairList.arrays)
-- adj     (adj_start [n_owned+1], adj_items, on, pf, near [n_owned] int8): each particle's pairs
+- adj     (adj_start [n_owned+1], adj_items, on, pf, near [n_owned] int8, gat [n_owned] int8 or
+          empty): each particle's pairs
           (dem.pairs.PairList.gather_arrays)
 - gravity (gx, gy, gz [m/s^2], has_gravity)
 """
@@ -59,6 +64,12 @@ PF_F = 0       # force on j [3] [N] (i gets the exact negation)
 PF_TI = 3      # torque on i about its mass centre [3] [N m]
 PF_TJ = 6      # torque on j [3] [N m]
 PF_LEN = 9
+
+# how a resolution hands on the pair forces (the `deliver` argument): STORE every pair's into pf
+# (each particle gathers them), SUM them into the ends' force and torque as it goes (one thread,
+# pairs sorted by gid), SPLIT: SUM for the particles with gat[p] == 0, STORE for the pairs that
+# touch one with gat[p] == 1 (threads over ranges of the gid-sorted list: modes.parallel)
+STORE, SUM, SPLIT = 0, 1, 2
 
 # ellipsoid contact methods (dem.contact.CONTACT_METHODS; dem/contact/methods.py): index = the `method` argument
 EXACT, PW, SEXTIC = 0, 1, 2
@@ -155,12 +166,32 @@ def _store_history(hist, k, f, nx, ny, nz, lam):
 
 @njit(cache=True, inline="always")
 def _deliver(k, i, j, f, sums):
-    """Hand the forces of touching pair k (contact_force's tuple f) on: sums = (accumulate, pf,
-    force, torque, n_owned). accumulate (one thread, pairs in gid order: see resolve_range) adds
+    """Hand the forces of touching pair k (contact_force's tuple f) on: sums = (deliver, pf,
+    force, torque, n_owned, gat). SUM (one thread, pairs in gid order: see resolve_range) adds
     them to the owned ends, force[i] -= F, torque[i] += T_i, force[j] += F, torque[j] += T_j, and
-    writes nothing per pair; else they are stored in pf[k] for the gather (finish_range)."""
-    accumulate, pf, force, torque, n_owned = sums
-    if accumulate:
+    writes nothing per pair; STORE writes them to pf[k] for the gather (finish_range); SPLIT adds
+    them to the owned ends with gat == 0 and stores them when an owned end has gat == 1."""
+    deliver, pf, force, torque, n_owned, gat = sums
+    if deliver == SPLIT:
+        gi = i < n_owned and gat[i] != 0
+        gj = j < n_owned and gat[j] != 0
+        if i < n_owned and not gi:
+            force[i, 0] -= f[0]
+            force[i, 1] -= f[1]
+            force[i, 2] -= f[2]
+            torque[i, 0] += f[3]
+            torque[i, 1] += f[4]
+            torque[i, 2] += f[5]
+        if j < n_owned and not gj:
+            force[j, 0] += f[0]
+            force[j, 1] += f[1]
+            force[j, 2] += f[2]
+            torque[j, 0] += f[6]
+            torque[j, 1] += f[7]
+            torque[j, 2] += f[8]
+        if not (gi or gj):
+            return
+    elif deliver == SUM:
         if i < n_owned:
             force[i, 0] -= f[0]
             force[i, 1] -= f[1]
@@ -327,10 +358,10 @@ def pair_contacts(pi, pj, pos, rot, axes, shape, method, poly_scene, polys, rows
 
 
 @njit(cache=True, _nrt=False)
-def _resolve_spheres(k0, k1, plist, bodies, law, dt, accumulate, n_owned):
+def _resolve_spheres(k0, k1, plist, bodies, law, dt, deliver, n_owned, gat):
     """The sphere loop: no solver in it, so a sphere scene neither runs nor carries one."""
     pi, pj, _, _, pf = plist
-    sums = (accumulate, pf, bodies[10], bodies[11], n_owned)
+    sums = (deliver, pf, bodies[10], bodies[11], n_owned, gat)
     nc = 0
     worst = 0.0
     worst_k = -1
@@ -347,12 +378,12 @@ def _resolve_spheres(k0, k1, plist, bodies, law, dt, accumulate, n_owned):
 
 
 @njit(cache=True, _nrt=False)
-def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, poly_scene, accumulate, n_owned, out, n0):
+def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, poly_scene, deliver, n_owned, gat, out, n0):
     """The loop of a scene with ellipsoids (and poly-ellipsoids when poly_scene): closed form for
     two spheres, the bounding-sphere test, then the solver of the pair's shapes."""
     pi, pj, hist, on, pf = plist
     pos, _, _, _, _, _, shape, axes, rbound, _, force, torque, rot, _ = bodies
-    sums = (accumulate, pf, force, torque, n_owned)
+    sums = (deliver, pf, force, torque, n_owned, gat)
     nc = 0
     calls = 0
     worst = 0.0
@@ -381,30 +412,32 @@ def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, poly_scen
 
 
 @njit(cache=True, _nrt=False)
-def resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, accumulate, n_owned, out, n0):
+def resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, deliver, n_owned, gat, out, n0):
     """Resolve pairs k0..k1-1 of the pair list plist: geometry (closed form for two spheres;
     otherwise the ellipsoid method CONTACT_METHODS[method]: EXACT = PW + Newton on S^2, PW =
     Perram-Wertheim depth only, SEXTIC = Yan 2010; poly-ellipsoids by the octant active set on
     polys), then the contact law (law tables, time step dt [s]). Updates hist [m, HIST_LEN] and
     on [m] in place (on[k] = 1: touching; its history is valid) and writes the forces of the
-    touching pairs into pf [m, PF_LEN]; accumulate (one thread, pairs in ascending (gid_i, gid_j):
+    touching pairs into pf [m, PF_LEN] (deliver = STORE); SUM (one thread, pairs in ascending (gid_i, gid_j):
     dem.pairs.PairList.set(by_gid=True)) instead sums them into the bodies' force, torque [n, 3] of
     the owned particles 0..n_owned-1 as it goes (zeroed first), as LAMMPS does: in that order each
     particle receives its contributions in ascending partner gid, the order of the gather
     (finish_range), so both strategies give the same bits; it spares pf and the gather's second
-    pass over the pairs. Threads leave it False (their pairs are resolved concurrently). kind (SPHERE,
+    pass over the pairs. Threads whose pairs are resolved concurrently in any order STORE; threads over
+    contiguous ranges of the sorted list SPLIT (see _deliver: gat [n_owned] int8 marks the particles
+    with pairs in two ranges; the caller zeroes the others' force and torque). kind (SPHERE,
     ELLIPSOID, POLY) picks the loop, so a scene pays only for the solvers its shapes use. out
     [OUT_LEN], n0 [3] are scratch. Returns RESOLVED: (contacts, solver calls, largest depth ratio
     = depth over the smaller minimum semi-axis, its pair or -1, sum of the depth ratios)."""
-    if accumulate:
+    if deliver == SUM:
         force, torque = bodies[10], bodies[11]
         for p in range(n_owned):
             for c in range(3):
                 force[p, c] = 0.0
                 torque[p, c] = 0.0
     if kind == SPHERE:
-        return _resolve_spheres(k0, k1, plist, bodies, law, dt, accumulate, n_owned)
-    return _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, kind == POLY, accumulate, n_owned,
+        return _resolve_spheres(k0, k1, plist, bodies, law, dt, deliver, n_owned, gat)
+    return _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, kind == POLY, deliver, n_owned, gat,
                                out, n0)
 
 
@@ -570,11 +603,11 @@ def _fold(acc, p, touching, worst, ke, wg, bad, d2):
 @njit(cache=True, inline="always")
 def _finish_particle(p, spheres, gathered, adj, bodies, walls, polys, gravity, dt, poly_scene, ref, out, acc):
     """finish_range's work for particle p, folded into the running FINISHED tuple acc."""
-    adj_start, adj_items, on, pf, near = adj
+    adj_start, adj_items, on, pf, near, gat = adj
     pos, vel, quat, angmom, mass, inertia, shape, axes, _, _, force, torque, rot, omega = bodies
     poly, oorg, orot, ax6 = polys
     gx, gy, gz, _ = gravity
-    if gathered:
+    if gathered == SUM or (gathered == SPLIT and gat[p] == 0):
         fx, fy, fz = force[p, 0], force[p, 1], force[p, 2]
         tx, ty, tz = torque[p, 0], torque[p, 1], torque[p, 2]
     else:
@@ -597,7 +630,8 @@ def finish_range(p0, p1, spheres, gathered, adj, bodies, walls, polys, gravity, 
     """The rest of the step for owned particles p0..p1-1, one particle at a time:
     1. gather: sum the forces and torques of particle p's touching pairs in ascending partner gid
        (adj: adjacency adj_start [n_owned+1], adj_items = 2 k + (1 if p is pair k's j end)), or,
-       when gathered, take force[p], torque[p] as resolve_range(accumulate=True) left them;
+       or take force[p], torque[p] as resolve_range left them: gathered is the resolution's deliver
+       (STORE: gather all; SUM: take all; SPLIT: gather those with gat[p] == 1, take the others);
     2. walls in wall order for the particles of the wall list near [n_owned] (wall_candidates, at
        each rebuild), giving force[p], torque[p];
     3. integration (dem.integrate: leapfrog, symplectic rotation, gravity [m/s^2] when it has one);

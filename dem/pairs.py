@@ -21,7 +21,7 @@ both ends hold identical rows). This is LAMMPS' fix neigh/history in kind.
 import numpy as np
 from numba import njit
 
-from dem.forces import PF_LEN
+from dem.forces import PF_LEN, SUM
 from dem.state import HIST_LEN
 
 # The default skin, as a fraction F of the largest bounding diameter d. Candidates grow about as
@@ -270,13 +270,15 @@ class PairList:
         """The resolution kernels' plist group (pi, pj, hist, on, pf) (dem.forces)."""
         return self.pi, self.pj, self.hist, self.on, self.pf
 
-    def gather_arrays(self, summed):
-        """The finish kernels' adj group (adj_start, adj_items, on, pf, near) (dem.forces); where
-        the forces are summed as the pairs are resolved (summed) nothing gathers, and the
-        adjacency is left unbuilt (empty arrays of its types take its place)."""
-        adj_start, adj_items = (np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64)) if summed \
+    def gather_arrays(self, deliver, gat):
+        """The finish kernels' adj group (adj_start, adj_items, on, pf, near, gat) (dem.forces) for a
+        resolution that delivers its forces by `deliver` (dem.forces STORE, SUM, SPLIT; gat [n_owned]
+        int8 the particles that gather under SPLIT, else empty); where every sum is made as the
+        pairs are resolved (SUM) nothing gathers, and the adjacency is left unbuilt (empty arrays
+        of its types take its place)."""
+        adj_start, adj_items = (np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64)) if deliver == SUM \
             else self.adjacency()
-        return adj_start, adj_items, self.on, self.pf, self.near
+        return adj_start, adj_items, self.on, self.pf, self.near, gat
 
     def adjacency(self):
         """(adj_start [n_owned+1], adj_items): each owned particle's pairs in ascending partner gid."""

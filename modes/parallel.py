@@ -11,11 +11,19 @@ of contact detection (neighbour estimate + contact resolution) for all-pairs and
 - dynamic:   rows (and then candidate pairs) handed out at run time in small chunks from a
              shared atomic counter, so it is really dynamic on the default omp layer too
              (numba's prange chunk size only balances on tbb).
-A thread resolves the contacts it found at the last neighbour rebuild (the paper's loop: for
-each i, find and resolve its pairs), except dynamic, which also hands out the pair resolution in
-chunks, and static, which pranges over the pairs. The per-particle pass (gather, walls,
-integration, derived quantities) is split in T contiguous blocks. Results never depend on the scheme (DESIGN.md, Determinism): pairs are
-resolved independently and gathered per particle in ascending partner id.
+Contact resolution: under frogleap and headtail a thread resolves the contacts it found at the
+last neighbour rebuild (the paper's loop: for each i, find and resolve its pairs), stores each
+pair's forces, and every particle gathers its own (dem.forces, STORE). Under partition, static
+and dynamic the list is sorted by global id and cut, at each rebuild, into T contiguous ranges
+of whole rows (split_pairs): equal rows (partition), equal pairs (static), or equal estimated
+work, a pair whose bounding spheres overlap counting SOLVER_WEIGHT apart ones (dynamic, which
+re-balances at every rebuild instead of handing out chunks). Thread t resolves range t and sums
+the forces of the particles whose pairs all lie in it as it goes, as one thread does (SPLIT);
+only the particles with pairs in two ranges gather. Where the ranges hold many particles this
+spares the gather and the per-pair stores: on 12k packed ellipsoids the gather alone cost as
+much as the rest of the per-particle pass. The per-particle pass (gather, walls, integration,
+derived quantities) is split in T contiguous blocks. Results never depend on the scheme or the
+split (DESIGN.md, Determinism): each particle receives its pair terms in ascending partner id.
 
 Busy time per thread is read from the CPU cycle counter around each thread's share of a phase
 (the scheduling level, not inside the physics) and converted to seconds by `cycles_per_second`.
@@ -28,16 +36,18 @@ from numba import get_thread_id, njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from dem.forces import finish_range, resolve_range
+from dem.forces import SPLIT, finish_range, resolve_range
 from dem.integrate import derive_all
 from dem.neighbor import HALF_SHELL, scan_rows
 
 SCHEMES = ("partition", "frogleap", "headtail", "static", "dynamic")
+PARTITION = 0
 STATIC = 3
 DYNAMIC = 4
 STATIC_BLOCK = 64     # rows or pairs per prange iteration of the static scheme
 DYNAMIC_ROWS = 16     # rows per dynamic hand-out
-DYNAMIC_PAIRS = 64    # candidate pairs per dynamic hand-out
+DYNAMIC_PAIRS = 64    # candidate pairs per dynamic hand-out (frogleap and headtail lists: none)
+SOLVER_WEIGHT = 8.0   # dynamic split: a pair that reaches a solver against one that fails the bounding test
 
 
 @intrinsic
@@ -159,6 +169,67 @@ def compact_pairs(threads, pi_t, pj_t, offsets, pi, pj):
             pj[o + k] = pj_t[t, k]
 
 
+@njit(cache=True)
+def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, bounds, gat, home_start, home_items):
+    """Cut the gid-sorted pair list (pi, pj [m]: rows of equal pi contiguous) into T ranges of whole
+    rows, bounds [T+1] (pair indices), by the scheme `code`: equal rows (PARTITION), equal estimated
+    work (DYNAMIC: SOLVER_WEIGHT for a pair whose bounding spheres of radii rbound [n] [m] overlap at
+    pos [n,3] [m], 1 for the others), equal pairs (otherwise). Then gat [n_owned] int8 = 1 for
+    the owned particles with pairs in two ranges (they gather), and each range's other particles,
+    those it alone sums (plus, in range 0, the particles without pairs): home_items [n_owned -
+    gathered] grouped by range, home_start [T+1]; their force and torque are zeroed by the thread of
+    their range before it resolves (dem.forces.resolve_range, SPLIT)."""
+    m = pi.shape[0]
+    w = np.empty(m)
+    total = 0.0
+    for k in range(m):
+        if code == PARTITION:
+            w[k] = 1.0 if k == 0 or pi[k] != pi[k - 1] else 0.0
+        elif code == DYNAMIC:
+            i = pi[k]
+            j = pj[k]
+            d2 = (pos[j, 0] - pos[i, 0]) ** 2 + (pos[j, 1] - pos[i, 1]) ** 2 + (pos[j, 2] - pos[i, 2]) ** 2
+            w[k] = SOLVER_WEIGHT if d2 < (rbound[i] + rbound[j]) ** 2 else 1.0
+        else:
+            w[k] = 1.0
+        total += w[k]
+    bounds[0] = 0
+    t = 1
+    acc = 0.0
+    for k in range(m):
+        if k == 0 or pi[k] != pi[k - 1]:
+            while t < threads and acc >= t * total / threads:
+                bounds[t] = k
+                t += 1
+        acc += w[k]
+    while t <= threads:
+        bounds[t] = m
+        t += 1
+    home = np.full(n_owned, -1, dtype=np.int64)
+    gat[:] = 0
+    for t in range(threads):
+        for k in range(bounds[t], bounds[t + 1]):
+            for e in (pi[k], pj[k]):
+                if e < n_owned:
+                    if home[e] < 0:
+                        home[e] = t
+                    elif home[e] != t:
+                        gat[e] = 1
+    home_start[:] = 0
+    for p in range(n_owned):
+        if gat[p] == 0:
+            home_start[max(home[p], 0) + 1] += 1
+    for t in range(threads):
+        home_start[t + 1] += home_start[t]
+    fill = home_start[:threads].copy()
+    for p in range(n_owned):
+        if gat[p] == 0:
+            t = max(home[p], 0)
+            home_items[fill[t]] = p
+            fill[t] += 1
+    return home_start[threads]
+
+
 RED_LEN = 5      # per-thread row of dem.forces.RESOLVED
 FIN_LEN = 8      # per-thread row of dem.forces.FINISHED
 
@@ -175,25 +246,43 @@ def _fold_resolved(red, t, r):
 
 
 @njit(parallel=True, cache=True)
-def resolve_threads(code, threads, offsets, kind, method, plist, bodies, polys, law, dt, scratch):
+def resolve_threads(code, threads, offsets, kind, method, plist, bodies, polys, law, dt, scratch, split):
     """Contact resolution of the pair list under a scheme (dem.forces.resolve_range, argument
-    groups as there). Explicit schemes: thread t resolves the pairs it found,
+    groups as there). split = (deliver, n_owned, gat, home_start, home_items): with deliver SPLIT
+    (a gid-sorted list cut by split_pairs into the ranges offsets [T+1]) thread t zeroes the force
+    and torque of its range's particles home_items[home_start[t]:home_start[t+1]], then resolves
+    the pairs offsets[t]..offsets[t+1] summing theirs; else (STORE) every pair's forces are stored
+    for the gather, under frogleap and headtail thread t resolving the pairs it found,
     offsets[t]..offsets[t+1]; static: prange over blocks of STATIC_BLOCK pairs; dynamic: chunks of
     DYNAMIC_PAIRS from the atomic counter [1]. scratch = (outs [T, >= OUT_LEN], n0s [T, >= 3]
     per-thread scratch, counter [1], red [T, >= RED_LEN] per-thread reductions, busy [T, >= 1]
     cycles (column 0)); rows padded apart so that no two threads write one cache line.
     Returns dem.forces.RESOLVED over all threads."""
     outs, n0s, counter, red, busy = scratch
+    deliver, n_owned, gat, home_start, home_items = split
     m = offsets[threads]
     red[:, :] = 0.0
     red[:, 3] = -1.0
-    if code == STATIC:
+    if deliver == SPLIT:
+        force, torque = bodies[10], bodies[11]
+        for t in prange(threads):
+            c0 = cycle_counter()
+            for u in range(home_start[t], home_start[t + 1]):
+                p = home_items[u]
+                for c in range(3):
+                    force[p, c] = 0.0
+                    torque[p, c] = 0.0
+            r = resolve_range(kind, method, offsets[t], offsets[t + 1], plist, bodies, polys, law, dt, SPLIT, n_owned,
+                              gat, outs[t], n0s[t])
+            _fold_resolved(red, t, r)
+            busy[t, 0] += cycle_counter() - c0
+    elif code == STATIC:
         for b in prange((m + STATIC_BLOCK - 1) // STATIC_BLOCK):
             t = get_thread_id()
             c0 = cycle_counter()
             k = b * STATIC_BLOCK
-            r = resolve_range(kind, method, k, min(m, k + STATIC_BLOCK), plist, bodies, polys, law, dt, False, 0,
-                              outs[t], n0s[t])
+            r = resolve_range(kind, method, k, min(m, k + STATIC_BLOCK), plist, bodies, polys, law, dt, deliver,
+                              n_owned, gat, outs[t], n0s[t])
             _fold_resolved(red, t, r)
             busy[t, 0] += cycle_counter() - c0
     else:
@@ -208,7 +297,8 @@ def resolve_threads(code, threads, offsets, kind, method, plist, bodies, polys, 
                     if k0 >= m:
                         break
                     k1 = min(m, k0 + DYNAMIC_PAIRS)
-                r = resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, False, 0, outs[t], n0s[t])
+                r = resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, deliver, n_owned, gat, outs[t],
+                                  n0s[t])
                 _fold_resolved(red, t, r)
                 if code != DYNAMIC:
                     break

@@ -16,7 +16,8 @@ import numpy as np
 
 from dem.contact.ellipsoid import OUT_LEN
 from dem.contact import CONTACT_METHODS
-from dem.forces import body_arrays, finish_range, law_tables, resolve_range, scene_kind, wall_arrays, wall_candidates
+from dem.forces import (SUM, STORE, body_arrays, finish_range, law_tables, resolve_range, scene_kind, wall_arrays,
+                        wall_candidates)
 from dem.integrate import derive_all
 from dem.neighbor import cell_order, find_pairs
 from dem.pairs import DEFAULT_SKIN, PairList
@@ -38,7 +39,7 @@ class SerialMode:
     clock = staticmethod(time.perf_counter)
     collective = False   # whether decide() communicates (its time is then commuT)
     guard_overlap = 0.05  # the stability guard's overlap limit (bench.run.guard sets it)
-    accumulate = True     # one thread sums the pair forces as it resolves them (dem.forces.resolve_range)
+    deliver = SUM         # one thread sums the pair forces as it resolves them (dem.forces.resolve_range)
     migrates = False      # particles change rank at rebuilds (MPI): history then travels through the state
 
     def setup(self, scene, dt, neighbor="linkcell", skin=None, contact_method="exact", **options):
@@ -76,6 +77,7 @@ class SerialMode:
         self.rot = None
         self.out = np.zeros(OUT_LEN)
         self.n0 = np.zeros(3)
+        self.gat = np.zeros(0, dtype=np.int8)   # the particles that gather (threads: SPLIT)
         self.ensure_derived()
 
     def warmup(self):
@@ -137,12 +139,12 @@ class SerialMode:
 
     def reorder(self):
         """With a skin, re-sort the owned particles at each rebuild, for locality (memory order never
-        changes results: DESIGN.md, Determinism): by global id where one thread resolves the pairs
-        in gid order (accumulate), else in space (cell order)."""
+        changes results: DESIGN.md, Determinism): by global id where the pairs are resolved in gid
+        order (one thread, or threads over ranges of the sorted list), else in space (cell order)."""
         s = self.state
         if self.skin <= 0 or s.n != s.n_owned or s.n < 2:
             return
-        if self.accumulate:
+        if self.deliver != STORE:
             if np.any(s.gid[1:] < s.gid[:-1]):
                 s.permute(np.argsort(s.gid, kind="stable"))
         else:
@@ -166,12 +168,16 @@ class SerialMode:
         # the first build takes the state's own (loaded) history; later ones carry the list's own
         # unless particles migrated (their rows came through the state)
         carry = bool(self.pairs.rebuilds) and not self.migrates
-        self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos, by_gid=self.accumulate,
+        self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos, by_gid=self.deliver != STORE,
                        carry=carry)
         self.pairs.near = np.zeros(s.n_owned, dtype=np.int8)
         wall_candidates(s.n_owned, s.pos, reach, *self.wall_planes(), s.wall_hist, self.pairs.near)
         self.plist = self.pairs.arrays
-        self.adj = self.pairs.gather_arrays(self.accumulate)
+        self.split()
+        self.adj = self.pairs.gather_arrays(self.deliver, self.gat)
+
+    def split(self):
+        """Who resolves which pairs of a new list (threads: modes/threads.py); nothing here."""
 
     def migrate(self):
         """Hand particles that left the block to their new owner (MPI); returns how many left."""
@@ -194,7 +200,7 @@ class SerialMode:
     def resolve(self):
         """Contact resolution of the pair list; returns dem.forces.RESOLVED."""
         return resolve_range(self.kind, self.method, 0, self.pairs.m, self.plist, self.bodies, self.polys, self.law,
-                             self.dt, self.accumulate, self.state.n_owned, self.out, self.n0)
+                             self.dt, self.deliver, self.state.n_owned, self.gat, self.out, self.n0)
 
     @property
     def has_walls(self):
@@ -212,7 +218,7 @@ class SerialMode:
 
     def finish(self):
         """Gather, walls, integration, derived quantities and guard sums; returns dem.forces.FINISHED."""
-        return finish_range(0, self.state.n_owned, self.kind == SPHERE, self.accumulate, self.adj, self.bodies,
+        return finish_range(0, self.state.n_owned, self.kind == SPHERE, self.deliver, self.adj, self.bodies,
                             self.walls(), self.polys, self.gravity, self.dt, self.kind == POLY, self.pairs.ref,
                             self.out)
 

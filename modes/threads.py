@@ -2,7 +2,8 @@
 
 The step is the serial one (modes/serial.py) with each phase's loop run by modes/parallel.py:
 contact detection (neighbour scan on rebuilds, contact resolution every step) under the chosen
-scheme, and, unless `threaded = "detection"` (the paper's situation, for the Amdahl ceiling it
+scheme (resolution over ranges of the gid-sorted list that sum as they go, unless split=False or
+the scheme is frogleap or headtail: modes/parallel.py), and, unless `threaded = "detection"` (the paper's situation, for the Amdahl ceiling it
 reports), the per-particle pass (gather, walls, integration, derived quantities) in T
 contiguous blocks. The pair adjacency (a counting sort, once per rebuild) stays serial.
 """
@@ -10,6 +11,7 @@ import numpy as np
 import numba
 
 from dem.contact.ellipsoid import OUT_LEN
+from dem.forces import SPLIT, STORE
 from dem.shapes import POLY, SPHERE
 from dem.neighbor import CellGrid
 from modes.base import ModeError, register
@@ -30,11 +32,14 @@ def cycles_per_second():
 @register("threads")
 class ThreadsMode(SerialMode):
     """options: threads T, scheme (partition | frogleap | headtail | static | dynamic),
-    threaded ("step": every phase; "detection": only neighbour estimate + resolution)."""
+    threaded ("step": every phase; "detection": only neighbour estimate + resolution), split
+    (partition, static, dynamic: resolve T ranges of the gid-sorted list, each summing its own
+    particles' forces (True, the default), or hand the pairs out as the scheme does, every pair's
+    forces stored and gathered (False))."""
 
-    accumulate = False   # pairs resolved concurrently: each particle gathers its own (dem.forces)
+    deliver = STORE   # how the resolution hands on the pair forces (dem.forces; set by setup)
 
-    def setup(self, scene, dt, threads=2, scheme="dynamic", threaded="step", **kw):
+    def setup(self, scene, dt, threads=2, scheme="dynamic", threaded="step", split=True, **kw):
         if scheme not in par.SCHEMES:
             raise ModeError(f"unknown scheme {scheme!r} (schemes: {', '.join(par.SCHEMES)})")
         if threaded not in ("step", "detection"):
@@ -48,6 +53,9 @@ class ThreadsMode(SerialMode):
         self.scheme = scheme
         self.code = par.SCHEMES.index(scheme)
         self.threaded = threaded
+        if not isinstance(split, (bool, np.bool_)):
+            raise ModeError(f"split must be true or false, got {split!r}")
+        self.deliver = SPLIT if split and scheme in ("partition", "static", "dynamic") else STORE
         numba.set_num_threads(self.threads)
         self.cap = 1024
         self.scan_busy = np.zeros(self.threads, dtype=np.int64)
@@ -105,10 +113,27 @@ class ThreadsMode(SerialMode):
         self.work_imbalance = float(self.tests.max() / max(self.tests.mean(), 1e-300))
         return m
 
+    def split(self):
+        """Under SPLIT: the T ranges of the new (gid-sorted) list, the particles that gather, and
+        those each range's thread zeroes and sums (modes.parallel.split_pairs)."""
+        s = self.state
+        if self.deliver != SPLIT:
+            self.ranges = (STORE, s.n_owned, self.gat, np.zeros(self.threads + 1, dtype=np.int64),
+                           np.zeros(0, dtype=np.int64))
+            return
+        bounds = np.zeros(self.threads + 1, dtype=np.int64)
+        self.gat = np.zeros(s.n_owned, dtype=np.int8)
+        home_start = np.zeros(self.threads + 1, dtype=np.int64)
+        home_items = np.zeros(s.n_owned, dtype=np.int64)
+        par.split_pairs(self.code, self.threads, self.pairs.pi, self.pairs.pj, s.n_owned, s.pos, s.rbound, bounds,
+                        self.gat, home_start, home_items)
+        self.pairs.offsets = bounds
+        self.ranges = (SPLIT, s.n_owned, self.gat, home_start, home_items)
+
     def resolve(self):
         self.busy_rows[:, 0] = 0
         return par.resolve_threads(self.code, self.threads, self.pairs.offsets, self.kind, self.method, self.plist,
-                                   self.bodies, self.polys, self.law, self.dt, self.scratch)
+                                   self.bodies, self.polys, self.law, self.dt, self.scratch, self.ranges)
 
     # --- the rest of the step --------------------------------------------------------------------
     def derive(self, lo, hi):
@@ -120,9 +145,9 @@ class ThreadsMode(SerialMode):
     def finish(self):
         if self.threaded != "step":
             return super().finish()
-        return par.finish_threads(self.threads, self.state.n_owned, self.kind == SPHERE, False, self.adj, self.bodies,
-                                  self.walls(), self.polys, self.gravity, self.dt, self.kind == POLY, self.pairs.ref,
-                                  self.outs, self.fin)
+        return par.finish_threads(self.threads, self.state.n_owned, self.kind == SPHERE, self.deliver, self.adj,
+                                  self.bodies, self.walls(), self.polys, self.gravity, self.dt, self.kind == POLY,
+                                  self.pairs.ref, self.outs, self.fin)
 
     def step(self):
         row = super().step()

@@ -44,6 +44,18 @@ def test_hybrid_bit_identical(tmp_path, tmp_path_factory, scheme):
     assert_same(ref, got)
 
 
+@pytest.mark.parametrize("mapping,scheme", [("2-2-1-1-2", "dynamic"), ("2-1-2-1-3", "static")])
+def test_hybrid_patch162_bit_identical(tmp_path, tmp_path_factory, mapping, scheme):
+    """Hybrid on the patch test: each rank's threads resolve ranges of its gid-sorted list, whose
+    pairs reach ghosts (never summed there) and particles of two ranges (gathered); the contacts
+    cross block borders from step 1; bit-identical to serial."""
+    ref = serial_state(tmp_path_factory, "patch162", 150)
+    got, steps, info = mpi_run(tmp_path, "patch162", 150, mapping, "--scheme", scheme)
+    assert info["threads"] == int(mapping.split("-")[-1])
+    assert steps["n_ghost"].sum() > 0 and steps["n_contacts"].sum() > 0
+    assert_same(ref, got)
+
+
 def scene_with(particles, box="[[0.0, 0.0, 0.0], [0.02, 0.02, 0.02]]"):
     head = GOOD.split("[[particles]]")[0].replace('box = [[0.0, 0.0, 0.0], [0.02, 0.02, 0.04]]', f"box = {box}")
     head = head.replace('gravity = [0.0, 0.0, -9.81]', 'gravity = [0.0, 0.0, -9.81]')

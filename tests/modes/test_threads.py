@@ -8,7 +8,7 @@ import pytest
 
 from bench.run.prepare import load_prepared
 from dem.timestep import choose_time_step
-from modes.parallel import SCHEMES, scheme_rows
+from modes.parallel import DYNAMIC, PARTITION, SCHEMES, STATIC, scheme_rows, split_pairs
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 from tests.helpers import bench, one_line_error
@@ -89,6 +89,79 @@ def test_skin_and_detection_only_bit_identical():
     assert_same(ref, got)
     got, _ = run("pluviation", 9000, 200, threads=3, scheme="headtail", threaded="detection")
     assert_same(ref, got)
+
+
+@pytest.mark.parametrize("split", [True, False])
+@pytest.mark.parametrize("scheme", ["partition", "static", "dynamic"])
+def test_split_ranges_sum_and_gather_bit_identical(scheme, split):
+    """Threads over ranges of the gid-sorted pair list (split, the default): the particles whose
+    pairs all lie in one range are summed by its thread as it resolves, the others gather; with
+    split=False every pair's forces are stored and gathered. Both: the force and torque of every
+    particle and the final state after 40 steps (packed 400 ellipsoids, 3 threads, a rebuild with
+    history carried at step 1) equal serial's exactly, and under split both kinds of particle
+    occur (a test of the two paths, not of one)."""
+    def go(threads):
+        sc = load_prepared("packed", particles=400)
+        dt = choose_time_step(sc).dt
+        mode = ThreadsMode().setup(sc, dt=dt, threads=threads, scheme=scheme, split=split) if threads > 1 else \
+            SerialMode().setup(sc, dt=dt)
+        for _ in range(40):
+            mode.step()
+        s = mode.state
+        order = np.argsort(s.gid[:s.n_owned])
+        return mode, mode.snapshot(), s.force[order].copy(), s.torque[order].copy()
+    ref, ref_snap, ref_f, ref_t = go(1)
+    mode, snap, f, t = go(3)
+    assert_same(ref_snap, snap)
+    assert np.array_equal(ref_f, f) and np.array_equal(ref_t, t)
+    if split:
+        assert mode.deliver == 2 and 0 < int(mode.gat.sum()) < mode.state.n_owned
+    else:
+        assert mode.deliver == 0
+
+
+@pytest.mark.parametrize("code", [PARTITION, STATIC, DYNAMIC])
+@pytest.mark.parametrize("threads", [1, 2, 3, 5])
+def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads):
+    """split_pairs on a random gid-sorted list of 600 pairs over 150 particles (some without pairs):
+    the T ranges start at row starts and cover the list in order; gat[p] = 1 exactly for the
+    particles with pairs in two ranges (by brute force); every other particle is zeroed by exactly
+    one range, its own (range 0 for those without pairs); static ranges hold m/T pairs to within
+    one row."""
+    rng = np.random.default_rng(7)
+    n = 150
+    i = rng.integers(0, n - 1, 600)
+    j = np.minimum(i + rng.integers(1, 30, 600), n - 1)
+    keys = np.unique(np.stack([i, j], axis=1), axis=0)
+    keys = keys[keys[:, 0] < keys[:, 1]]
+    pi, pj = keys[:, 0].copy(), keys[:, 1].copy()
+    m = len(pi)
+    pos = rng.random((n, 3))
+    rbound = np.full(n, 0.1)
+    bounds = np.zeros(threads + 1, dtype=np.int64)
+    gat = np.zeros(n, dtype=np.int8)
+    home_start = np.zeros(threads + 1, dtype=np.int64)
+    home_items = np.zeros(n, dtype=np.int64)
+    split_pairs(code, threads, pi, pj, n, pos, rbound, bounds, gat, home_start, home_items)
+    assert bounds[0] == 0 and bounds[-1] == m and np.all(np.diff(bounds) >= 0)
+    assert all(b in (0, m) or pi[b] != pi[b - 1] for b in bounds)
+    rng_of = np.searchsorted(bounds, np.arange(m), side="right") - 1
+    ranges = [set() for _ in range(n)]
+    for k in range(m):
+        ranges[pi[k]].add(rng_of[k])
+        ranges[pj[k]].add(rng_of[k])
+    assert [int(g) for g in gat] == [1 if len(r) > 1 else 0 for r in ranges]
+    assert (gat.sum() > 0) == (threads > 1)
+    zeroed = {}
+    for t in range(threads):
+        for p in home_items[home_start[t]:home_start[t + 1]]:
+            assert p not in zeroed
+            zeroed[int(p)] = t
+    assert sorted(zeroed) == [p for p in range(n) if gat[p] == 0]
+    assert all(zeroed[p] == (min(ranges[p]) if ranges[p] else 0) for p in zeroed)
+    if code == STATIC:
+        longest = np.max(np.unique(pi, return_counts=True)[1])
+        assert np.all(np.abs(np.diff(bounds) - m / threads) <= longest)
 
 
 @pytest.mark.parametrize("scheme", ["partition", "frogleap", "headtail"])
