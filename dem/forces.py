@@ -172,40 +172,29 @@ def _deliver(k, i, j, f, sums):
     writes nothing per pair; STORE writes them to pf[k] for the gather (finish_range); SPLIT adds
     them to the owned ends with gat == 0 and stores them when an owned end has gat == 1."""
     deliver, pf, force, torque, n_owned, gat = sums
-    if deliver == SPLIT:
+    if deliver == SUM:
+        sum_i, sum_j, store = i < n_owned, j < n_owned, False
+    elif deliver == SPLIT:
         gi = i < n_owned and gat[i] != 0
         gj = j < n_owned and gat[j] != 0
-        if i < n_owned and not gi:
-            force[i, 0] -= f[0]
-            force[i, 1] -= f[1]
-            force[i, 2] -= f[2]
-            torque[i, 0] += f[3]
-            torque[i, 1] += f[4]
-            torque[i, 2] += f[5]
-        if j < n_owned and not gj:
-            force[j, 0] += f[0]
-            force[j, 1] += f[1]
-            force[j, 2] += f[2]
-            torque[j, 0] += f[6]
-            torque[j, 1] += f[7]
-            torque[j, 2] += f[8]
-        if not (gi or gj):
-            return
-    elif deliver == SUM:
-        if i < n_owned:
-            force[i, 0] -= f[0]
-            force[i, 1] -= f[1]
-            force[i, 2] -= f[2]
-            torque[i, 0] += f[3]
-            torque[i, 1] += f[4]
-            torque[i, 2] += f[5]
-        if j < n_owned:
-            force[j, 0] += f[0]
-            force[j, 1] += f[1]
-            force[j, 2] += f[2]
-            torque[j, 0] += f[6]
-            torque[j, 1] += f[7]
-            torque[j, 2] += f[8]
+        sum_i, sum_j, store = i < n_owned and not gi, j < n_owned and not gj, gi or gj
+    else:
+        sum_i, sum_j, store = False, False, True
+    if sum_i:
+        force[i, 0] -= f[0]
+        force[i, 1] -= f[1]
+        force[i, 2] -= f[2]
+        torque[i, 0] += f[3]
+        torque[i, 1] += f[4]
+        torque[i, 2] += f[5]
+    if sum_j:
+        force[j, 0] += f[0]
+        force[j, 1] += f[1]
+        force[j, 2] += f[2]
+        torque[j, 0] += f[6]
+        torque[j, 1] += f[7]
+        torque[j, 2] += f[8]
+    if not store:
         return
     pf[k, PF_F] = f[0]
     pf[k, PF_F + 1] = f[1]
