@@ -245,9 +245,16 @@ def _lines(path):
         return 0
 
 
+def _as_in_a_terminal():
+    """SIGINT as a foreground command has it (Python then raises KeyboardInterrupt): a suite started
+    in the background of a non-interactive shell inherits SIGINT ignored, and so would the run."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(args, **kw):
     return subprocess.Popen([sys.executable, "-m", "bench", *args], cwd=ROOT, env=dict(os.environ, PYTHONPATH=ROOT),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True, **kw)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=_as_in_a_terminal, **kw)
 
 
 def _ours(out):
