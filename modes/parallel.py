@@ -46,7 +46,7 @@ STATIC = 3
 DYNAMIC = 4
 STATIC_BLOCK = 64     # rows or pairs per prange iteration of the static scheme
 DYNAMIC_ROWS = 16     # rows per dynamic hand-out
-DYNAMIC_PAIRS = 64    # candidate pairs per dynamic hand-out (frogleap and headtail lists: none)
+DYNAMIC_PAIRS = 64    # candidate pairs per dynamic hand-out (the dynamic scheme with split=False)
 SOLVER_WEIGHT = 8.0   # dynamic split: a pair that reaches a solver against one that fails the bounding test
 
 
@@ -178,7 +178,8 @@ def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, bounds, gat, home_s
     the owned particles with pairs in two ranges (they gather), and each range's other particles,
     those it alone sums (plus, in range 0, the particles without pairs): home_items [n_owned -
     gathered] grouped by range, home_start [T+1]; their force and torque are zeroed by the thread of
-    their range before it resolves (dem.forces.resolve_range, SPLIT)."""
+    their range before it resolves (dem.forces.resolve_range, SPLIT). Returns the number of
+    particles the ranges sum themselves."""
     m = pi.shape[0]
     w = np.empty(m)
     total = 0.0

@@ -181,8 +181,8 @@ class SerialMode:
         # the first build takes the state's own (loaded) history; later ones carry the list's own
         # unless particles migrated (their rows came through the state)
         carry = bool(self.pairs.rebuilds) and not self.migrates
-        self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos, by_gid=self.deliver != STORE,
-                       carry=carry)
+        self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos,
+                       by_gid=self.deliver != STORE, carry=carry)
         self.pairs.near = np.zeros(s.n_owned, dtype=np.int8)
         wall_candidates(s.n_owned, s.pos, reach, *self.wall_planes(), s.wall_hist, self.pairs.near)
         self.plist = self.pairs.arrays

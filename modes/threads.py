@@ -3,9 +3,10 @@
 The step is the serial one (modes/serial.py) with each phase's loop run by modes/parallel.py:
 contact detection (neighbour scan on rebuilds, contact resolution every step) under the chosen
 scheme (resolution over ranges of the gid-sorted list that sum as they go, unless split=False or
-the scheme is frogleap or headtail: modes/parallel.py), and, unless `threaded = "detection"` (the paper's situation, for the Amdahl ceiling it
-reports), the per-particle pass (gather, walls, integration, derived quantities) in T
-contiguous blocks. The pair adjacency (a counting sort, once per rebuild) stays serial.
+the scheme is frogleap or headtail: modes/parallel.py), and, unless `threaded = "detection"` (the
+paper's situation, for the Amdahl ceiling it reports), the per-particle pass (gather, walls,
+integration, derived quantities) in T contiguous blocks. The pair adjacency (a counting sort,
+once per rebuild) stays serial.
 """
 import numpy as np
 import numba

@@ -8,6 +8,7 @@ import pytest
 
 from bench.run.prepare import load_prepared
 from dem.timestep import choose_time_step
+from dem.forces import SPLIT, STORE
 from modes.parallel import DYNAMIC, PARTITION, SCHEMES, STATIC, scheme_rows, split_pairs
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
@@ -97,8 +98,8 @@ def test_split_ranges_sum_and_gather_bit_identical(scheme, split):
     """Threads over ranges of the gid-sorted pair list (split, the default): the particles whose
     pairs all lie in one range are summed by its thread as it resolves, the others gather; with
     split=False every pair's forces are stored and gathered. Both: the force and torque of every
-    particle and the final state after 40 steps (packed 400 ellipsoids, 3 threads, a rebuild with
-    history carried at step 1) equal serial's exactly, and under split both kinds of particle
+    particle and the final state after 40 steps (packed 400 ellipsoids, 3 threads, the list built
+    at step 1 with the pack's contact history) equal serial's exactly, and under split both kinds of particle
     occur (a test of the two paths, not of one)."""
     def go(threads):
         sc = load_prepared("packed", particles=400)
@@ -115,23 +116,23 @@ def test_split_ranges_sum_and_gather_bit_identical(scheme, split):
     assert_same(ref_snap, snap)
     assert np.array_equal(ref_f, f) and np.array_equal(ref_t, t)
     if split:
-        assert mode.deliver == 2 and 0 < int(mode.gat.sum()) < mode.state.n_owned
+        assert mode.deliver == SPLIT and 0 < int(mode.gat.sum()) < mode.state.n_owned
     else:
-        assert mode.deliver == 0
+        assert mode.deliver == STORE
 
 
 @pytest.mark.parametrize("code", [PARTITION, STATIC, DYNAMIC])
 @pytest.mark.parametrize("threads", [1, 2, 3, 5])
 def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads):
-    """split_pairs on a random gid-sorted list of 600 pairs over 150 particles (some without pairs):
-    the T ranges start at row starts and cover the list in order; gat[p] = 1 exactly for the
-    particles with pairs in two ranges (by brute force); every other particle is zeroed by exactly
-    one range, its own (range 0 for those without pairs); static ranges hold m/T pairs to within
-    one row."""
+    """split_pairs on a random gid-sorted list of up to 600 pairs among particles 0..119 of 150 (30
+    without pairs): the T ranges start at row starts and cover the list in order; gat[p] = 1
+    exactly for the particles with pairs in two ranges (by brute force); every other particle is
+    zeroed by exactly one range, its own (range 0 for those without pairs); static ranges hold m/T
+    pairs to within one row."""
     rng = np.random.default_rng(7)
     n = 150
-    i = rng.integers(0, n - 1, 600)
-    j = np.minimum(i + rng.integers(1, 30, 600), n - 1)
+    i = rng.integers(0, 119, 600)
+    j = np.minimum(i + rng.integers(1, 30, 600), 119)
     keys = np.unique(np.stack([i, j], axis=1), axis=0)
     keys = keys[keys[:, 0] < keys[:, 1]]
     pi, pj = keys[:, 0].copy(), keys[:, 1].copy()
