@@ -112,16 +112,21 @@ def build_parser():
     pf.add_argument("--steps", type=positive_int, default=None,
                     help="timed steps (default 20; --what skin: steps per round, default 1000)")
     pf.add_argument("--what", default="all",
-                    choices=["all", "pairs", "ellipsoids", "spheres", "comm", "overhead", "skin"],
+                    choices=["all", "pairs", "ellipsoids", "spheres", "comm", "overhead", "skin", "contention"],
                     help="comm: OSU-style ping-pong between neighbour ranks (latency, bandwidth, fitted "
                          "alpha/beta); overhead: the fixed cost of a step (48 particles) and 2 ranks against "
                          "serial with commuT + migraT against the wire; skin: the cost of a step against the "
-                         "Verlet skin (none of these is part of all)")
+                         "Verlet skin; contention: the efficiency ceiling of --procs workers that share "
+                         "nothing (independent serial copies of the scene at particles/procs each) (none of "
+                         "these is part of all)")
     pf.add_argument("--repeats", type=positive_int, default=3,
                     help="--what overhead: alternating runs per configuration; --what skin: round-robin "
                          "rounds; medians (default 3)")
     pf.add_argument("--procs", type=positive_int, default=None,
-                    help="--what comm: ranks, on the most cubic grid (default: the mapping's)")
+                    help="--what comm: ranks, on the most cubic grid (default: the mapping's); --what "
+                         "contention: workers (default 2)")
+    pf.add_argument("--scene", default="packed",
+                    help="--what contention: built-in scene name or a .toml file (default packed)")
     pf.add_argument("--mapping", default=None,
                     help="--what comm: P-px-py-pz-T block grid of the ranks (default 2-2-1-1-1; T ignored)")
     pf.add_argument("--patterns", action="store_true",
@@ -376,6 +381,8 @@ def cmd_perf(args):
             os.makedirs(args.out, exist_ok=True)
             write_json(os.path.join(args.out, "perf.json"), report)
         return 0
+    if args.what == "contention":
+        return _one_line(_perf_contention)(args)
     if args.what == "comm":
         from bench.studies.perf_comm import perf_comm
         return _one_line(perf_comm)(args)
@@ -387,6 +394,22 @@ def cmd_perf(args):
         args.steps = 20
     from bench.studies.perf import perf
     return perf(args)
+
+
+def _perf_contention(args):
+    from bench.studies.perf_contention import measure
+    from dem.scene import load_scene
+    load_scene(args.scene, particles=args.particles)  # a bad scene: its one line, before any worker starts
+    try:
+        report = measure(args.scene, args.particles, args.procs or 2, args.steps or 100, args.repeats, print)
+    except RuntimeError as e:  # a worker failed: its own one line
+        print(f"bench: error: {e}", file=sys.stderr)
+        return 1
+    if args.out:
+        from bench.run.records import write_json
+        os.makedirs(args.out, exist_ok=True)
+        write_json(os.path.join(args.out, "perf.json"), report)
+    return 0
 
 
 @_one_line

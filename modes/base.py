@@ -15,6 +15,17 @@ class ModeError(ValueError):
     """Bad mode request (mapping, scheme, unavailable mode); str() is one line."""
 
 
+def compiled_entry(kernel, args):
+    """The compiled entry point of the numba kernel for the types of args, or the kernel itself
+    (its dispatcher) where it has none. A dispatcher finds the overload from the arguments' types
+    at every call: for the two dozen arrays of a step's kernels that took 3.9 us against 1.6 us
+    through the entry point (an empty resolve_range), a quarter of a 48-particle step."""
+    try:
+        return kernel.overloads[tuple(kernel.typeof_pyval(a) for a in args)].entry_point
+    except (AttributeError, KeyError):
+        return kernel
+
+
 def register(name):
     def deco(cls):
         REGISTRY[name] = cls

@@ -51,6 +51,7 @@ from numba import njit
 
 from dem.shapes import POLY_LEN, SPHERE
 from dem.state import HIST_LEN, bounding_radii, csr_rows
+from modes.base import compiled_entry
 from modes.decomposition import DIRECTIONS, OPPOSITE, direction_of, send_masks
 
 GHOST_SPHERE = ("gid", "material", "mass", "axes0", "inertia0", "pos", "vel", "angmom")
@@ -160,10 +161,13 @@ def compile_kernels():
 class _Round:
     """One round of a forward exchange, fixed at a rebuild: the rows sent to each neighbour
     (send_idx, concatenated in direction order, send_off [d+1]), the ghost rows received from each
-    (rows g0 + recv_off[d] ..), their buffers and persistent requests."""
+    (rows g0 + recv_off[d] ..), their buffers and persistent requests. The pack and unpack
+    kernels are called through their compiled entry points (modes.base.compiled_entry), found at
+    their first call: until the next rebuild replaces the round, they see the same array types."""
 
     def __init__(self, cart, dirs, ranks, send_lists, recv_counts, g0, width, wire):
         self.g0 = g0
+        self.kernels = {}
         self.send_idx = (np.concatenate(send_lists).astype(np.int64) if send_lists
                          else np.zeros(0, dtype=np.int64))
         self.send_buf = np.zeros((len(self.send_idx), width))
@@ -188,6 +192,15 @@ class _Round:
                     self.wire_s += wire.cost(r, nbytes)
             so += ns
             ro += nr
+
+    def call(self, kernel, args):
+        """kernel(*args), through its entry point after the first call."""
+        entry = self.kernels.get(kernel)
+        if entry is None:
+            kernel(*args)  # through the dispatcher: compiles where needed
+            self.kernels[kernel] = compiled_entry(kernel, args)
+        else:
+            entry(*args)
 
     def free(self):
         for req in self.requests:
@@ -343,7 +356,7 @@ class Halo:
 
     def _start(self, rd, state):
         from mpi4py import MPI
-        pack_moving(rd.send_idx, state.pos, state.vel, state.angmom, state.quat, self.with_quat, rd.send_buf)
+        rd.call(pack_moving, (rd.send_idx, state.pos, state.vel, state.angmom, state.quat, self.with_quat, rd.send_buf))
         MPI.Prequest.Startall(rd.requests)
         self.bytes_sent += rd.bytes
         self.msgs_sent += rd.msgs
@@ -375,7 +388,7 @@ class Halo:
             else:
                 self._start(rd, state)
             MPI.Request.Waitall(rd.requests)
-            unpack_moving(rd.recv_buf, rd.g0, state.pos, state.vel, state.angmom, state.quat, self.with_quat)
+            rd.call(unpack_moving, (rd.recv_buf, rd.g0, state.pos, state.vel, state.angmom, state.quat, self.with_quat))
 
     def free(self):
         """Complete a started exchange (its data is not needed) and release the persistent requests."""

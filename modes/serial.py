@@ -22,22 +22,11 @@ from dem.integrate import derive_all
 from dem.neighbor import cell_order, find_pairs
 from dem.pairs import DEFAULT_SKIN, PairList
 from dem.shapes import POLY, SPHERE
-from modes.base import ModeError, register
+from modes.base import ModeError, compiled_entry, register
 
 
 # the warm-up twin's largest size (SerialMode._twin_state)
 WARMUP_PARTICLES = 2000
-
-
-def compiled_entry(kernel, args):
-    """The compiled entry point of the numba kernel for the types of args, or the kernel itself
-    (its dispatcher) where it has none. A dispatcher finds the overload from the arguments' types
-    at every call: for the two dozen arrays of a step's kernels that took 3.9 us against 1.6 us
-    through the entry point (an empty resolve_range), a quarter of a 48-particle step."""
-    try:
-        return kernel.overloads[tuple(kernel.typeof_pyval(a) for a in args)].entry_point
-    except (AttributeError, KeyError):
-        return kernel
 
 
 @register("serial")

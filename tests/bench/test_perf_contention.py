@@ -1,0 +1,57 @@
+"""`bench perf --what contention`: the efficiency ceiling of workers that share nothing. Its
+figures are ratios of the measured step times by their definitions (bench/studies/
+perf_contention.py), and its step barrier holds every copy until all have finished the step."""
+import threading
+import time
+
+import pytest
+
+from tests.helpers import bench
+
+
+def test_contention_report_follows_its_definitions():
+    """One repeat on a small scene, 2 copies: every configuration has one sample per repeat, the
+    medians are those samples, the ceilings are alone / together (the contention) and alone / in
+    step, and size = serial / (2 alone)."""
+    from bench.studies.perf_contention import measure
+    lines = []
+    rep = measure("gas", 200, 2, 20, 1, lines.append, warmup=2)
+    assert rep["share"] == 100
+    med = {k: v[0] for k, v in rep["samples_s"].items()}
+    assert all(v > 0 for v in med.values())
+    assert rep["median_ms"]["serial"] == pytest.approx(1e3 * med["serial"])
+    assert rep["ceiling_free"] == rep["contention"] == pytest.approx(med["alone"] / med["together"])
+    assert rep["ceiling_step"] == pytest.approx(med["alone"] / med["in_step"])
+    assert rep["size"] == pytest.approx(med["serial"] / (2 * med["alone"]))
+    assert len(lines) == 6 and "ceiling of 2 workers" in lines[3]
+
+
+def test_copies_step_the_requested_steps():
+    """run_copies returns one list of step times per copy, `steps` long, in step or not."""
+    from bench.studies.perf_contention import run_copies
+    for in_step in (False, True):
+        out = run_copies("gas", 100, 2, 7, warmup=1, in_step=in_step)
+        assert [len(t) for t in out] == [7, 7] and min(min(t) for t in out) > 0
+
+
+def test_step_barrier_waits_for_the_slowest_copy():
+    """_meet(counts, me, k) returns only once every slot holds k: copy 1 finishes step 3 0.2 s
+    after copy 0 arrives, so copy 0 waits at least those 0.2 s; a later arrival does not wait."""
+    from bench.studies.perf_contention import _meet
+    counts = [2, 2]
+    late = threading.Timer(0.2, lambda: counts.__setitem__(1, 3))
+    t = time.perf_counter()
+    late.start()
+    _meet(counts, 0, 3)
+    waited = time.perf_counter() - t
+    late.join()
+    assert counts == [3, 3] and waited >= 0.2
+    t = time.perf_counter()
+    _meet(counts, 1, 3)
+    assert time.perf_counter() - t < 0.2
+
+
+def test_contention_command_bad_scene():
+    res = bench("perf", "--what", "contention", "--scene", "no-such-scene", "--particles", "100")
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert res.stderr.strip().count("\n") == 0 and "no-such-scene" in res.stderr
