@@ -228,6 +228,9 @@ class Halo:
             c = grid.neighbour(coords, k)
             self.ranks.append(None if c is None else cart.Get_cart_rank([int(x) for x in c]))
         self.wire = wire
+        from mpi4py import MPI  # a halo exists only under MPI; the per-step calls are bound once
+        self.startall = MPI.Prequest.Startall
+        self.waitall = MPI.Request.Waitall
         self.rounds = []
         self.started = False   # the first forward round's messages are on their way (forward_start)
         self.with_quat = True
@@ -355,9 +358,8 @@ class Halo:
         return state.n - n
 
     def _start(self, rd, state):
-        from mpi4py import MPI
         rd.call(pack_moving, (rd.send_idx, state.pos, state.vel, state.angmom, state.quat, self.with_quat, rd.send_buf))
-        MPI.Prequest.Startall(rd.requests)
+        self.startall(rd.requests)
         self.bytes_sent += rd.bytes
         self.msgs_sent += rd.msgs
         self.wire_s += rd.wire_s
@@ -372,22 +374,20 @@ class Halo:
             self.started = True
 
     def _complete_started(self):
-        from mpi4py import MPI
         if self.started:
-            MPI.Request.Waitall(self.rounds[0].requests)
+            self.waitall(self.rounds[0].requests)
             self.started = False
 
     def forward(self, state):
         """Refresh the ghosts' moving fields from their owners (a step between rebuilds): per round,
         pack and start the persistent requests (the first round's may have been started by
         forward_start), wait, unpack. Allocates nothing."""
-        from mpi4py import MPI
         for i, rd in enumerate(self.rounds):
             if i == 0 and self.started:
                 self.started = False
             else:
                 self._start(rd, state)
-            MPI.Request.Waitall(rd.requests)
+            self.waitall(rd.requests)
             rd.call(unpack_moving, (rd.recv_buf, rd.g0, state.pos, state.vel, state.angmom, state.quat, self.with_quat))
 
     def free(self):
