@@ -56,6 +56,11 @@ def build_parser():
                     help="ellipsoid contact geometry of every point (default exact)")
     sw.add_argument("--halo", choices=["26", "6"], default="26")
     sw.add_argument("--pin", action="store_true")
+    sw.add_argument("--ceiling", action="store_true",
+                    help="also measure the machine's efficiency ceiling at each core count W of the sweep (W "
+                         "independent serial copies of the scene at N/W particles, alone, together and meeting "
+                         "every step, a round after each round of repeats): OUT/ceiling.csv, drawn on "
+                         "efficiency.png (local launcher)")
     sw.add_argument("--timeout", type=positive_int, default=1800, help="seconds per point run")
     sw.add_argument("--launcher", default="local", help="local (default: each point here, one after another) or "
                                                          "slurm (a prepare job, a job array a point, a collect job)")
@@ -227,7 +232,7 @@ def cmd_run(args):
 
 SWEEP_FIELDS = {"mappings": str, "schemes": str, "scene": str, "particles": int, "shape": str, "steps": int,
                 "warmup": int, "repeats": int, "neighbor": str, "contact_method": str, "halo": str, "pin": bool,
-                "timeout": int,
+                "ceiling": bool, "timeout": int,
                 "launcher": str, "out": str, "slurm": dict}
 
 

@@ -27,100 +27,29 @@ of its own has walls where a rank's block has a cut (on 12k packed ellipsoids a 
 took 8 % more than half of the whole, a rank of 2-2-1-1-1 resolves 2.8 % more pairs than half).
 The configurations alternate (serial, alone, together, in step; repeats times), medians quoted.
 """
-import multiprocessing
 import os
-import queue
 import statistics
-import time
 
-
-def _meet(counts, me, k):
-    """Spin until every copy has finished step k (counts: shared step counts, slot me is ours)."""
-    counts[me] = k
-    for c in range(len(counts)):
-        while counts[c] < k:
-            pass
-
-
-def _copy(scene, particles, steps, warmup, barrier, in_step, results, counts, me):
-    """One worker (copy me): step a serial copy of the scene; put its step times [s] on results."""
-    from bench.run.prepare import load_prepared
-    from dem.timestep import choose_time_step
-    from modes.serial import SerialMode
-    try:
-        sc = load_prepared(scene, particles=particles)
-        mode = SerialMode().setup(sc, dt=choose_time_step(sc).dt)
-        mode.warmup()
-        for _ in range(warmup):
-            mode.step()
-        times = []
-    except Exception as e:  # the parent waits at the barrier: break it, say why
-        barrier.abort()
-        results.put(("error", f"{type(e).__name__}: {e}"))
-        return
-    barrier.wait()
-    clock = time.perf_counter
-    for k in range(1, steps + 1):
-        t = clock()
-        mode.step()
-        if in_step:
-            _meet(counts, me, k)
-        times.append(clock() - t)
-    barrier.wait()
-    results.put(("ok", times))
-
-
-def run_copies(scene, particles, copies, steps, warmup=5, in_step=False, timeout=1800):
-    """Step `copies` independent serial copies of the scene (each `particles` particles) at once;
-    returns each copy's step times [s] (a list per copy). They start together (a barrier after
-    their warm-up); in_step: they also meet at a barrier after every step."""
-    ctx = multiprocessing.get_context("spawn")
-    barrier = ctx.Barrier(copies, timeout=timeout)
-    results = ctx.Queue()
-    counts = ctx.RawArray("q", copies)
-    procs = [ctx.Process(target=_copy, args=(scene, particles, steps, warmup, barrier, in_step, results, counts, me))
-             for me in range(copies)]
-    for p in procs:
-        p.start()
-    try:
-        out = [results.get(timeout=timeout) for _ in procs]
-    except queue.Empty:
-        raise RuntimeError(f"copies of {scene} at {particles} particles gave no result in {timeout} s") from None
-    finally:
-        for p in procs:
-            p.join(timeout=10)
-            if p.is_alive():
-                p.kill()
-    bad = [msg for status, msg in out if status != "ok"]
-    if bad:
-        raise RuntimeError(f"a copy of {scene} at {particles} particles failed: {bad[0]}")
-    return [times for _, times in out]
-
-
-def _mean(xs):
-    return sum(xs) / len(xs)
+from bench.run.copies import CONFIGURATIONS, ceilings, sample
 
 
 def measure(scene, particles, copies, steps, repeats, log, warmup=5):
     """The figures above for P = copies workers on `particles` particles of the scene; returns the
     report (perf.json): per configuration its samples [s/step], medians, and the ratios."""
     share = max(1, particles // copies)
-    samples = {"serial": [], "alone": [], "together": [], "in_step": []}
+    samples = {c: [] for c in CONFIGURATIONS}
     load_start = os.getloadavg()
     for r in range(repeats):
-        samples["serial"].append(_mean(run_copies(scene, particles, 1, steps, warmup)[0]))
-        samples["alone"].append(_mean(run_copies(scene, share, 1, steps, warmup)[0]))
-        samples["together"].append(_mean([_mean(t) for t in run_copies(scene, share, copies, steps, warmup)]))
-        samples["in_step"].append(_mean([_mean(t) for t in run_copies(scene, share, copies, steps, warmup,
-                                                                        in_step=True)]))
+        for c, t in sample(scene, particles, copies, steps, warmup).items():
+            samples[c].append(t)
         log(f"repeat {r + 1}/{repeats}: " + ", ".join(f"{k} {1e3 * v[-1]:.3f}" for k, v in samples.items())
             + " ms/step")
     med = {k: statistics.median(v) for k, v in samples.items()}
     t1, ta, tc, ts = med["serial"], med["alone"], med["together"], med["in_step"]
     report = {"scene": scene, "particles": particles, "copies": copies, "share": share, "steps": steps,
               "repeats": repeats, "samples_s": samples, "median_ms": {k: 1e3 * v for k, v in med.items()},
-              "contention": ta / tc, "ceiling_free": ta / tc, "ceiling_step": ta / ts,
-              "size": t1 / (copies * ta), "load_start": load_start, "load_end": os.getloadavg()}
+              "contention": ta / tc, **ceilings(med), "size": t1 / (copies * ta), "load_start": load_start,
+              "load_end": os.getloadavg()}
     log(f"{scene}, {particles} particles, {copies} independent copies of {share} (no messages, no shared memory):")
     log(f"  serial {1e3 * t1:.3f}, one copy alone {1e3 * ta:.3f}, {copies} together {1e3 * tc:.3f}, "
         f"together meeting every step {1e3 * ts:.3f} ms/step (medians of {repeats})")

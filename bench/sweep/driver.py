@@ -33,13 +33,14 @@ import numpy as np
 
 from bench.run.lifeline import Interrupted, exit_status, raise_on_signals, signal_name
 from bench.run.records import prepare_output, process_alive, read_json_file, write_json
+from bench.sweep.ceiling import Ceiling, CeilingError
 from bench.sweep.figures import plot_sweep
 from bench.sweep.launchers import LAUNCHERS
 from bench.sweep.lock import SweepLock
 from bench.sweep.points import SERIAL, make_points, point_from_dict
 from bench.sweep.records import (RUN_COLUMNS, RunsFileError, amdahl, manifest, merge_manifest, read_runs_rows,
                                  reference_key, summarise, with_speedup, write_runs)
-from modes.base import ModeError
+from modes.base import ModeError, parse_mapping
 
 
 def sweep(args):
@@ -52,6 +53,7 @@ def sweep(args):
     points = make_points(mappings, schemes, args.scene, args.particles, args.steps, args.warmup,
                          args.neighbor, args.shape, args.pin, args.halo, getattr(args, "contact_method", "exact"))
     out = args.out
+    ceiling = _ceiling(args, launcher, points) if getattr(args, "ceiling", False) else None
     if args.dry_run:
         return launcher.dry_run(points, out, args.repeats)
     prepare_output(out)
@@ -59,7 +61,24 @@ def sweep(args):
     with SweepLock(out) as lock:
         if launcher.batch:
             return launcher.submit(points, out, args.repeats, args.resume)
-        return local_sweep(args, launcher, points, out, lock.fd)
+        return local_sweep(args, launcher, points, out, lock.fd, ceiling)
+
+
+def _ceiling(args, launcher, points):
+    """The machine-ceiling control of `--ceiling` (bench.sweep.ceiling), checked before anything is
+    written: a ModeError (one line) for the Slurm launcher or a scene that cannot be resized."""
+    if launcher.batch:
+        raise ModeError("--ceiling needs the local launcher: its copies run where the sweep runs, beside the points")
+    usable = len(os.sched_getaffinity(0))
+    cores = [parse_mapping(p.mapping).procs * parse_mapping(p.mapping).threads for p in points]
+    try:
+        ceiling = Ceiling(args.scene, args.particles, args.shape, args.steps, args.warmup, cores, usable)
+    except CeilingError as e:
+        raise ModeError(str(e)) from None
+    if ceiling.left_out:
+        print(f"ceiling: left out at {', '.join(map(str, ceiling.left_out))} cores (more than the {usable} usable "
+              f"CPUs)", flush=True)
+    return ceiling
 
 
 def repeat_done(rep):
@@ -100,7 +119,7 @@ def _typed(text):
         return text
 
 
-def local_sweep(args, launcher, points, out, lock_fd):
+def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
     runs_path = os.path.join(out, "runs.csv")
     repeats = args.repeats
     info = manifest(out, points)
@@ -190,6 +209,16 @@ def local_sweep(args, launcher, points, out, lock_fd):
                 el = time.perf_counter() - start
                 eta = el / ran * (n_runs - ran) if ran else 0.0
                 print(_progress(k, len(points), p, r, repeats, st, row, rep, el, eta), flush=True)
+            if ceiling is not None and ceiling.cores:  # the control's round after the points' round
+                try:
+                    ceiling.round()
+                except RuntimeError as e:  # a copy failed: the points go on without the control
+                    print(f"bench: warning: ceiling not measured further: {e}", flush=True)
+                    ceiling = None
+                    continue
+                for c in ceiling.write(out):
+                    print(f"ceiling at {c['cores']} cores ({c['rounds']} round(s)): efficiency {c['ceiling_free']:.3f} "
+                          f"sharing nothing, {c['ceiling_step']:.3f} meeting every step", flush=True)
     except (KeyboardInterrupt, Interrupted) as e:
         stopped = e
         if current is not None:  # the point that was running: its repeat is recorded (interrupted)

@@ -41,6 +41,7 @@ from matplotlib.patches import Patch  # noqa: E402
 from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullFormatter, NullLocator  # noqa: E402
 
 from bench.sweep.records import read_runs  # noqa: E402
+from bench.sweep.ceiling import read_ceiling  # noqa: E402
 
 FAMILY_STYLE = {"serial": ("k", "*"), "threads": ("C0", "o"), "MPI": ("C3", "s"), "hybrid": ("C2", "^")}
 FAMILY_ORDER = ("serial", "threads", "MPI", "hybrid")
@@ -282,7 +283,8 @@ def plot_sweep(directory):
     fit = _amdahl(directory)
     paths = [
         _plot_metric(done, skipped, ctx, fit, "speedup", os.path.join(directory, "speedup.png")),
-        _plot_metric(done, skipped, ctx, fit, "efficiency", os.path.join(directory, "efficiency.png")),
+        _plot_metric(done, skipped, ctx, fit, "efficiency", os.path.join(directory, "efficiency.png"),
+                     read_ceiling(directory)),
         _plot_metric(done, skipped, ctx, fit, "edsf", os.path.join(directory, "edsf.png")),
         _plot_modules(done, skipped, ctx, os.path.join(directory, "modules.png")),
         _plot_error(done, skipped, ctx, os.path.join(directory, "error_vs_time.png")),
@@ -295,15 +297,18 @@ def metric_figure(directory, metric):
     DIR/runs.csv, not saved (for inspection: one Line2D of markers per series, labelled as in the
     legend, x = cores, y = the metric). The caller closes it."""
     df = read_runs(directory)
-    return _metric_figure(done_rows(df), skipped_rows(df), sweep_context(df), _amdahl(directory), metric)
+    return _metric_figure(done_rows(df), skipped_rows(df), sweep_context(df), _amdahl(directory), metric,
+                          read_ceiling(directory) if metric == "efficiency" else ())
 
 
-def _plot_metric(done, skipped, ctx, fit, metric, path):
-    return save_figure(_metric_figure(done, skipped, ctx, fit, metric), path)
+def _plot_metric(done, skipped, ctx, fit, metric, path, ceiling=()):
+    return save_figure(_metric_figure(done, skipped, ctx, fit, metric, ceiling), path)
 
 
-def _metric_figure(done, skipped, ctx, fit, metric):
-    """speedup / efficiency / edsf against cores, one series per family (and scheme)."""
+def _metric_figure(done, skipped, ctx, fit, metric, ceiling=()):
+    """speedup / efficiency / edsf against cores, one series per family (and scheme); on the
+    efficiency figure also the machine's ceiling of DIR/ceiling.csv where a sweep measured it
+    (bench.sweep.ceiling: W independent copies, alone over together and over meeting every step)."""
     fig, ax = plt.subplots(figsize=(8.6, 5.0))
     d = done[np.isfinite(done[metric]) & np.isfinite(done["cores"])]
     if metric == "edsf":
@@ -353,7 +358,13 @@ def _metric_figure(done, skipped, ctx, fit, metric):
         if fit is not None:
             ax.plot(pp, 1 / (fit * pp + (1 - fit)), color="0.5", ls=":", lw=1.0,
                     label=f"Amdahl fit, serial fraction f = {fit:.3f}")
-        top = max([1.0] + [v for v in d[metric] if np.isfinite(v)])
+        if len(ceiling):
+            cx = [1.0] + [c["cores"] for c in ceiling]
+            ax.plot(cx, [1.0] + [c["ceiling_free"] for c in ceiling], color="k", ls=":", lw=0.9, marker="^",
+                    mfc="none", ms=6, zorder=2, label="machine ceiling: W copies sharing nothing (alone / together)")
+            ax.plot(cx, [1.0] + [c["ceiling_step"] for c in ceiling], color="k", ls="-.", lw=0.9, marker="v",
+                    ms=6, zorder=2, label="machine ceiling: W copies meeting every step (ceiling.csv)")
+        top = max([1.0] + [v for v in d[metric] if np.isfinite(v)] + [c["ceiling_free"] for c in ceiling])
         ax.set_ylim(0, 1.15 * top)
         ax.set_ylabel("parallel efficiency = speedup / cores")
         ax.set_title(f"Parallel efficiency against cores\n{ctx}", fontsize=9)

@@ -28,7 +28,7 @@ def test_contention_report_follows_its_definitions():
 
 def test_copies_step_the_requested_steps():
     """run_copies returns one list of step times per copy, `steps` long, in step or not."""
-    from bench.studies.perf_contention import run_copies
+    from bench.run.copies import run_copies
     for in_step in (False, True):
         out = run_copies("gas", 100, 2, 7, warmup=1, in_step=in_step)
         assert [len(t) for t in out] == [7, 7] and min(min(t) for t in out) > 0
@@ -37,7 +37,7 @@ def test_copies_step_the_requested_steps():
 def test_step_barrier_waits_for_the_slowest_copy():
     """_meet(counts, me, k) returns only once every slot holds k: copy 1 finishes step 3 0.2 s
     after copy 0 arrives, so copy 0 waits at least those 0.2 s; a later arrival does not wait."""
-    from bench.studies.perf_contention import _meet
+    from bench.run.copies import _meet
     counts = [2, 2]
     late = threading.Timer(0.2, lambda: counts.__setitem__(1, 3))
     t = time.perf_counter()
@@ -55,3 +55,34 @@ def test_contention_command_bad_scene():
     res = bench("perf", "--what", "contention", "--scene", "no-such-scene", "--particles", "100")
     assert res.returncode == 2 and "Traceback" not in res.stderr
     assert res.stderr.strip().count("\n") == 0 and "no-such-scene" in res.stderr
+
+
+def test_sweep_ceiling_rounds_and_csv(tmp_path):
+    """bench.sweep.ceiling: the core counts of a sweep's points above 1 and within the usable CPUs
+    get a control (4 is left out with 2 usable); one round gives one sample of each configuration
+    at N/W = 100 particles, and ceiling.csv holds their ratios, read back unchanged."""
+    from bench.sweep.ceiling import Ceiling, read_ceiling
+    c = Ceiling("gas", 200, None, 6, 1, [1, 2, 2, 4], usable=2)
+    assert c.cores == [2] and c.left_out == [4] and c.share(2) == 100 and c.steps == 6
+    c.round()
+    rows = c.write(str(tmp_path))
+    (r,) = rows
+    assert r["rounds"] == 1 and r["share"] == 100
+    assert r["ceiling_free"] == pytest.approx(r["alone_ms"] / r["together_ms"])
+    assert r["ceiling_step"] == pytest.approx(r["alone_ms"] / r["in_step_ms"])
+    assert read_ceiling(str(tmp_path)) == [pytest.approx({k: float(v) for k, v in r.items()})]
+
+
+def test_sweep_ceiling_bad_requests(tmp_path):
+    """--ceiling on a scene whose count cannot be set (explicit particles), or with the Slurm
+    launcher: one line each, exit 2, no traceback, and nothing written."""
+    from tests.helpers import GOOD
+    scene = tmp_path / "two.toml"
+    scene.write_text(GOOD)
+    res = bench("sweep", "--mappings", "1-1-1-1-1,1-1-1-1-2", "--scene", str(scene), "--steps", "2", "--ceiling",
+                "--out", str(tmp_path / "a"))
+    assert res.returncode == 2 and "Traceback" not in res.stderr and "--ceiling" in res.stderr
+    assert not (tmp_path / "a").exists()
+    res = bench("sweep", "--mappings", "1-1-1-1-2", "--scene", "gas", "--particles", "100", "--steps", "2",
+                "--ceiling", "--launcher", "slurm", "--out", str(tmp_path / "b"))
+    assert res.returncode == 2 and "Traceback" not in res.stderr and "local launcher" in res.stderr

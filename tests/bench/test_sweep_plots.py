@@ -498,3 +498,27 @@ def test_modules_figure_sync_above_overhead(tmp_path):
         assert "<0" in [t.get_text() for t in fig.axes[0].texts]
     finally:
         sweep_plots.plt.close(fig)
+
+
+def test_efficiency_figure_draws_the_machine_ceiling(tmp_path):
+    """With DIR/ceiling.csv (bench sweep --ceiling) efficiency.png draws the two ceilings from
+    efficiency 1 at one core to the csv's values at each core count: here alone 10.0 ms, together
+    10.5 ms, in step 11.0 ms at 2 cores, so 10/10.5 and 10/11; without the file, nothing."""
+    from bench.sweep.ceiling import CEILING_COLUMNS
+    d = write_runs(tmp_path, full_sweep())
+    fig = metric_figure(d, "efficiency")
+    try:
+        assert not any("ceiling" in l.get_label() for l in fig.axes[0].lines)
+    finally:
+        sweep_plots.plt.close(fig)
+    pd.DataFrame([[2, 100, 3, 10.0, 10.5, 11.0, 10.0 / 10.5, 10.0 / 11.0]], columns=CEILING_COLUMNS).to_csv(
+        os.path.join(d, "ceiling.csv"), index=False)
+    fig = metric_figure(d, "efficiency")
+    try:
+        lines = {l.get_label(): l for l in fig.axes[0].lines if "ceiling" in l.get_label()}
+        free = next(l for k, l in lines.items() if "sharing nothing" in k)
+        step = next(l for k, l in lines.items() if "every step" in k)
+        assert np.array_equal(free.get_xdata(), [1.0, 2]) and np.allclose(free.get_ydata(), [1.0, 10 / 10.5])
+        assert np.allclose(step.get_ydata(), [1.0, 10 / 11.0])
+    finally:
+        sweep_plots.plt.close(fig)

@@ -1,0 +1,102 @@
+"""Independent serial copies of a scene stepped side by side: the control behind `bench perf --what
+contention` and `bench sweep --ceiling` (bench/studies/perf_contention.py gives the definitions).
+
+Each copy is a spawned process with its own SerialMode on its own copy of the scene: no shared
+memory, no message. Copies start together at a barrier after their warm-up and, in step, meet at
+a spinning barrier after every step, as ranks meet at the step's allreduce."""
+import multiprocessing
+import queue
+import signal
+import time
+
+from bench.run.lifeline import PR_SET_PDEATHSIG, _prctl
+
+
+def _meet(counts, me, k):
+    """Spin until every copy has finished step k (counts: shared step counts, slot me is ours)."""
+    counts[me] = k
+    for c in range(len(counts)):
+        while counts[c] < k:
+            pass
+
+
+def _copy(scene, particles, shape, steps, warmup, barrier, in_step, results, counts, me):
+    """One worker (copy me): step a serial copy of the scene; put its step times [s] on results.
+    It dies with its parent and leaves SIGINT to it (the parent stops the copies)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL))
+    from bench.run.prepare import load_prepared
+    from dem.timestep import choose_time_step
+    from modes.serial import SerialMode
+    try:
+        sc = load_prepared(scene, particles=particles, shape=shape)
+        mode = SerialMode().setup(sc, dt=choose_time_step(sc).dt)
+        mode.warmup()
+        for _ in range(warmup):
+            mode.step()
+        times = []
+    except Exception as e:  # the parent waits at the barrier: break it, say why
+        barrier.abort()
+        results.put(("error", f"{type(e).__name__}: {e}"))
+        return
+    barrier.wait()
+    clock = time.perf_counter
+    for k in range(1, steps + 1):
+        t = clock()
+        mode.step()
+        if in_step:
+            _meet(counts, me, k)
+        times.append(clock() - t)
+    barrier.wait()
+    results.put(("ok", times))
+
+
+def run_copies(scene, particles, copies, steps, warmup=5, in_step=False, shape=None, timeout=1800):
+    """Step `copies` independent serial copies of the scene (each `particles` particles) at once;
+    returns each copy's step times [s] (a list per copy). They start together (a barrier after
+    their warm-up); in_step: they also meet at a barrier after every step."""
+    ctx = multiprocessing.get_context("spawn")
+    barrier = ctx.Barrier(copies, timeout=timeout)
+    results = ctx.Queue()
+    counts = ctx.RawArray("q", copies)
+    procs = [ctx.Process(target=_copy, args=(scene, particles, shape, steps, warmup, barrier, in_step, results, counts, me))
+             for me in range(copies)]
+    for p in procs:
+        p.start()
+    try:
+        out = [results.get(timeout=timeout) for _ in procs]
+    except queue.Empty:
+        raise RuntimeError(f"copies of {scene} at {particles} particles gave no result in {timeout} s") from None
+    finally:
+        for p in procs:
+            p.join(timeout=10)
+            if p.is_alive():
+                p.kill()
+    bad = [msg for status, msg in out if status != "ok"]
+    if bad:
+        raise RuntimeError(f"a copy of {scene} at {particles} particles failed: {bad[0]}")
+    return [times for _, times in out]
+
+
+def _mean(xs):
+    return sum(xs) / len(xs)
+
+
+CONFIGURATIONS = ("serial", "alone", "together", "in_step")
+
+
+def sample(scene, particles, copies, steps, warmup=5, shape=None, configs=CONFIGURATIONS):
+    """One round of the configurations (in the order given): {configuration: mean step [s]}."""
+    share = max(1, particles // copies)
+    plan = {"serial": (particles, 1, False), "alone": (share, 1, False), "together": (share, copies, False),
+            "in_step": (share, copies, True)}
+    out = {}
+    for c in configs:
+        n, k, in_step = plan[c]
+        out[c] = _mean([_mean(t) for t in run_copies(scene, n, k, steps, warmup, in_step=in_step, shape=shape)])
+    return out
+
+
+def ceilings(med):
+    """The ratios of the module docstring from the configurations' step times med [s]."""
+    return {"ceiling_free": med["alone"] / med["together"], "ceiling_step": med["alone"] / med["in_step"]}
