@@ -7,6 +7,7 @@ a spinning barrier after every step, as ranks meet at the step's allreduce."""
 import multiprocessing
 import queue
 import signal
+import threading
 import time
 
 from bench.run.lifeline import PR_SET_PDEATHSIG, _prctl
@@ -21,33 +22,38 @@ def _meet(counts, me, k):
 
 
 def _copy(scene, particles, shape, steps, warmup, barrier, in_step, results, counts, me):
-    """One worker (copy me): step a serial copy of the scene; put its step times [s] on results.
-    It dies with its parent and leaves SIGINT to it (the parent stops the copies)."""
+    """One worker (copy me): step a serial copy of the scene; put its step times [s] on results
+    (or a line saying why it could not). It dies with its parent and leaves SIGINT to it (the
+    parent stops the copies); a copy that fails frees the others from waiting for it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL))
     from bench.run.prepare import load_prepared
     from dem.timestep import choose_time_step
     from modes.serial import SerialMode
+    times = []
+    clock = time.perf_counter
     try:
         sc = load_prepared(scene, particles=particles, shape=shape)
         mode = SerialMode().setup(sc, dt=choose_time_step(sc).dt)
         mode.warmup()
         for _ in range(warmup):
             mode.step()
-        times = []
-    except Exception as e:  # the parent waits at the barrier: break it, say why
-        barrier.abort()
+        barrier.wait()
+        for k in range(1, steps + 1):
+            t = clock()
+            mode.step()
+            if in_step:
+                _meet(counts, me, k)
+            times.append(clock() - t)
+    except Exception as e:
         results.put(("error", f"{type(e).__name__}: {e}"))
+        counts[me] = 2 ** 62  # nobody waits for this copy any more
+        barrier.abort()
         return
-    barrier.wait()
-    clock = time.perf_counter
-    for k in range(1, steps + 1):
-        t = clock()
-        mode.step()
-        if in_step:
-            _meet(counts, me, k)
-        times.append(clock() - t)
-    barrier.wait()
+    try:
+        barrier.wait()  # report once every copy has stepped
+    except threading.BrokenBarrierError:
+        pass
     results.put(("ok", times))
 
 
@@ -59,19 +65,24 @@ def run_copies(scene, particles, copies, steps, warmup=5, in_step=False, shape=N
     barrier = ctx.Barrier(copies, timeout=timeout)
     results = ctx.Queue()
     counts = ctx.RawArray("q", copies)
-    procs = [ctx.Process(target=_copy, args=(scene, particles, shape, steps, warmup, barrier, in_step, results, counts, me))
-             for me in range(copies)]
+    procs = [ctx.Process(target=_copy, args=(scene, particles, shape, steps, warmup, barrier, in_step, results,
+                                             counts, me)) for me in range(copies)]
     for p in procs:
         p.start()
     try:
         out = [results.get(timeout=timeout) for _ in procs]
-    except queue.Empty:
-        raise RuntimeError(f"copies of {scene} at {particles} particles gave no result in {timeout} s") from None
-    finally:
+    except BaseException as e:  # no result in time, or an interrupt: the copies stop now
         for p in procs:
-            p.join(timeout=10)
-            if p.is_alive():
-                p.kill()
+            p.kill()
+        for p in procs:
+            p.join()
+        if isinstance(e, queue.Empty):
+            raise RuntimeError(f"copies of {scene} at {particles} particles gave no result in {timeout} s") from None
+        raise
+    for p in procs:
+        p.join(timeout=10)
+        if p.is_alive():
+            p.kill()
     bad = [msg for status, msg in out if status != "ok"]
     if bad:
         raise RuntimeError(f"a copy of {scene} at {particles} particles failed: {bad[0]}")

@@ -86,3 +86,13 @@ def test_sweep_ceiling_bad_requests(tmp_path):
     res = bench("sweep", "--mappings", "1-1-1-1-2", "--scene", "gas", "--particles", "100", "--steps", "2",
                 "--ceiling", "--launcher", "slurm", "--out", str(tmp_path / "b"))
     assert res.returncode == 2 and "Traceback" not in res.stderr and "local launcher" in res.stderr
+
+
+def test_failing_copy_ends_the_round_with_its_reason():
+    """A copy that cannot run (an unknown scene) frees the others and the round ends at once with
+    a RuntimeError naming the reason, instead of waiting out the barrier's timeout (1800 s)."""
+    from bench.run.copies import run_copies
+    t = time.perf_counter()
+    with pytest.raises(RuntimeError, match="no-such-scene"):
+        run_copies("no-such-scene", 100, 2, 5, in_step=True)
+    assert time.perf_counter() - t < 120
