@@ -376,16 +376,7 @@ def cmd_schemes(args):
 def cmd_perf(args):
     if args.what == "overhead":
         from bench.studies.perf_overhead import measure
-        try:
-            report = measure(args.repeats, print)
-        except RuntimeError as e:  # a run of the benchmark failed: its own one line
-            print(f"bench: error: {e}", file=sys.stderr)
-            return 1
-        if args.out:
-            from bench.run.records import write_json
-            os.makedirs(args.out, exist_ok=True)
-            write_json(os.path.join(args.out, "perf.json"), report)
-        return 0
+        return _perf_report(args, lambda: measure(args.repeats, print))
     if args.what == "contention":
         return _one_line(_perf_contention)(args)
     if args.what == "comm":
@@ -405,9 +396,16 @@ def _perf_contention(args):
     from bench.studies.perf_contention import measure
     from dem.scene import load_scene
     load_scene(args.scene, particles=args.particles)  # a bad scene: its one line, before any worker starts
+    return _perf_report(args, lambda: measure(args.scene, args.particles, args.procs or 2, args.steps or 100,
+                                              args.repeats, print))
+
+
+def _perf_report(args, measure):
+    """measure() -> report, written to --out/perf.json; a failed run of the study (RuntimeError)
+    ends as its own one line and exit 1."""
     try:
-        report = measure(args.scene, args.particles, args.procs or 2, args.steps or 100, args.repeats, print)
-    except RuntimeError as e:  # a worker failed: its own one line
+        report = measure()
+    except RuntimeError as e:
         print(f"bench: error: {e}", file=sys.stderr)
         return 1
     if args.out:

@@ -96,3 +96,14 @@ def test_failing_copy_ends_the_round_with_its_reason():
     with pytest.raises(RuntimeError, match="no-such-scene"):
         run_copies("no-such-scene", 100, 2, 5, in_step=True)
     assert time.perf_counter() - t < 120
+
+
+def test_contention_command_writes_perf_json(tmp_path):
+    """The command end to end: its report lines and DIR/perf.json with both ceilings."""
+    import json
+    res = bench("perf", "--what", "contention", "--scene", "gas", "--particles", "100", "--steps", "3",
+                "--repeats", "1", "--out", str(tmp_path))
+    assert res.returncode == 0, res.stderr
+    assert "efficiency ceiling of 2 workers" in res.stdout
+    rep = json.loads((tmp_path / "perf.json").read_text())
+    assert rep["copies"] == 2 and rep["share"] == 50 and rep["ceiling_free"] > 0 and rep["ceiling_step"] > 0
