@@ -17,7 +17,7 @@ import numpy as np
 from bench.run.records import write_json
 from bench.sweep.figures import plot_sweep
 from bench.sweep.points import SERIAL, point_from_dict
-from bench.sweep.records import amdahl, reference_key, summarise, with_speedup, write_runs
+from bench.sweep.records import amdahl, flag_reference, reference_key, summarise, with_speedup, write_runs
 from bench.sweep.status import PRIORITY, read_json, sweep_outcomes
 from dem.scene import SceneError
 
@@ -61,6 +61,7 @@ def collect(args):
                 all(o["status"] == "done" for o in reps):
             ref_state[point.key] = dict(np.load(os.path.join(dirs[0], "state.npz")))
     keys = []
+    by_key = {}
     for p, reps in outcomes:
         point = point_from_dict(p)
         dirs = [o["dir"] for o in reps]
@@ -73,9 +74,11 @@ def collect(args):
         if point.mapping == SERIAL and row["status"] == "done":
             t1[point.key] = row["totalT"]
         rows.append(row)
+        by_key[point.key] = row
         keys.append(reference_key(point))
     for row, ref in zip(rows, keys):  # the serial row too (speedup 1.0), against its group's T(1)
         with_speedup(row, t1.get(ref))
+        flag_reference(row, by_key.get(ref))
     runs_path = os.path.join(args.dir, "runs.csv")
     write_runs(runs_path, rows)
     write_json(os.path.join(args.dir, "summary.json"), amdahl(rows))

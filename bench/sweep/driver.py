@@ -38,8 +38,8 @@ from bench.sweep.figures import plot_sweep
 from bench.sweep.launchers import LAUNCHERS
 from bench.sweep.lock import SweepLock
 from bench.sweep.points import SERIAL, make_points, point_from_dict
-from bench.sweep.records import (RUN_COLUMNS, RunsFileError, amdahl, manifest, merge_manifest, read_runs_rows,
-                                 reference_key, summarise, with_speedup, write_runs)
+from bench.sweep.records import (RUN_COLUMNS, RunsFileError, amdahl, flag_reference, manifest, merge_manifest,
+                                 read_runs_rows, reference_key, summarise, with_speedup, write_runs)
 from modes.base import ModeError, parse_mapping
 
 
@@ -229,6 +229,7 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
         ref = rows.get(reference_key(everything[key]["point"]))
         if ref is not None and ref.get("status") == "done":
             with_speedup(row, float(ref["totalT"]))
+        flag_reference(row, ref)
     write_runs(runs_path, [rows[k] for k in everything if k in rows])
     layers = set()
     for p in points:

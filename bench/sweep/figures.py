@@ -56,7 +56,7 @@ WIRE_SPLIT = (("compuT", "compuT (computation)", "C0", None),
 ABOVE_WIRE_OLD = "above_wireT: software above the wire = commuT + migraT - wireT"  # no syncT recorded
 DPI = 120
 FONT = 7
-FLAG_LABEL = "flagged: timing measured under foreign load or with a wide spread (runs.csv flag)"
+FLAG_LABEL = "flagged: timing doubtful, its own or its T(1) reference's (runs.csv flag)"
 FLAG_RING = dict(ls="none", marker="o", ms=14, mfc="none", mec="red", mew=1.3, zorder=4)
 
 
@@ -80,6 +80,8 @@ def flag_notes(d):
             v = r.get(col)
             if v is not None and np.isfinite(v):
                 bits.append(text.format(v))
+        if "ref" in str(r["flag"]).split(","):
+            bits.append("its T(1) reference is flagged")
         out.append(f"{_point_name(r)}: {r['flag']}" + (f" ({', '.join(bits)})" if bits else ""))
     return out
 

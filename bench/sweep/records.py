@@ -16,7 +16,9 @@ CPU seconds over all repeats), step_spread (the median over repeats of (p90 - p1
 step times), totalT_spread ((max - min) / median of totalT over the repeats; NaN with one) and
 `flag`: `load` when a repeat ran beside more than LOAD_FLAG_CORES of foreign CPU (above the
 measurement's resolution), `spread` when totalT_spread > SPREAD_FLAG_REPEATS or step_spread >
-SPREAD_FLAG_STEPS, both comma-separated, empty for a clean point.
+SPREAD_FLAG_STEPS, `ref` when the point's T(1) reference (its group's serial point) is flagged,
+since its speedup, efficiency and EDSF are then as doubtful as that time; comma-separated, empty
+for a clean point.
 
 runs.csv keeps every point ever done in its folder (rows of earlier sweeps are carried over,
 read_runs_rows), and a row cut short (a last line without its newline, or with fewer fields than
@@ -240,6 +242,21 @@ def trust(row, totals, loads, spreads):
     if row["totalT_spread"] > SPREAD_FLAG_REPEATS or row["step_spread"] > SPREAD_FLAG_STEPS:
         flags.append("spread")
     row["flag"] = ",".join(flags)
+    return row
+
+
+def _own_flags(row):
+    f = row.get("flag")
+    return [x for x in (f.split(",") if isinstance(f, str) else []) if x.strip() and x.strip() != "ref"]
+
+
+def flag_reference(row, ref):
+    """Set or clear `ref` in the flag of a row by whether its T(1) reference row ref (another row)
+    carries a flag of its own (module docstring)."""
+    own = _own_flags(row)
+    if ref is not None and ref is not row and _own_flags(ref):
+        own.append("ref")
+    row["flag"] = ",".join(own)
     return row
 
 

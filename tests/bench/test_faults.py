@@ -669,6 +669,22 @@ def test_trust_flags_from_numbers():
     assert trust({}, [1.0e-3], [tiny], [0.1])["flag"] == ""
 
 
+def test_reference_flag_follows_the_serial_point():
+    """A point's speedup is T(1) / T(p): when its serial reference is flagged (load or spread) the
+    point gets `ref` beside its own flags; a clean reference clears it again (a sweep re-runs its
+    serial point), the reference itself never carries it, and a flag read back empty (NaN) counts
+    as none."""
+    from bench.sweep.records import flag_reference
+    ref = {"flag": "spread"}
+    assert flag_reference({"flag": ""}, ref)["flag"] == "ref"
+    assert flag_reference({"flag": "load"}, ref)["flag"] == "load,ref"
+    assert flag_reference({"flag": "load,ref"}, {"flag": ""})["flag"] == "load"
+    assert flag_reference({"flag": "ref"}, {"flag": float("nan")})["flag"] == ""
+    assert flag_reference(ref, ref)["flag"] == "spread"
+    assert flag_reference({"flag": "ref"}, {"flag": "ref"})["flag"] == ""  # only a reference's own flags count
+    assert flag_reference({"flag": float("nan")}, None)["flag"] == ""
+
+
 def test_figures_ring_flagged_points(tmp_path):
     """speedup.png of a runs.csv with one flagged point (2 threads, `load`): a red ring (Line2D
     labelled FLAG_LABEL) at exactly that point's (cores, speedup) = (2, 0.5), and its label and
