@@ -1,4 +1,5 @@
-"""Launching a P > 1 mapping: `mpiexec -n P python -m mpi4py -m bench.run.rank ...`.
+"""Launching a P > 1 mapping: `mpiexec -n P python -m bench.run.witness --out DIR -- python -m mpi4py
+-m bench.run.rank ...` (the witness records how its rank ended, if badly).
 
 The parent process has already validated the inputs, built the scene's cache, chosen the time
 step (handed to the ranks, which do not choose it again) and created the output folder; here it
@@ -85,6 +86,8 @@ def launch_mpi(args, mapping, scene, out, ts):
         env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
         print(f"bench: warning: {mapping.procs} ranks x {mapping.threads} threads on {cpus} usable CPUs "
               f"oversubscribes them (MPI busy-polls): fine for correctness, not for timings", file=sys.stderr)
+    # each rank under its witness, which records how it ended if it ended badly (bench.run.witness)
+    cmd += [sys.executable, "-m", "bench.run.witness", "--out", out, "--"]
     cmd += [sys.executable, "-m", "mpi4py", "-m", "bench.run.rank"] + _run_argv(args, out)
     cmd += ["--time-step", json.dumps(ts.as_dict())]
     sup = [sys.executable, "-m", "bench.run.supervise", "--out", out, "--procs", str(mapping.procs),

@@ -9,11 +9,15 @@
 - Past --timeout seconds the run is stopped the same way (exit 3).
 - A rank whose heartbeat (bench.run.heartbeat) is older than --hang seconds while a peer's is
   fresh has stopped: the run is stopped and the rank named (exit 5).
-- A rank that dies is named from the starter's report (Hydra: `PID n RUNNING AT host`, `EXIT
-  STRING: Killed (signal 9)`; srun: `task r: Killed`) and the ranks' heartbeats (exit 5); Hydra's
-  multi-line banner is not relayed, since the supervisor says the same in one line. A rank that
-  said why in its own `bench: error:` line before it ended (e.g. a rank started alone under
-  `srun --mpi=none`) keeps that line as the reason.
+- A rank that dies is named from its witness's record (bench.run.witness: the rank's pid and its
+  wait status, written by its parent, so exact even when the starter kills the other ranks at
+  once and reports one of those) and the ranks' heartbeats (exit 5); the supervisor stops the
+  others as soon as a record appears. Without a record (a starter that does not run the
+  witness), from the starter's report (Hydra: `PID n RUNNING AT host`, `EXIT STRING: Killed
+  (signal 9)`; srun: `task r: Killed`). Hydra's multi-line banner is not relayed, since the
+  supervisor says the same in one line. A rank that said why in its own `bench: error:` line
+  before it ended (e.g. a rank started alone under `srun --mpi=none`) keeps that line as the
+  reason.
 Whenever the run ends other than by itself, the records are kept and marked: the ranks' step rows
 merged into steps.csv (bench.run.records.finalize_run) and run.json's status set (`timeout`,
 `failed`, `interrupted`) with the one-line reason, which is also printed as `bench: error: ...`.
@@ -29,6 +33,7 @@ import time
 
 from bench.run.heartbeat import read_beats
 from bench.run.lifeline import PR_SET_PDEATHSIG, _prctl, become_subreaper, die_with_parent
+from bench.run.witness import clear_ends, describe_status, read_ends
 
 GRACE_S = 5.0
 POLL_S = 0.2
@@ -168,12 +173,14 @@ def main(argv):
 
     def child_setup():  # single-threaded here: CMD gets SIGTERM when the supervisor dies
         _prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
+    clear_ends(args.out)  # an earlier run's ranks in this folder (a resumed point) are not these
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=child_setup)
     relays = [Relay(proc.stdout, sys.stdout), Relay(proc.stderr, sys.stderr)]
     for r in relays:
         r.start()
     start = time.monotonic()
     verdict = None  # (status, reason, exit status)
+    ends = []  # witnesses' records of ranks that ended badly, before the supervisor stopped any
     while True:
         try:
             rc = proc.wait(timeout=POLL_S)
@@ -189,13 +196,14 @@ def main(argv):
         elif time.monotonic() - start > args.timeout:
             verdict = ("timeout", f"{args.procs} MPI ranks did not finish within {args.timeout:g} s; killed", 3)
         else:
-            late = hung_ranks(beats, args.procs, args.hang)
+            ends = read_ends(args.out)  # named below, with the rest of what the starter said
+            late = [] if ends else hung_ranks(beats, args.procs, args.hang)
             if late:
                 r, age, rec = late[0]
                 verdict = ("failed", f"rank {r} (pid {rec.get('pid')} on {rec.get('host')}) stopped responding at "
                                      f"step {rec.get('step', 0)}: no heartbeat for {age:.0f} s while its peers wait "
                                      f"for it; stopped the {args.procs} ranks, records kept in {args.out}", 5)
-        if verdict is not None:
+        if verdict is not None or ends:
             stop(proc, beats)
             rc = proc.returncode
             break
@@ -208,8 +216,19 @@ def main(argv):
             if getattr(r, key) is not None:
                 setattr(relay, key, getattr(r, key))
     beats = read_beats(args.out)
-    if verdict is None and rc != 0 and relay.bench_error is None:  # a rank's own line, when it said one, wins
-        if relay.dead_pid is not None:
+    if verdict is None and not ends and rc != 0:  # ended by itself: the witnesses wrote before the end
+        ends = read_ends(args.out)
+    if verdict is None and (rc != 0 or ends) and relay.bench_error is None:  # a rank's own line wins
+        if ends:
+            first = ends[0]
+            r, rec = rank_of_pid(beats, first["pid"])
+            r = first.get("rank") if r is None else r
+            who = f"rank {r}" if r is not None else "a rank"
+            where = f" on {rec['host']}" if rec and rec.get("host") else ""
+            at = f" at step {rec.get('step', 0)}" if rec else " while starting"
+            verdict = ("failed", f"{who} (pid {first['pid']}{where}) died{at}: {describe_status(first['status'])}; "
+                                 f"the other ranks were stopped, records kept in {args.out}", 5)
+        elif relay.dead_pid is not None:
             r, rec = rank_of_pid(beats, relay.dead_pid)
             who = f"rank {r} (pid {relay.dead_pid} on {relay.dead_host})" if r is not None else \
                 f"a rank (pid {relay.dead_pid} on {relay.dead_host})"
@@ -217,8 +236,8 @@ def main(argv):
             how = relay.dead_how or f"exit status {rc}"
             verdict = ("failed", f"{who} died{at}: {how}; the other ranks were stopped, records kept in {args.out}", 5)
         elif relay.srun_task is not None:
-            host, tasks, how = relay.srun_task
-            verdict = ("failed", f"rank {tasks} on {host} died: {how}; the other ranks were stopped, records kept in "
+            node, tasks, how = relay.srun_task
+            verdict = ("failed", f"rank {tasks} on {node} died: {how}; the other ranks were stopped, records kept in "
                                  f"{args.out}", 5)
         else:
             verdict = ("failed", f"the ranks ended with exit status {rc} without a word; records kept in {args.out}",
@@ -229,9 +248,9 @@ def main(argv):
         finalize_run(args.out, args.procs, status, reason)
         print(f"bench: error: {reason}", file=sys.stderr, flush=True)
         return code
-    if rc != 0:  # a rank said why in its own line: keep its records and its reason
+    if rc != 0 or ends:  # a rank said why in its own line: keep its records and its reason
         finalize_run(args.out, args.procs, "failed", relay.bench_error[len("bench: error: "):])
-    return rc
+    return rc if rc or not ends else 5
 
 
 if __name__ == "__main__":
