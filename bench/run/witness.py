@@ -8,14 +8,14 @@ Why: when a rank dies, the starter kills the others at once (Hydra's proxy, Slur
 banner names the first process of its proxy with a bad status, and that is rank 0 whenever the
 proxy has reaped it (killed by the clean-up) before reporting, a race seen in CI. A witness
 killed by the starter's clean-up writes nothing (SIGKILL), and its rank follows it
-(PR_SET_PDEATHSIG): only the rank that died first of its own leaves a
-record, which bench.run.supervise reads to name it.
+(PR_SET_PDEATHSIG): only the rank that died first of its own leaves a record, which
+bench.run.supervise reads to name it (the earliest by its time, should ranks on several hosts
+leave one each).
 
 The witness forwards SIGINT, SIGTERM, SIGHUP, SIGUSR1 and SIGUSR2 to the rank (the starter sends
 them to the process it started), so that an interrupted rank still keeps its records. It dies
 with its own parent (PR_SET_PDEATHSIG SIGKILL), and the rank with it (the same request, made for
-the rank between fork and exec). It imports nothing heavy:
-it waits, idle, beside the rank.
+the rank between fork and exec). It imports nothing heavy: it waits, idle, beside the rank.
 """
 import json
 import os
