@@ -55,6 +55,9 @@ def build_parser():
     sw.add_argument("--contact-method", choices=CONTACT_METHOD_CHOICES, default="exact",
                     help="ellipsoid contact geometry of every point (default exact)")
     sw.add_argument("--halo", choices=["26", "6"], default="26")
+    sw.add_argument("--update-grid", type=nonneg_int, default=0, metavar="K",
+                    help="MPI points re-fit their block grid to the particles' extent at the start and every K "
+                         "steps (the paper's updateGrid; default 0: blocks divide the box)")
     sw.add_argument("--pin", action="store_true")
     sw.add_argument("--ceiling", action="store_true",
                     help="also measure the machine's efficiency ceiling at each core count W of the sweep (W "
@@ -231,7 +234,7 @@ def cmd_run(args):
 
 
 SWEEP_FIELDS = {"mappings": str, "schemes": str, "scene": str, "particles": int, "shape": str, "steps": int,
-                "warmup": int, "repeats": int, "neighbor": str, "contact_method": str, "halo": str, "pin": bool,
+                "warmup": int, "repeats": int, "neighbor": str, "contact_method": str, "halo": str, "update_grid": int, "pin": bool,
                 "ceiling": bool, "timeout": int,
                 "launcher": str, "out": str, "slurm": dict}
 
@@ -273,9 +276,10 @@ def _sweep_file(args):
                 raise UsageError(f"{key} in {args.file} must be a list of strings, got {_short(value)}")
             value = ",".join(value)
         want = SWEEP_FIELDS[key]
+        zero_ok = key in ("warmup", "update_grid")
         if want is int and (isinstance(value, bool) or not isinstance(value, int) or value < 0 or
-                            value == 0 and key != "warmup" or value > 2**62):
-            raise UsageError(f"{key} in {args.file} must be a {'non-negative' if key == 'warmup' else 'positive'} "
+                            value == 0 and not zero_ok or value > 2**62):
+            raise UsageError(f"{key} in {args.file} must be a {'non-negative' if zero_ok else 'positive'} "
                              f"integer, got {_short(value)}")
         if want is bool and not isinstance(value, bool):
             raise UsageError(f"{key} in {args.file} must be true or false, got {value!r}")

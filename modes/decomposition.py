@@ -47,6 +47,10 @@ class BlockGrid:
             return None
         return c
 
+    def fits(self, width):
+        """Whether every split axis has blocks at least `width` [m] wide."""
+        return not np.any((self.dims > 1) & (self.h < width))
+
     def check_width(self, width):
         """Refuse blocks narrower than the border layer (a particle larger than a block)."""
         for k, name in enumerate("xyz"):
@@ -55,6 +59,28 @@ class BlockGrid:
                     f"blocks are {self.h[k]:.3g} m wide along {name} ({self.dims[k]} blocks) but the largest "
                     f"particle needs a border layer of {width:.3g} m (its bounding diameter): use fewer "
                     f"blocks along {name}")
+
+
+def extent_grid(lo, hi, dims):
+    """The paper's updateGrid (Yan & Regueiro §3.3, flowchart step 9, for load balance): the dims
+    grid of blocks over the extent lo..hi [3] of the particle centres [m], widened by 1e-9 of the
+    span so that the extreme centres lie inside, rather than over the whole domain box. An axis
+    along which every centre is the same (a monolayer) is widened by 1e-9 of the largest span or
+    coordinate instead, so that its blocks keep a width (too thin for a split axis: fits says so)."""
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    span = hi - lo
+    scale = max(float(span.max()), float(np.abs(lo).max()), float(np.abs(hi).max()), 1e-300)
+    pad = 1e-9 * np.where(span > 0.0, span, scale)
+    return BlockGrid(np.array([lo - pad, hi + pad]), dims)
+
+
+def block_counts(grid, pos):
+    """Particles [px, py, pz] whose centre (pos [n, 3]) each block of grid holds."""
+    counts = np.zeros(tuple(int(d) for d in grid.dims), dtype=np.int64)
+    if len(pos):
+        np.add.at(counts, tuple(grid.block_of(pos).T), 1)
+    return counts
 
 
 def border_width(rbound_max):

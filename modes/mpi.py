@@ -18,7 +18,7 @@ decomposition.py, the ping-pong wire model in wire.py; this module only orchestr
 import numpy as np
 
 from modes.base import ModeError, register
-from modes.decomposition import BlockGrid, DecompositionError, border_width, fit_skin
+from modes.decomposition import BlockGrid, DecompositionError, block_counts, border_width, extent_grid, fit_skin
 from modes.halo import Halo
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
@@ -52,6 +52,15 @@ class _Blocks:
             raise ModeError(str(e)) from None
         self.skin_fraction = self.skin / (2.0 * float(s.rbound.max()))
         self.width = base + self.skin
+        self.update_grid = int(update_grid)
+        if self.update_grid and s.n:
+            # every rank holds the whole scene here, so each fits the same grid without a message; as
+            # at a refit, a grid too tight for the border layer leaves the box's
+            fitted = extent_grid(s.pos.min(axis=0), s.pos.max(axis=0), dims)
+            if fitted.fits(self.width):
+                self.grid = fitted
+        # the particles of each block at the start (the driver warns of empty ones)
+        self.block_counts = block_counts(self.grid, s.pos)
         mine = np.flatnonzero(np.all(self.grid.block_of(s.pos) == self.coords, axis=1))
         s.permute_keep(mine)
         self.halo = Halo(cart, self.grid, self.coords, halo=halo)
@@ -59,7 +68,6 @@ class _Blocks:
         self.wire = WireModel(pingpong(cart, self.halo.neighbour_ranks(), sizes=WIRE_SIZES, time_per_size=1e-3)) \
             if wire else None
         self.halo.wire = self.wire
-        self.update_grid = int(update_grid)
         self.steps_done = 0
         self.grid_updates = 0
         self.decision = np.zeros(4)
@@ -95,9 +103,8 @@ class _Blocks:
         hi = s.pos[:n].max(axis=0) if n else np.full(3, -np.inf)
         self.cart.Allreduce(MPI.IN_PLACE, lo, op=MPI.MIN)
         self.cart.Allreduce(MPI.IN_PLACE, hi, op=MPI.MAX)
-        span = np.maximum(hi - lo, 1e-300)
-        grid = BlockGrid(np.array([lo - 1e-9 * span, hi + 1e-9 * span]), self.grid.dims)
-        if np.any((grid.dims > 1) & (grid.h < self.width)):
+        grid = extent_grid(lo, hi, self.grid.dims)
+        if not grid.fits(self.width):
             return 0  # too tight for the border layer: keep the current grid
         self.grid = grid
         self.halo.set_grid(grid)

@@ -191,6 +191,11 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
         info["forward_bytes_per_ghost"] = 8 * sum(WIDTH[f] for f in moving_fields(mode.all_spheres))
         wires = comm.gather(mode.wire.as_dict() if mode.wire is not None else None, root=0)
         info["wire"] = {str(r): w for r, w in enumerate(wires)} if rank == 0 else None
+        info["block_particles"] = mode.block_counts.tolist()  # [px][py][pz], at the start
+        info["block_box"] = [mode.grid.lo.tolist(), mode.grid.hi.tolist()]
+        if rank == 0:
+            for w in empty_block_warnings(mode.block_counts, args.update_grid):
+                print(f"bench: warning: {w}", file=sys.stderr, flush=True)
     reserve = Reserve(out) if rank == 0 else None
     run_json = os.path.join(out, "run.json")
     if rank == 0:
@@ -316,6 +321,20 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
         print(f"bench: error: {reason}", file=sys.stderr)
         return 1
     return 0
+
+
+def empty_block_warnings(counts, update_grid):
+    """A line for a block grid some of whose blocks (counts [px, py, pz]: particles per block at the
+    start) hold no particle: their ranks would only wait, so the point measures fewer workers than
+    its mapping names."""
+    empty = int((counts == 0).sum())
+    if not empty:
+        return []
+    grid = "x".join(str(d) for d in counts.shape)
+    hint = ("" if update_grid else
+            "; --update-grid K fits the grid to the particles (at the start and every K steps)")
+    return [f"{empty} of {counts.size} blocks of the {grid} grid hold no particle at the start, so their ranks "
+            f"only wait{hint}"]
 
 
 def _max_op():

@@ -27,11 +27,16 @@ class Point:
     pin: bool
     halo: str
     contact_method: str = "exact"
+    update_grid: int = 0
 
     @property
     def key(self):
-        """Folder name: readable mapping and scheme plus a hash of every parameter."""
-        digest = hashlib.sha1(json.dumps(asdict(self), sort_keys=True).encode()).hexdigest()[:8]
+        """Folder name: readable mapping and scheme plus a hash of every parameter (update_grid only
+        when set, so the points of sweeps from before it keep their keys for --resume)."""
+        params = asdict(self)
+        if not params["update_grid"]:
+            del params["update_grid"]
+        digest = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:8]
         return f"{self.mapping}{'-' + self.scheme if self.scheme else ''}-{digest}"
 
     def run_args(self, out, timeout):
@@ -47,6 +52,8 @@ class Point:
             args += ["--contact-method", self.contact_method]
         if self.mapping.split("-")[0] != "1":
             args += ["--halo", self.halo]
+            if self.update_grid:
+                args += ["--update-grid", str(self.update_grid)]
         return args
 
 
@@ -57,7 +64,7 @@ def point_from_dict(d):
 
 
 def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, shape, pin, halo,
-                contact_method="exact"):
+                contact_method="exact", update_grid=0):
     """Points of a sweep: the serial reference first, then each mapping (x each scheme when it has
     more than one thread), without duplicates, in the order given."""
     for s in schemes:
@@ -70,7 +77,7 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
     for m in parsed:
         for s in (schemes if m.threads > 1 else [""]):
             p = Point(str(m), s, scene, particles or 0, steps or 0, warmup, neighbor, shape or "", pin, halo,
-                      contact_method)
+                      contact_method, update_grid if m.procs > 1 else 0)
             if p not in points:
                 points.append(p)
     points.sort(key=lambda p: p.mapping != SERIAL)  # the reference runs first

@@ -111,6 +111,29 @@ def test_local_dry_run(tmp_path):
     assert not any((tmp_path / "dry").rglob("run.json"))
 
 
+def test_update_grid_passes_to_the_mpi_points(tmp_path):
+    """--update-grid K reaches the MPI points' commands (and a sweep file's update_grid = K), not
+    the serial or thread points, which have no blocks; without it a point keeps the key (folder
+    name) it had before the option existed, so --resume still finds sweeps made then."""
+    from bench.sweep.points import make_points
+    res = bench("sweep", *SMALL, "--mappings", "1-1-1-1-2,2-1-1-2-1", "--update-grid", "25", "--dry-run",
+                "--out", str(tmp_path / "dry"))
+    assert res.returncode == 0, res.stderr
+    lines = [line for line in res.stdout.splitlines() if "--mapping " in line]
+    assert len(lines) == 3
+    assert ["--update-grid 25" in line for line in lines] == ["--mapping 2-1-1-2-1" in line for line in lines]
+    sweep_file = tmp_path / "sweep.toml"
+    sweep_file.write_text('[sweep]\nmappings = ["2-2-1-1-1"]\nscene = "pluviation"\nupdate_grid = 7\n')
+    res = bench("sweep", "--file", str(sweep_file), "--dry-run", "--out", str(tmp_path / "dry2"))
+    assert res.returncode == 0 and "--update-grid 7" in res.stdout, res.stderr
+    one_line_error(bench("sweep", *SMALL, "--mappings", "2-2-1-1-1", "--update-grid", "-1", "--out",
+                         str(tmp_path / "bad")), "--update-grid")
+    args = (["2-2-1-1-1"], ["dynamic"], "pluviation", 200, 15, 0, "linkcell", None, False, "26")
+    # the key of this point before update_grid existed: sha1 of its fields without it
+    assert make_points(*args)[1].key == "2-2-1-1-1-822c84b2"
+    assert make_points(*args, "exact", 25)[1].key != make_points(*args)[1].key
+
+
 def test_collect_rebuilds_runs_csv(tmp_path):
     """bench collect gathers the point folders (as Slurm jobs leave them) into the same rows, with
     the speedups of a local sweep: S = T(1)/T(p), so 1.0 exactly for the serial row, and efficiency

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from dem.state import State
-from modes.decomposition import (DIRECTIONS, OPPOSITE, BlockGrid, DecompositionError, border_width,
-                                 direction_of, fit_skin, send_masks)
+from modes.decomposition import (DIRECTIONS, OPPOSITE, BlockGrid, DecompositionError, block_counts, border_width,
+                                 direction_of, extent_grid, fit_skin, send_masks)
 from modes.halo import GHOST_GENERAL, GHOST_SPHERE, _columns, _split, pack_moving, unpack_moving
 
 UNIT = ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
@@ -65,6 +65,24 @@ def test_direction_of_round_trip():
     got = direction_of(origin, to)
     assert np.array_equal(got[:26], np.arange(26))
     assert got[26] == -1 and got[27] == -1
+
+
+def test_extent_grid_splits_the_particles_not_the_box():
+    """A bed resting in the lowest third of a tall box (centres at z = 0.01..0.30 of 1.0): halving
+    the box along z leaves the upper block empty (4 + 0), the grid fitted to the centres' extent
+    (the paper's updateGrid) cuts at z = 0.155, between the second and third centre (2 + 2).
+    Its corners lie 1e-9 of the span outside the extreme centres, so those stay inside."""
+    pos = np.array([[0.5, 0.5, z] for z in (0.01, 0.10, 0.20, 0.30)])
+    box = BlockGrid(UNIT, (1, 1, 2))
+    assert block_counts(box, pos).tolist() == [[[4, 0]]]
+    fitted = extent_grid(pos.min(axis=0), pos.max(axis=0), (1, 1, 2))
+    assert block_counts(fitted, pos).tolist() == [[[2, 2]]]
+    assert fitted.bounds((0, 0, 0))[1][2] == pytest.approx(0.155)
+    assert np.all(fitted.lo < pos.min(axis=0)) and np.all(fitted.hi > pos.max(axis=0))
+    # blocks 0.145 wide along z hold a border layer of 0.1, not one of 0.2; unsplit x and y (zero
+    # span here) are not checked
+    assert fitted.fits(0.1) and not fitted.fits(0.2)
+    assert block_counts(fitted, np.zeros((0, 3))).tolist() == [[[0, 0]]]
 
 
 def test_block_width_and_skin():

@@ -245,3 +245,34 @@ def test_forward_steps_allocate_nothing(tmp_path):
         assert r["rebuilt"] == 0 and r["ghosts"] > 0, r
         assert r["allocs"] == 0 and r["same"], r
         assert r["msgs"] == [1] * 20, r
+
+
+def _bed_in_tall_box():
+    """100 spheres (r = 0.8 mm) in 4 layers of 5 x 5 on the floor of a 40 mm tall box, centres
+    1.58 mm apart (each touches its neighbours: overlap 0.02 mm), z = 0.8..5.54 mm."""
+    return [("sphere", [8e-4], [0.006 + 1.58e-3 * i, 0.006 + 1.58e-3 * j, 8e-4 + 1.58e-3 * k], [0.0, 0.0, 0.0])
+            for k in range(4) for j in range(5) for i in range(5)]
+
+
+def test_update_grid_fits_the_grid_at_the_start(tmp_path, tmp_path_factory):
+    """A bed in the lowest seventh of its box, split in two along z. Blocks that divide the box put
+    all 100 particles in the lower block (run.json block_particles [[[100, 0]]]) and the run says
+    so in one warning line; with --update-grid the blocks divide the particles' extent from the
+    first step (the paper's updateGrid, flowchart step 9), cutting at z = 3.17 mm between the
+    second and third layers: 50 + 50. Both reproduce the serial trajectory bit for bit."""
+    scene = write(tmp_path, scene_with(_bed_in_tall_box(), box="[[0.0, 0.0, 0.0], [0.02, 0.02, 0.04]]"))
+    ref = serial_state(tmp_path_factory, scene, 40)
+    out = tmp_path / "box"
+    res = bench("run", "--scene", scene, "--steps", "40", "--mapping", "2-1-1-2-1", "--out", str(out), "--quiet",
+                "--timeout", "600", timeout=900)
+    assert res.returncode == 0, res.stderr
+    info = json.loads((out / "run.json").read_text())
+    assert info["block_particles"] == [[[100, 0]]]
+    warned = [line for line in res.stderr.splitlines() if "hold no particle" in line]
+    assert len(warned) == 1 and "1 of 2 blocks of the 1x1x2 grid" in warned[0] and "--update-grid" in warned[0]
+    assert_same(ref, dict(np.load(out / "state.npz")))
+    got, steps, info = mpi_run(tmp_path, scene, 40, "2-1-1-2-1", "--update-grid", "1000")
+    assert info["block_particles"] == [[[50, 50]]]
+    assert info["block_box"][1][2] == pytest.approx(8e-4 + 3 * 1.58e-3, rel=1e-6)
+    assert (steps.query("step == 1").set_index("rank")["n_owned"] == 50).all()
+    assert_same(ref, got)
