@@ -89,12 +89,20 @@ def write_inputs(out):
             open(script, "wb") as dst:
         shutil.copyfileobj(src, dst)
     np.savez(os.path.join(out, "bed.npz"), id=ids, pos=pos, radius=r)
-    scene = os.path.join(out, "bed.toml")
+    box = f"[[{BOX[0][0]!r}, {BOX[0][1]!r}, {BOX[0][2]!r}], [{BOX[1][0]!r}, {BOX[1][1]!r}, {BOX[1][2]!r}]]"
+    scene = write_scene(os.path.join(out, "bed.toml"), "the settled bed of `bench peer lammps` (identical to the "
+                        "LAMMPS data file bed.data)", box, "bed.npz", "npz")
+    return data, script, scene
+
+
+def write_scene(path, comment, box, particle_file, fmt):
+    """Our scene of a peer's configuration: the peer benchmarks' walls (x-, x+, y-, y+, z-), gravity,
+    material and dt, the particles from a file beside it; returns path."""
     material = "\n".join(f"{k} = {v!r}" for k, v in OURS_MATERIAL.items())
-    with open(scene, "w") as fh:
-        fh.write(f"""# the settled bed of `bench peer lammps` (identical to the LAMMPS data file bed.data)
+    with open(path, "w") as fh:
+        fh.write(f"""# {comment}
 [domain]
-box = [[{BOX[0][0]!r}, {BOX[0][1]!r}, {BOX[0][2]!r}], [{BOX[1][0]!r}, {BOX[1][1]!r}, {BOX[1][2]!r}]]
+box = {box}
 walls = ["x-", "x+", "y-", "y+", "z-"]
 gravity = [0.0, 0.0, -9.81]
 
@@ -106,10 +114,10 @@ dt = {DT!r}
 steps = 0
 
 [[particle_file]]
-path = "bed.npz"
-format = "npz"
+path = "{particle_file}"
+format = "{fmt}"
 """)
-    return data, script, scene
+    return path
 
 
 def _tool(cmd, default, what, hint):
@@ -224,31 +232,9 @@ class Liggghts:
                    self.env, out, 600, "LIGGGHTS's step-0 dump")
         if res.returncode or not os.path.isfile(dump):
             raise _failure(res, "LIGGGHTS's step-0 dump")
-        scene = os.path.join(out, "crystal.toml")
-        with open(scene, "w") as fh:
-            fh.write(f"""# LIGGGHTS's superquadric crystal {'x'.join(map(str, self.lattice))} (bench peer liggghts), read
-# from its own step-0 dump: the same doubles in both codes
-[domain]
-box = "file"
-walls = ["x-", "x+", "y-", "y+", "z-"]
-gravity = [0.0, 0.0, -9.81]
-
-[materials.default]
-density = 2650.0
-young = 29e9
-poisson = 0.25
-friction = 0.5
-restitution = 0.5
-
-[time]
-dt = {DT!r}
-steps = 0
-
-[[particle_file]]
-path = "crystal_step0.dump"
-format = "lammps"
-""")
-        return scene
+        return write_scene(os.path.join(out, "crystal.toml"), f"LIGGGHTS's superquadric crystal "
+                           f"{'x'.join(map(str, self.lattice))} (bench peer liggghts), read from its own step-0 dump: "
+                           "the same doubles in both codes", '"file"', os.path.basename(dump), "lammps")
 
     def run(self, procs, steps, timeout):
         """One run (10 untimed steps, then the timed ones); returns seconds per timed step."""
