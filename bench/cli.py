@@ -11,7 +11,7 @@ import json
 import os
 import sys
 
-from bench.run.options import (CONTACT_METHOD_CHOICES, NEIGHBOR_CHOICES, SHAPE_CHOICES, add_run_arguments,
+from bench.run.options import (BALANCE, CONTACT_METHOD_CHOICES, NEIGHBOR_CHOICES, SHAPE_CHOICES, add_run_arguments,
                                nonneg_int, positive_int, skin_fraction)
 from bench.run.threads_env import configure_threads
 from bench.sweep.slurm_options import FIELDS as SLURM_FIELDS
@@ -56,8 +56,11 @@ def build_parser():
                     help="ellipsoid contact geometry of every point (default exact)")
     sw.add_argument("--halo", choices=["26", "6"], default="26")
     sw.add_argument("--update-grid", type=nonneg_int, default=0, metavar="K",
-                    help="MPI points re-fit their block grid to the particles' extent at the start and every K "
-                         "steps (the paper's updateGrid; default 0: blocks divide the box)")
+                    help="MPI points fit their block grid to the particles at the start and every K steps (the "
+                         "paper's updateGrid; default 0: blocks divide the box)")
+    sw.add_argument("--balance", choices=BALANCE, default="extent",
+                    help="how --update-grid fits the grid: extent (default, the paper's), count (equal particle "
+                         "counts) or time (equal measured compute time)")
     sw.add_argument("--pin", action="store_true")
     sw.add_argument("--ceiling", action="store_true",
                     help="also measure the machine's efficiency ceiling at each core count W of the sweep (W "
@@ -252,7 +255,8 @@ def cmd_run(args):
 
 
 SWEEP_FIELDS = {"mappings": str, "schemes": str, "scene": str, "particles": int, "shape": str, "steps": int,
-                "warmup": int, "repeats": int, "neighbor": str, "contact_method": str, "halo": str, "update_grid": int, "pin": bool,
+                "warmup": int, "repeats": int, "neighbor": str, "contact_method": str, "halo": str, "update_grid": int,
+                "balance": str, "pin": bool,
                 "ceiling": bool, "timeout": int,
                 "launcher": str, "out": str, "slurm": dict}
 
@@ -347,9 +351,9 @@ def cmd_sweep(args):
     if args.launcher not in LAUNCHERS:
         raise UsageError(f"bench sweep: unknown launcher {args.launcher!r} (launchers: {', '.join(LAUNCHERS)})")
     if args.neighbor not in NEIGHBOR_CHOICES or args.halo not in ("26", "6") or \
-            args.contact_method not in CONTACT_METHOD_CHOICES:
+            args.contact_method not in CONTACT_METHOD_CHOICES or args.balance not in BALANCE:
         raise UsageError(f"bench sweep: neighbor must be {'|'.join(NEIGHBOR_CHOICES)}, halo 26|6, "
-                         f"contact_method {'|'.join(CONTACT_METHOD_CHOICES)}")
+                         f"contact_method {'|'.join(CONTACT_METHOD_CHOICES)}, balance {'|'.join(BALANCE)}")
     args.slurm = _slurm_options(args)
     if args.launcher != "slurm" and (args.slurm or args.no_submit):
         given = ", ".join(sorted(args.slurm)) or "no_submit"

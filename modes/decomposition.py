@@ -22,23 +22,43 @@ class DecompositionError(ValueError):
 
 
 class BlockGrid:
-    """Blocks of the box [2, 3] split dims = (px, py, pz) ways; block edges lo + i h."""
+    """Blocks of the box [2, 3] split dims = (px, py, pz) ways. Uniform by default (block edges
+    lo + i h); with cuts, a tuple of three arrays [dims[a] - 1] of ascending inner cut planes per
+    axis (the planes of LAMMPS's `balance shift`: a tensor-product grid whose slabs may differ in
+    width), the edges lo, cuts..., hi."""
 
-    def __init__(self, box, dims):
+    def __init__(self, box, dims, cuts=None):
         self.lo = np.asarray(box[0], dtype=np.float64)
         self.hi = np.asarray(box[1], dtype=np.float64)
         self.dims = np.asarray(dims, dtype=np.int64)
         self.h = (self.hi - self.lo) / self.dims
+        self.cuts = None if cuts is None else tuple(np.asarray(c, dtype=np.float64) for c in cuts)
+        if self.cuts is not None:
+            self.edges = tuple(np.concatenate(([self.lo[a]], self.cuts[a], [self.hi[a]])) for a in range(3))
+            # the narrowest block along each axis [m]
+            self.h = np.array([float(np.diff(e).min()) for e in self.edges])
 
     def block_of(self, pos):
-        """Block coordinates [n, 3] of centres pos [n, 3]."""
-        idx = np.floor((pos - self.lo) / self.h).astype(np.int64)
-        return np.clip(idx, 0, self.dims - 1)
+        """Block coordinates [n, 3] of centres pos [n, 3] (a centre on a cut belongs to the upper block)."""
+        if self.cuts is None:
+            idx = np.floor((pos - self.lo) / self.h).astype(np.int64)
+            return np.clip(idx, 0, self.dims - 1)
+        pos = np.asarray(pos, dtype=np.float64).reshape(-1, 3)
+        return np.stack([np.searchsorted(self.cuts[a], pos[:, a], side="right") for a in range(3)], axis=1)
 
     def bounds(self, coords):
         """Lower and upper corner [3] of block `coords`."""
         coords = np.asarray(coords)
-        return self.lo + coords * self.h, self.lo + (coords + 1) * self.h
+        if self.cuts is None:
+            return self.lo + coords * self.h, self.lo + (coords + 1) * self.h
+        return (np.array([self.edges[a][coords[a]] for a in range(3)]),
+                np.array([self.edges[a][coords[a] + 1] for a in range(3)]))
+
+    def inner_cuts(self):
+        """The inner cut planes [m] along x, y, z: a tuple of three arrays [dims[a] - 1]."""
+        if self.cuts is not None:
+            return self.cuts
+        return tuple(self.lo[a] + self.h[a] * np.arange(1, self.dims[a]) for a in range(3))
 
     def neighbour(self, coords, k):
         """Coordinates of the neighbour in direction k, or None beyond the grid (not periodic)."""
@@ -73,6 +93,80 @@ def extent_grid(lo, hi, dims):
     scale = max(float(span.max()), float(np.abs(lo).max()), float(np.abs(hi).max()), 1e-300)
     pad = 1e-9 * np.where(span > 0.0, span, scale)
     return BlockGrid(np.array([lo - pad, hi + pad]), dims)
+
+
+# bins per axis of the load profiles that place balanced cuts: a cut lands within 1/BALANCE_BINS of
+# the centres' extent of its quantile before the linear interpolation inside the bin
+BALANCE_BINS = 1024
+
+
+def load_profiles(pos, weight, lo, hi, bins=BALANCE_BINS):
+    """The load of particles (centres pos [n, 3], each of weight `weight`: [n] or one number) along
+    each axis: histograms [3, bins] over the extent lo..hi [3] of the centres [m] (a centre outside
+    it counts in the end bin)."""
+    prof = np.zeros((3, bins))
+    if len(pos) == 0:
+        return prof
+    lo = np.asarray(lo, dtype=np.float64)
+    span = np.asarray(hi, dtype=np.float64) - lo
+    span = np.where(span > 0.0, span, 1.0)
+    w = np.broadcast_to(np.asarray(weight, dtype=np.float64), (len(pos),))
+    for a in range(3):
+        b = np.clip(np.floor((pos[:, a] - lo[a]) / span[a] * bins), 0, bins - 1).astype(np.int64)
+        prof[a] = np.bincount(b, weights=w, minlength=bins)
+    return prof
+
+
+def balanced_grid(box, lo, hi, dims, profiles, width):
+    """The dims grid whose cut planes split the load profiles [3, bins] (over the centres' extent
+    lo..hi [3], load_profiles) into equal parts: along an axis of P blocks, cut k sits where the
+    cumulative load reaches k/P of the total (linearly inside its bin). As in LAMMPS's `balance
+    shift` (Plimpton et al., "Load balancing", LAMMPS manual), the cuts are planes through the
+    whole grid, so along each axis the load balances between slabs. With the particle count as
+    load this splits the particles equally; with each rank's measured compute time spread over
+    its particles (LAMMPS's `weight time`) it equalises time, whatever makes a particle dear (its
+    contacts, its shape, a slower core). The outer edges are the box's (widened to the extent where
+    centres lie outside it). Blocks narrower than width [m] (the border layer) are widened by
+    pushing cuts apart; returns None where an axis cannot hold P such blocks or its load is empty."""
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    outer_lo = np.minimum(np.asarray(box[0], dtype=np.float64), lo)
+    outer_hi = np.maximum(np.asarray(box[1], dtype=np.float64), hi)
+    wide = width * (1.0 + 1e-9)
+    cuts = []
+    for a in range(3):
+        parts = int(dims[a])
+        if parts == 1:
+            cuts.append(np.zeros(0))
+            continue
+        prof = np.asarray(profiles[a], dtype=np.float64)
+        cum = np.concatenate(([0.0], np.cumsum(prof)))
+        total = cum[-1]
+        if not total > 0.0:
+            return None
+        bins = len(prof)
+        edges = lo[a] + (hi[a] - lo[a]) * np.arange(bins + 1) / bins
+        target = total * np.arange(1, parts) / parts
+        k = np.clip(np.searchsorted(cum, target, side="left"), 1, bins)  # cum[k-1] < target <= cum[k]
+        frac = (target - cum[k - 1]) / np.maximum(cum[k] - cum[k - 1], 1e-300)
+        c = edges[k - 1] + frac * (edges[k] - edges[k - 1])
+        for i in range(parts - 1):  # at least a border layer from the block below ...
+            c[i] = max(c[i], (c[i - 1] if i else outer_lo[a]) + wide)
+        for i in range(parts - 2, -1, -1):  # ... and from the block above
+            c[i] = min(c[i], (c[i + 1] if i < parts - 2 else outer_hi[a]) - wide)
+        if np.any(np.diff(np.concatenate(([outer_lo[a]], c, [outer_hi[a]]))) < width):
+            return None
+        cuts.append(c)
+    return BlockGrid(np.array([outer_lo, outer_hi]), dims, cuts)
+
+
+def blended_grid(current, target, keep):
+    """target's grid (its outer edges) with each inner cut plane moved only (1 - keep) of the way
+    from current's (same dims): a damped step towards a balance measured under noise. Between two
+    inner cuts a block is at least as wide as the narrower of the two grids' blocks there; an
+    outer block may not be (the outer edges move too), so the caller checks fits()."""
+    cuts = tuple(keep * c + (1.0 - keep) * t for c, t in zip(current.inner_cuts(), target.inner_cuts()))
+    return BlockGrid(np.array([target.lo, target.hi]), target.dims, cuts)
 
 
 def block_counts(grid, pos):

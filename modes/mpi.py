@@ -12,13 +12,19 @@ step rebuilds is decided collectively, in the one allreduce a step makes, which 
 stability guard's sums. It is part of commuT and recorded alone as syncT: a rank that finishes
 its step early waits there for the slowest, so syncT holds the ranks' imbalance, and the
 exchanges that follow it start in step (their time is the wire and the software around it).
+With update_grid K the block grid is fitted to the particles at the start and every K steps
+(refit_grid): the paper's equal blocks over their extent, or cut planes at equal particle count
+or at equal measured compute time (balance; the MPI counterpart of dynamic thread scheduling).
 Timers use MPI.Wtime. Halo and migration live in halo.py, the geometry of blocks in
 decomposition.py, the ping-pong wire model in wire.py; this module only orchestrates.
 """
+from collections import deque
+
 import numpy as np
 
 from modes.base import ModeError, register
-from modes.decomposition import BlockGrid, DecompositionError, block_counts, border_width, extent_grid, fit_skin
+from modes.decomposition import (BlockGrid, DecompositionError, balanced_grid, blended_grid, block_counts,
+                                 border_width, extent_grid, fit_skin, load_profiles)
 from modes.halo import Halo
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
@@ -26,6 +32,16 @@ from modes.wire import WireModel, pingpong
 
 # ping-pong message sizes [B] of a run's wire model: a count message to the largest ghost messages
 WIRE_SIZES = (8, 512, 4096, 32768, 262144)
+# how --update-grid K fits the block grid (at the start and every K steps): "extent", the paper's
+# updateGrid (equal blocks over the particles' extent); "count", cut planes at equal particle
+# counts; "time", cut planes at equal measured compute time (modes.decomposition.balanced_grid)
+BALANCE = ("extent", "count", "time")
+# balance "time": the share of the old cut planes kept at a refit (each refit moves the planes half
+# way to the measured balance: a steady cost difference is taken up geometrically, 1/2, 3/4, ...,
+# while the noise of a window of steps moves them only half as far)
+TIME_BALANCE_KEEP = 0.5
+# balance "time": the steps whose median compute time weighs a refit (at most the last this many)
+TIME_WINDOW = 1000
 
 
 class _Blocks:
@@ -34,7 +50,9 @@ class _Blocks:
     collective = True
     migrates = True
 
-    def setup(self, scene, dt, cart=None, skin=None, halo="26", update_grid=0, wire=True, **kw):
+    def setup(self, scene, dt, cart=None, skin=None, halo="26", update_grid=0, balance="extent", wire=True, **kw):
+        if balance not in BALANCE:
+            raise ModeError(f"unknown balance {balance!r} ({', '.join(BALANCE)})")
         from mpi4py import MPI
         self.clock = MPI.Wtime
         self.mpi = MPI
@@ -53,11 +71,16 @@ class _Blocks:
         self.skin_fraction = self.skin / (2.0 * float(s.rbound.max()))
         self.width = base + self.skin
         self.update_grid = int(update_grid)
+        self.balance = balance
+        self.compute_times = deque(maxlen=TIME_WINDOW)  # compuT of the steps since the last refit ("time")
         if self.update_grid and s.n:
             # every rank holds the whole scene here, so each fits the same grid without a message; as
-            # at a refit, a grid too tight for the border layer leaves the box's
-            fitted = extent_grid(s.pos.min(axis=0), s.pos.max(axis=0), dims)
-            if fitted.fits(self.width):
+            # at a refit, a grid too tight for the border layer leaves the box's. No time has been
+            # measured yet: "time" starts from equal counts
+            lo, hi = s.pos.min(axis=0), s.pos.max(axis=0)
+            fitted = extent_grid(lo, hi, dims) if balance == "extent" else \
+                balanced_grid(scene.box, lo, hi, dims, load_profiles(s.pos, 1.0, lo, hi), self.width)
+            if fitted is not None and fitted.fits(self.width):
                 self.grid = fitted
         # the particles of each block at the start (the driver warns of empty ones)
         self.block_counts = block_counts(self.grid, s.pos)
@@ -87,14 +110,19 @@ class _Blocks:
     def warmup(self):
         super().warmup()  # collective: every rank steps its twin (a rebuild and a forward step)
         self.halo.reset_counters()
+        self.compute_times.clear()  # the twin's steps (compilation) are no measure of this block's load
 
     def release(self):
         self.halo.free()
 
     def refit_grid(self):
-        """The paper's updateGrid: re-fit the block grid to the extent of the particle centres
-        (all ranks agree through two allreduces) when the blocks stay wide enough, and hand
-        particles to their new owners. Returns the number of particles this rank sent."""
+        """The paper's updateGrid: re-fit the block grid to the particle centres (balance "extent":
+        equal blocks over their extent, which all ranks agree on through two allreduces; "count" and
+        "time": cut planes at equal load, placed by rank 0 from the summed load profiles and
+        broadcast, so that every rank holds the same planes) when the blocks stay wide enough, and
+        hand particles to their new owners. The "time" load spreads each rank's median compute
+        time per step since the last refit (its last TIME_WINDOW steps) over its particles.
+        Returns the number of particles this rank sent."""
         MPI = self.mpi
         from modes.halo import redistribute
         s = self.state
@@ -103,8 +131,24 @@ class _Blocks:
         hi = s.pos[:n].max(axis=0) if n else np.full(3, -np.inf)
         self.cart.Allreduce(MPI.IN_PLACE, lo, op=MPI.MIN)
         self.cart.Allreduce(MPI.IN_PLACE, hi, op=MPI.MAX)
-        grid = extent_grid(lo, hi, self.grid.dims)
-        if not grid.fits(self.width):
+        if self.balance == "extent":
+            grid = extent_grid(lo, hi, self.grid.dims)
+        else:
+            weight = 1.0
+            if self.balance == "time":
+                weight = float(np.median(self.compute_times)) / n if n and self.compute_times else 0.0
+            local = load_profiles(s.pos[:n], weight, lo, hi)
+            total = np.zeros_like(local)
+            self.cart.Reduce(local, total, op=MPI.SUM, root=0)
+            grid = None
+            if self.cart.Get_rank() == 0:
+                grid = balanced_grid(self.scene.box, lo, hi, self.grid.dims, total, self.width)
+                if grid is not None and self.balance == "time":
+                    damped = blended_grid(self.grid, grid, TIME_BALANCE_KEEP)
+                    grid = damped if damped.fits(self.width) else grid
+            grid = self.cart.bcast(grid, root=0)
+        self.compute_times.clear()
+        if grid is None or not grid.fits(self.width):
             return 0  # too tight for the border layer: keep the current grid
         self.grid = grid
         self.halo.set_grid(grid)
@@ -151,6 +195,8 @@ class _Blocks:
         row["wire_s"] = h.wire_s
         row["syncT"] = self.sync_time
         h.reset_counters()
+        if self.balance == "time":
+            self.compute_times.append(row["compuT"])
         return row
 
     def snapshot(self):

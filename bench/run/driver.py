@@ -172,7 +172,9 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
             "neighbor": args.neighbor, "contact_method": getattr(args, "contact_method", "exact"),
             "skin": mode.skin_fraction, "skin_m": mode.skin, "skin_requested": args.skin,
             "halo": args.halo if mapping.procs > 1 else None,
-            "update_grid": args.update_grid if mapping.procs > 1 else None, "dt": dt, "dt_auto": ts.auto,
+            "update_grid": args.update_grid if mapping.procs > 1 else None,
+            "balance": args.balance if mapping.procs > 1 and args.update_grid else None,
+            "dt": dt, "dt_auto": ts.auto,
             "dt_critical": ts.critical, "dt_details": ts.details, "walls": scene.walls, "gravity": scene.gravity.tolist(),
             "materials": [m.__dict__ for m in scene.materials.materials],
             "environment": environment(), "warmup_s": t_compile, "warmup_steps": getattr(args, "warmup", 0), "threading_layer": layer,
@@ -193,6 +195,7 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
         info["wire"] = {str(r): w for r, w in enumerate(wires)} if rank == 0 else None
         info["block_particles"] = mode.block_counts.tolist()  # [px][py][pz], at the start
         info["block_box"] = [mode.grid.lo.tolist(), mode.grid.hi.tolist()]
+        info["block_cuts"] = block_cuts(mode.grid)
         if rank == 0:
             for w in empty_block_warnings(mode.block_counts, args.update_grid):
                 print(f"bench: warning: {w}", file=sys.stderr, flush=True)
@@ -304,6 +307,7 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
                  "max_overlap_ratio": worst, "wall_s": wall,
                  "neighbor_rebuilds": mode.pairs.rebuilds,
                  "grid_updates": getattr(mode, "grid_updates", None),
+                 "block_cuts_final": block_cuts(mode.grid) if hasattr(mode, "grid") else None,
                  "kinetic_energy_initial": ke0, "kinetic_energy_final": ke1, "energy_balance": energy,
                  "guard": {"overlap_limit": guard.overlap, "energy_factor": guard.energy_factor},
                  **setup, "simulated_time": steps * dt, "time_end": time0 + (warm + (k if steps else 0)) * dt,
@@ -321,6 +325,11 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
         print(f"bench: error: {reason}", file=sys.stderr)
         return 1
     return 0
+
+
+def block_cuts(grid):
+    """The inner cut planes [m] of a block grid along x, y, z (lists; uniform grids too)."""
+    return [c.tolist() for c in grid.inner_cuts()]
 
 
 def empty_block_warnings(counts, update_grid):

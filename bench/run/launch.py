@@ -120,6 +120,7 @@ def _run_argv(args, out):
     argv += ["--mapping", args.mapping, "--neighbor", args.neighbor, "--out", out,
              "--threaded", args.threaded, "--snapshot-every", str(args.snapshot_every), "--halo", args.halo,
              "--guard-overlap", str(args.guard_overlap), "--update-grid", str(args.update_grid),
+             "--balance", args.balance,
              "--contact-method", args.contact_method or "exact",
              "--checkpoint-every", str(getattr(args, "checkpoint_every", 0) or 0)]
     for name in ("particles", "shape", "seed", "steps", "dt", "scheme", "warmup", "skin"):

@@ -7,6 +7,10 @@ import argparse
 
 from dem.contact import CONTACT_METHODS  # plain names: numba has not started yet
 
+# modes.mpi.BALANCE, named here because importing modes starts numba (tests/bench/test_cli.py
+# checks that they agree)
+BALANCE = ("extent", "count", "time")
+
 CONTACT_METHOD_CHOICES = list(CONTACT_METHODS)
 NEIGHBOR_CHOICES = ["allpairs", "linkcell"]
 SHAPE_CHOICES = ["sphere", "ellipsoid", "polyellipsoid"]
@@ -100,8 +104,12 @@ def add_run_arguments(r):
     r.add_argument("--halo", choices=["26", "6"], default="26",
                    help="ghost exchange: 26 direct messages (default, the paper's) or 3 sweeps of 6")
     r.add_argument("--update-grid", type=nonneg_int, default=0, metavar="K",
-                   help="re-fit the block grid to the particles' extent every K steps (the paper's "
-                        "updateGrid; default 0: off)")
+                   help="fit the block grid to the particles at the start and every K steps (the paper's "
+                        "updateGrid; default 0: blocks divide the box)")
+    r.add_argument("--balance", choices=BALANCE, default="extent",
+                   help="how --update-grid fits the grid: extent (default, the paper's: equal blocks over the "
+                        "particles' extent), count (cut planes at equal particle counts) or time (cut planes at "
+                        "equal measured compute time, LAMMPS's weight time)")
     r.add_argument("--timeout", type=positive_int, default=3600, help="seconds before MPI ranks are killed")
     r.add_argument("--hang-timeout", type=seconds, default=30.0, metavar="S",
                    help="P > 1: stop the run when a rank's heartbeat is S seconds old while a peer's is fresh "
@@ -121,5 +129,5 @@ def mode_options(mapping, args, scheme):
     if mapping.threads > 1:
         opts.update(threads=mapping.threads, scheme=scheme, threaded=args.threaded)
     if mapping.procs > 1:
-        opts.update(halo=args.halo, update_grid=args.update_grid)
+        opts.update(halo=args.halo, update_grid=args.update_grid, balance=args.balance)
     return opts

@@ -28,14 +28,18 @@ class Point:
     halo: str
     contact_method: str = "exact"
     update_grid: int = 0
+    balance: str = "extent"
 
     @property
     def key(self):
         """Folder name: readable mapping and scheme plus a hash of every parameter (update_grid only
-        when set, so the points of sweeps from before it keep their keys for --resume)."""
+        when set and balance only when not the paper's extent, so the points of sweeps from before
+        them keep their keys for --resume)."""
         params = asdict(self)
         if not params["update_grid"]:
             del params["update_grid"]
+        if params["balance"] == "extent":
+            del params["balance"]
         digest = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:8]
         return f"{self.mapping}{'-' + self.scheme if self.scheme else ''}-{digest}"
 
@@ -54,6 +58,8 @@ class Point:
             args += ["--halo", self.halo]
             if self.update_grid:
                 args += ["--update-grid", str(self.update_grid)]
+                if self.balance != "extent":
+                    args += ["--balance", self.balance]
         return args
 
 
@@ -64,7 +70,7 @@ def point_from_dict(d):
 
 
 def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, shape, pin, halo,
-                contact_method="exact", update_grid=0):
+                contact_method="exact", update_grid=0, balance="extent"):
     """Points of a sweep: the serial reference first, then each mapping (x each scheme when it has
     more than one thread), without duplicates, in the order given."""
     for s in schemes:
@@ -77,7 +83,8 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
     for m in parsed:
         for s in (schemes if m.threads > 1 else [""]):
             p = Point(str(m), s, scene, particles or 0, steps or 0, warmup, neighbor, shape or "", pin, halo,
-                      contact_method, update_grid if m.procs > 1 else 0)
+                      contact_method, update_grid if m.procs > 1 else 0,
+                      balance if m.procs > 1 and update_grid else "extent")
             if p not in points:
                 points.append(p)
     points.sort(key=lambda p: p.mapping != SERIAL)  # the reference runs first

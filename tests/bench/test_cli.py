@@ -22,6 +22,14 @@ def test_cli_imports_leave_numba_unstarted():
     assert res.returncode == 0 and res.stdout.strip() == "False", res.stderr
 
 
+def test_balance_choices_are_the_modes():
+    """The CLI names the ways to fit the block grid without importing modes (numba must not start
+    there): they are modes.mpi.BALANCE, in the same order."""
+    from bench.run.options import BALANCE
+    from modes.mpi import BALANCE as MODES_BALANCE
+    assert BALANCE == MODES_BALANCE == ("extent", "count", "time")
+
+
 def test_run_writes_contract_files(tmp_path):
     """run.json (dt, dt_critical, stable, max_overlap_ratio), steps.csv (DESIGN.md columns, one row
     per step and rank), state.npz (id, pos [n,3], quat [n,4], vel, omega sorted by id)."""
@@ -116,6 +124,7 @@ def test_bad_scene_one_line_exit_2(tmp_path, text, words):
     (["run", "--scene", "patch162", "--steps", "x"], "--steps"),
     (["run", "--scene", "patch162", "--neighbor", "octree"], "--neighbor"),
     (["run", "--scene", "patch162", "--shape", "cube"], "--shape"),
+    (["run", "--scene", "patch162", "--mapping", "2-2-1-1-1", "--balance", "load"], "--balance"),
     (["run", "--scene", "patch162", "--dt", "1.0", "--steps", "1"], "exceeds the critical step"),
     (["bogus"], "invalid choice"),
 ])

@@ -132,6 +132,21 @@ def test_update_grid_passes_to_the_mpi_points(tmp_path):
     # the key of this point before update_grid existed: sha1 of its fields without it
     assert make_points(*args)[1].key == "2-2-1-1-1-822c84b2"
     assert make_points(*args, "exact", 25)[1].key != make_points(*args)[1].key
+    # --balance rides with --update-grid to the MPI points; the paper's extent keeps the keys
+    res = bench("sweep", *SMALL, "--mappings", "1-1-1-1-2,2-1-1-2-1", "--update-grid", "25", "--balance", "time",
+                "--dry-run", "--out", str(tmp_path / "dry3"))
+    lines = [line for line in res.stdout.splitlines() if "--mapping " in line]
+    assert res.returncode == 0 and len(lines) == 3, res.stderr
+    assert ["--balance time" in line for line in lines] == ["--mapping 2-1-1-2-1" in line for line in lines]
+    assert make_points(*args, "exact", 25, "extent")[1].key == make_points(*args, "exact", 25)[1].key
+    assert make_points(*args, "exact", 25, "count")[1].key != make_points(*args, "exact", 25)[1].key
+    assert make_points(*args, "exact", 0, "time")[1].balance == "extent"  # nothing to fit without update_grid
+    sweep_file.write_text('[sweep]\nmappings = ["2-2-1-1-1"]\nscene = "pluviation"\nupdate_grid = 7\n'
+                          'balance = "count"\n')
+    res = bench("sweep", "--file", str(sweep_file), "--dry-run", "--out", str(tmp_path / "dry4"))
+    assert res.returncode == 0 and "--update-grid 7 --balance count" in res.stdout, res.stderr
+    sweep_file.write_text('[sweep]\nmappings = ["2-2-1-1-1"]\nscene = "pluviation"\nbalance = "load"\n')
+    one_line_error(bench("sweep", "--file", str(sweep_file), "--dry-run", "--out", str(tmp_path / "dry5")), "balance")
 
 
 def test_collect_rebuilds_runs_csv(tmp_path):

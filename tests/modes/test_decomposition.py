@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from dem.state import State
-from modes.decomposition import (DIRECTIONS, OPPOSITE, BlockGrid, DecompositionError, block_counts, border_width,
-                                 direction_of, extent_grid, fit_skin, send_masks)
+from modes.decomposition import (DIRECTIONS, OPPOSITE, BlockGrid, DecompositionError, balanced_grid, blended_grid,
+                                 block_counts, border_width, direction_of, extent_grid, fit_skin, load_profiles,
+                                 send_masks)
 from modes.halo import GHOST_GENERAL, GHOST_SPHERE, _columns, _split, pack_moving, unpack_moving
 
 UNIT = ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
@@ -83,6 +84,63 @@ def test_extent_grid_splits_the_particles_not_the_box():
     # span here) are not checked
     assert fitted.fits(0.1) and not fitted.fits(0.2)
     assert block_counts(fitted, np.zeros((0, 3))).tolist() == [[[0, 0]]]
+
+
+def test_grid_with_cut_planes():
+    """A grid of cut planes x = 0.375 and z = 0.5, 0.75: a centre on a plane belongs to the upper
+    block, as on a uniform grid; centres outside belong to the edge blocks; bounds are the planes;
+    the narrowest block (0.25 along z) decides the width it holds."""
+    g = BlockGrid(UNIT, (2, 1, 3), cuts=([0.375], [], [0.5, 0.75]))
+    pos = np.array([[0.375, 0.5, 0.5], [0.3749, 0.5, 0.7499], [-1.0, 0.5, 2.0], [0.9, 0.5, 0.1]])
+    assert g.block_of(pos).tolist() == [[1, 0, 1], [0, 0, 1], [0, 0, 2], [1, 0, 0]]
+    lo, hi = g.bounds((1, 0, 1))
+    assert lo.tolist() == [0.375, 0.0, 0.5] and hi.tolist() == [1.0, 1.0, 0.75]
+    assert g.fits(0.25) and not g.fits(0.26)
+    assert [c.tolist() for c in g.inner_cuts()] == [[0.375], [], [0.5, 0.75]]
+    assert [c.tolist() for c in BlockGrid(UNIT, (4, 1, 1)).inner_cuts()][0] == [0.25, 0.5, 0.75]
+
+
+def test_balanced_grid_cuts_at_equal_load():
+    """10 000 centres evenly spread along x over 0..1, of weight 1 below x = 0.5 and 3 above: the
+    load 0.5 + 3 (c - 0.5) left of a cut c equals half of the total 2 at c = 2/3, so two blocks
+    split there: 20000/3 = 6666.7 centres on the left, to within one centre (the profile's 1/1024
+    bins hold about 10 centres each, and the cut is placed linearly inside its bin). With the count
+    as load they split 5000 + 5000; unsplit axes keep no cut."""
+    x = (np.arange(10000) + 0.5) / 10000
+    pos = np.stack([x, np.full_like(x, 0.5), np.full_like(x, 0.5)], axis=1)
+    lo, hi = pos.min(axis=0), pos.max(axis=0)
+    w = np.where(x < 0.5, 1.0, 3.0)
+    g = balanced_grid(UNIT, lo, hi, (2, 1, 1), load_profiles(pos, w, lo, hi), 0.1)
+    assert g.cuts[0][0] == pytest.approx(2.0 / 3.0, abs=1e-4)
+    left, right = block_counts(g, pos).ravel().tolist()
+    assert abs(left - 20000 / 3) < 1 and left + right == 10000
+    assert len(g.cuts[1]) == 0 and len(g.cuts[2]) == 0
+    g = balanced_grid(UNIT, lo, hi, (2, 1, 1), load_profiles(pos, 1.0, lo, hi), 0.1)
+    assert block_counts(g, pos).ravel().tolist() == [5000, 5000]
+
+
+def test_balanced_grid_keeps_blocks_a_border_layer_wide():
+    """A bed in the lowest 0.1 of a unit box split in two along z: the equal-count cut (z = 0.05)
+    is pushed up to the border layer of 0.3 above the box floor, the lower block's least width;
+    a layer of 0.6 leaves no room for two blocks in 1.0 (None). An empty load gives None. The
+    outer edges are the box's."""
+    rng = np.random.default_rng(7)
+    pos = rng.random((500, 3)) * [1.0, 1.0, 0.1]
+    lo, hi = pos.min(axis=0), pos.max(axis=0)
+    prof = load_profiles(pos, 1.0, lo, hi)
+    g = balanced_grid(UNIT, lo, hi, (1, 1, 2), prof, 0.3)
+    assert g.cuts[2][0] == pytest.approx(0.3 * (1 + 1e-9), rel=1e-12) and g.fits(0.3)
+    assert g.lo.tolist() == [0.0, 0.0, 0.0] and g.hi.tolist() == [1.0, 1.0, 1.0]
+    assert balanced_grid(UNIT, lo, hi, (1, 1, 2), prof, 0.6) is None
+    assert balanced_grid(UNIT, lo, hi, (1, 1, 2), np.zeros_like(prof), 0.1) is None
+
+
+def test_blended_grid_moves_cuts_part_way():
+    """Keeping half of the old planes: cuts at 0.25 (old, uniform 4 blocks: 0.25, 0.5, 0.75) and a
+    target at 0.4, 0.6, 0.9 blend to 0.325, 0.55, 0.825."""
+    old = BlockGrid(UNIT, (4, 1, 1))
+    target = BlockGrid(UNIT, (4, 1, 1), cuts=([0.4, 0.6, 0.9], [], []))
+    assert blended_grid(old, target, 0.5).cuts[0].tolist() == pytest.approx([0.325, 0.55, 0.825], rel=1e-15)
 
 
 def test_block_width_and_skin():

@@ -276,3 +276,62 @@ def test_update_grid_fits_the_grid_at_the_start(tmp_path, tmp_path_factory):
     assert info["block_box"][1][2] == pytest.approx(8e-4 + 3 * 1.58e-3, rel=1e-6)
     assert (steps.query("step == 1").set_index("rank")["n_owned"] == 50).all()
     assert_same(ref, got)
+
+
+def _staircase():
+    """68 spheres (r = 0.8 mm) on the floor in 8 rows along y, row j holding 12 - j spheres 1.58 mm
+    apart along x from x = 2 mm + 0.1 j mm (every centre its own x; neighbours touch, overlap
+    0.02 mm along x, 0.017 mm across rows). Half of the centres' x extent (2.0..19.38 mm) is
+    10.69 mm: the first 6 spheres of each row lie below it (x < 10.69 mm for i <= 5 in every row),
+    and row 7 has only 5: 7 x 6 + 5 = 47 of 68."""
+    return [("sphere", [8e-4], [0.002 + 1.58e-3 * i + 1e-4 * j, 0.002 + 1.58e-3 * j, 8e-4], [0.0, 0.0, 0.0])
+            for j in range(8) for i in range(12 - j)]
+
+
+def test_balance_count_splits_the_particles_equally(tmp_path, tmp_path_factory):
+    """--balance count: the cut plane at equal particle counts. On the staircase, 2 blocks along x
+    fitted to the extent (the paper's updateGrid) hold 47 + 21 (see _staircase); cut at equal
+    counts they hold 34 + 34 from the first step. Both reproduce the serial trajectory bit for
+    bit, and run.json records the balance and the cut planes."""
+    scene = write(tmp_path, scene_with(_staircase(), box="[[0.0, 0.0, 0.0], [0.022, 0.016, 0.01]]"))
+    ref = serial_state(tmp_path_factory, scene, 40)
+    got, steps, info = mpi_run(tmp_path / "extent", scene, 40, "2-2-1-1-1", "--update-grid", "1000")
+    assert info["block_particles"] == [[[47]], [[21]]] and info["balance"] == "extent"
+    assert_same(ref, got)
+    got, steps, info = mpi_run(tmp_path / "count", scene, 40, "2-2-1-1-1", "--update-grid", "1000",
+                               "--balance", "count")
+    assert info["block_particles"] == [[[34]], [[34]]] and info["balance"] == "count"
+    assert (steps.query("step == 1").set_index("rank")["n_owned"] == 34).all()
+    assert len(info["block_cuts"][0]) == 1 and info["block_cuts"][1] == [] and info["block_cuts"][2] == []
+    assert_same(ref, got)
+
+
+def _spheres_then_ellipsoids():
+    """8 rows along y of 10 spheres (r = 0.8 mm, 1.58 mm apart) followed along x by 10 ellipsoids
+    (semi-axes 1.0, 0.8, 0.6 mm, aligned, 1.98 mm apart) on the floor, each touching its
+    neighbours (overlap 0.02 mm): 160 particles, the left half of the x extent spheres."""
+    rows = []
+    for j in range(8):
+        y = 0.002 + 1.58e-3 * j
+        rows += [("sphere", [8e-4], [0.002 + 1.58e-3 * i, y, 8e-4], [0.0, 0.0, 0.0]) for i in range(10)]
+        x0 = 0.002 + 1.58e-3 * 9 + 0.8e-3 + 1e-3 - 2e-5
+        rows += [("ellipsoid", [1e-3, 8e-4, 6e-4], [x0 + 1.98e-3 * i, y, 6e-4], [0.0, 0.0, 0.0]) for i in range(10)]
+    return rows
+
+
+def test_balance_time_gives_the_dearer_particles_a_smaller_block(tmp_path, tmp_path_factory):
+    """--balance time (LAMMPS's weight time): each rank's median compute time per step spread over
+    its particles sets the load profile. Spheres resolve in closed form, ellipsoid pairs through an
+    iterative solver, at many times the cost: starting from equal counts (80 + 80, the spheres in
+    block 0), the refits every 10 steps move the cut towards the ellipsoids, so that block 1 ends
+    with fewer than 80 particles. The trajectory is the serial one bit for bit."""
+    scene = write(tmp_path, scene_with(_spheres_then_ellipsoids(), box="[[0.0, 0.0, 0.0], [0.04, 0.016, 0.01]]"))
+    ref = serial_state(tmp_path_factory, scene, 60)
+    got, steps, info = mpi_run(tmp_path, scene, 60, "2-2-1-1-1", "--update-grid", "10", "--balance", "time")
+    assert info["block_particles"] == [[[80]], [[80]]] and info["balance"] == "time"
+    assert info["grid_updates"] >= 4
+    last = steps.query("step == 60").set_index("rank")["n_owned"]
+    assert last[1] < 80 < last[0] and last.sum() == 160
+    assert info["block_cuts_final"][0][0] > info["block_cuts"][0][0]
+    assert steps["ellipsoid_calls"].sum() > 0 and steps["n_migrated"].sum() > 0
+    assert_same(ref, got)
