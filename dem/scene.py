@@ -14,6 +14,9 @@ Format (DESIGN.md): [domain] box, walls, gravity; [materials.NAME]; [time] dt, s
                                     # the gradation and aspects (largest extent = the diameter)
     placement = "lattice"           # lattice | random
     spacing = 1.2                   # lattice pitch over the largest bounding diameter
+    pitch = [1.6e-3, 1.6e-3, 1.6e-3]  # or the lattice's site spacing along x, y, z [m], instead of
+                                    # spacing: below the diameters it builds a touching crystal,
+                                    # whose overlaps the load-time checks accept up to the guard's limit
     columns = [9, 9]                # lattice sites along x and y (default: square-ish)
     region = [[x0,y0,z0],[x1,y1,z1]]  # placement region; default: the box. With box = "fit" the box
                                     # is fitted around the lattice instead.
@@ -487,7 +490,7 @@ def _generate(g, table, box, particles, shape_override, seed_override, first_ind
     if not isinstance(g, dict):
         raise SceneError(f"{what} must be a table")
     _check_keys(g, {"count", "shape", "gradation", "aspect_b", "aspect_c", "asymmetry", "placement", "spacing",
-                    "columns", "region", "orientation", "speed", "material", "seed"}, what)
+                    "pitch", "columns", "region", "orientation", "speed", "material", "seed"}, what)
     count = particles if particles is not None else g.get("count")
     if isinstance(count, bool) or not isinstance(count, int) or count <= 0:
         raise SceneError(f"particle count must be a positive integer, got {_show(count)}")
@@ -548,9 +551,17 @@ def _generate(g, table, box, particles, shape_override, seed_override, first_ind
     elif box is not None:
         region = box.copy()
     if placement == "lattice":
-        pitch = dmax * _num(g.get("spacing", 1.2), f"{what}.spacing")
-        if pitch < dmax:
-            raise SceneError(f"{what}.spacing must be >= 1 (pitch below the largest diameter)")
+        if "pitch" in g:
+            if "spacing" in g:
+                raise SceneError(f"{what}: give spacing or pitch, not both")
+            pitch = _vec(g["pitch"], 3, f"{what}.pitch")
+            if np.any(pitch <= 0):
+                raise SceneError(f"{what}.pitch must be three positive lengths [m], got {pitch.tolist()}")
+        else:
+            pitch = dmax * _num(g.get("spacing", 1.2), f"{what}.spacing")
+            if pitch < dmax:
+                raise SceneError(f"{what}.spacing must be >= 1 (pitch below the largest diameter)")
+            pitch = np.full(3, pitch)
         if "columns" in g:
             cols = g["columns"]
             if (not isinstance(cols, list) or len(cols) != 2 or
@@ -558,20 +569,18 @@ def _generate(g, table, box, particles, shape_override, seed_override, first_ind
                 raise SceneError(f"{what}.columns must be two positive integers")
             nx, ny = cols
         elif region is not None:
-            nx = max(1, int((region[1, 0] - region[0, 0]) // pitch))
-            ny = max(1, int((region[1, 1] - region[0, 1]) // pitch))
+            nx = max(1, int((region[1, 0] - region[0, 0]) // pitch[0]))
+            ny = max(1, int((region[1, 1] - region[0, 1]) // pitch[1]))
         else:
             nx = ny = max(1, int(round(count ** (1 / 3))))
         nz = -(-count // (nx * ny))
         if region is None:
-            region = np.array([[0.0, 0.0, 0.0], [nx * pitch, ny * pitch, nz * pitch]])
+            region = np.array([[0.0, 0.0, 0.0], [nx, ny, nz]]) * pitch
             gbox = region.copy()
         else:
             gbox = None
-            if region[0, 0] + nx * pitch > region[1, 0] + 1e-12 * pitch or \
-                    region[0, 1] + ny * pitch > region[1, 1] + 1e-12 * pitch or \
-                    region[0, 2] + nz * pitch > region[1, 2] + 1e-12 * pitch:
-                raise SceneError(f"{count} particles at pitch {pitch:.3g} m do not fit the region "
+            if np.any(region[0] + np.array([nx, ny, nz]) * pitch > region[1] + 1e-12 * pitch):
+                raise SceneError(f"{count} particles at pitch {_show(pitch.tolist())} m do not fit the region "
                                  f"({nx}x{ny}x{nz} lattice sites needed)")
         k = np.arange(count)
         ix, iy, iz = k % nx, (k // nx) % ny, k // (nx * ny)

@@ -16,8 +16,10 @@ last neighbour rebuild (the paper's loop: for each i, find and resolve its pairs
 pair's forces, and every particle gathers its own (dem.forces, STORE). Under partition, static
 and dynamic the list is sorted by global id and cut, at each rebuild, into T contiguous ranges
 of whole rows (split_pairs): equal rows (partition), equal pairs (static), or equal estimated
-work, a pair whose bounding spheres overlap counting SOLVER_WEIGHT apart ones (dynamic, which
-re-balances at every rebuild instead of handing out chunks). Thread t resolves range t and sums
+work (dynamic, which re-balances at every rebuild instead of handing out chunks): a pair whose
+bounding spheres are apart counts 1, one whose bounding spheres overlap SPHERE_PAIR_WEIGHT between
+two spheres (closed form) and SOLVER_WEIGHT where an ellipsoid or poly-ellipsoid is in it (the
+iterative solve), so that a scene of spheres beside ellipsoids splits by cost, not by count. Thread t resolves range t and sums
 the forces of the particles whose pairs all lie in it as it goes, as one thread does (SPLIT);
 only the particles with pairs in two ranges gather. Where the ranges hold many particles this
 spares the gather and the per-pair stores: on 12k packed ellipsoids the gather alone cost as
@@ -39,6 +41,7 @@ from numba.extending import intrinsic
 from dem.forces import SPLIT, finish_range, resolve_range
 from dem.integrate import derive_all
 from dem.neighbor import HALF_SHELL, scan_rows
+from dem.shapes import SPHERE
 
 SCHEMES = ("partition", "frogleap", "headtail", "static", "dynamic")
 PARTITION = 0
@@ -47,7 +50,12 @@ DYNAMIC = 4
 STATIC_BLOCK = 64     # rows or pairs per prange iteration of the static scheme
 DYNAMIC_ROWS = 16     # rows per dynamic hand-out
 DYNAMIC_PAIRS = 64    # candidate pairs per dynamic hand-out (the dynamic scheme with split=False)
-SOLVER_WEIGHT = 8.0   # dynamic split: a pair that reaches a solver against one that fails the bounding test
+# Dynamic split: the cost of resolving a candidate pair, in units of one whose bounding spheres are
+# apart (measured by timing dem.forces.resolve_range over rows of one kind at two skins, 2 cores:
+# apart 0.0066-0.0117 us; overlapping sphere pair 0.063 us; overlapping ellipsoid pair 0.27 us on
+# packed 2000, 0.35 us on the built-in mixed crystal; poly-ellipsoid 0.29 us on packed 2000).
+SPHERE_PAIR_WEIGHT = 10.0
+SOLVER_WEIGHT = 40.0
 
 
 @intrinsic
@@ -170,11 +178,12 @@ def compact_pairs(threads, pi_t, pj_t, offsets, pi, pj):
 
 
 @njit(cache=True)
-def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, bounds, gat, home_start, home_items):
+def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, shape, bounds, gat, home_start, home_items):
     """Cut the gid-sorted pair list (pi, pj [m]: rows of equal pi contiguous) into T ranges of whole
     rows, bounds [T+1] (pair indices), by the scheme `code`: equal rows (PARTITION), equal estimated
-    work (DYNAMIC: SOLVER_WEIGHT for a pair whose bounding spheres of radii rbound [n] [m] overlap at
-    pos [n,3] [m], 1 for the others), equal pairs (otherwise). Then gat [n_owned] int8 = 1 for
+    work (DYNAMIC: for a pair whose bounding spheres of radii rbound [n] [m] overlap at pos [n,3] [m],
+    SPHERE_PAIR_WEIGHT if both shape [n] codes are SPHERE, else SOLVER_WEIGHT; 1 for the others),
+    equal pairs (otherwise). Then gat [n_owned] int8 = 1 for
     the owned particles with pairs in two ranges (they gather), and each range's other particles,
     those it alone sums (plus, in range 0, the particles without pairs): home_items [n_owned -
     gathered] grouped by range, home_start [T+1]; their force and torque are zeroed by the thread of
@@ -190,7 +199,12 @@ def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, bounds, gat, home_s
             i = pi[k]
             j = pj[k]
             d2 = (pos[j, 0] - pos[i, 0]) ** 2 + (pos[j, 1] - pos[i, 1]) ** 2 + (pos[j, 2] - pos[i, 2]) ** 2
-            w[k] = SOLVER_WEIGHT if d2 < (rbound[i] + rbound[j]) ** 2 else 1.0
+            if d2 >= (rbound[i] + rbound[j]) ** 2:
+                w[k] = 1.0
+            elif shape[i] == SPHERE and shape[j] == SPHERE:
+                w[k] = SPHERE_PAIR_WEIGHT
+            else:
+                w[k] = SOLVER_WEIGHT
         else:
             w[k] = 1.0
         total += w[k]

@@ -114,3 +114,43 @@ def test_builtin_scene_time_steps_are_accepted(name, shape):
     ts = choose_time_step(sc)
     dt, dt_crit = ts.dt, ts.critical
     assert dt <= dt_crit
+
+
+def test_lattice_pitch_per_axis_builds_a_touching_crystal():
+    """`pitch = [px, py, pz]` [m] places sites at region[0] + (i + 1/2) p per axis; a pitch below the
+    diameters gives a touching crystal, accepted while the overlap stays under the guard's 5 % of
+    the smallest semi-axis and refused above it. Spheres of r = 1 mm at pitch 1.99 mm overlap by
+    2 - 1.99 = 0.01 mm (1 %); at 1.8 mm by 0.2 mm (20 %)."""
+    doc = gen_doc(count=12, shape="sphere", gradation=[[2e-3, 1.0]], pitch=[1.99e-3, 2.5e-3, 3e-3], columns=[3, 2])
+    del doc["generate"][0]["spacing"]
+    doc["domain"].update(box=[[0, 0, 0], [0.01, 0.01, 0.01]], walls=[])
+    s = build_scene(doc).state
+    assert np.array_equal(s.pos[:4], [[0.995e-3, 1.25e-3, 1.5e-3], [2.985e-3, 1.25e-3, 1.5e-3],
+                                      [4.975e-3, 1.25e-3, 1.5e-3], [0.995e-3, 3.75e-3, 1.5e-3]])
+    assert np.isclose(s.pos[6, 2], 4.5e-3)
+    doc["generate"][0]["pitch"] = [1.8e-3, 2.5e-3, 3e-3]
+    with pytest.raises(SceneError, match="overlap by 0.0002 m, 20 %"):
+        build_scene(doc)
+    doc["generate"][0]["spacing"] = 1.2
+    with pytest.raises(SceneError, match="give spacing or pitch, not both"):
+        build_scene(doc)
+    del doc["generate"][0]["spacing"]
+    doc["generate"][0]["pitch"] = [1e-3, 0.0, 1e-3]
+    with pytest.raises(SceneError, match="pitch must be three positive lengths"):
+        build_scene(doc)
+
+
+def test_mixed_scene_is_spheres_then_ellipsoids_touching():
+    """The built-in `mixed` (its header): 2000 spheres (r = 0.8 mm) in x < 64 mm, then 2000 aligned
+    ellipsoids (1.0, 0.8, 0.6 mm); neighbours 1.599 mm apart in y overlap by 1.6 - 1.599 = 1 um, so
+    each interior particle touches 4 others and the largest overlap is 1 um / 0.6 mm = 0.17 % of
+    the smallest semi-axis (dem.overlaps)."""
+    from dem.overlaps import worst_pair_overlap
+    from dem.shapes import ELLIPSOID, SPHERE
+    s = load_scene("mixed").state
+    sph, ell = s.shape == SPHERE, s.shape == ELLIPSOID
+    assert sph.sum() == 2000 and ell.sum() == 2000
+    assert s.pos[sph, 0].max() < 0.064 < s.pos[ell, 0].min()
+    assert np.all(s.axes[sph, :3] == 0.8e-3) and np.all(s.axes[ell, :3] == [1e-3, 0.8e-3, 0.6e-3])
+    ratio, depth, a, b = worst_pair_overlap(s, 0.0)
+    assert abs(depth - 1e-6) < 1e-9 and abs(ratio - 1e-6 / 0.6e-3) < 1e-5

@@ -143,7 +143,8 @@ def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads):
     gat = np.zeros(n, dtype=np.int8)
     home_start = np.zeros(threads + 1, dtype=np.int64)
     home_items = np.zeros(n, dtype=np.int64)
-    split_pairs(code, threads, pi, pj, n, pos, rbound, bounds, gat, home_start, home_items)
+    split_pairs(code, threads, pi, pj, n, pos, rbound, np.zeros(n, dtype=np.int8), bounds, gat, home_start,
+                home_items)
     assert bounds[0] == 0 and bounds[-1] == m and np.all(np.diff(bounds) >= 0)
     assert all(b in (0, m) or pi[b] != pi[b - 1] for b in bounds)
     rng_of = np.searchsorted(bounds, np.arange(m), side="right") - 1
@@ -163,6 +164,29 @@ def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads):
     if code == STATIC:
         longest = np.max(np.unique(pi, return_counts=True)[1])
         assert np.all(np.abs(np.diff(bounds) - m / threads) <= longest)
+
+
+def test_dynamic_split_weighs_ellipsoid_pairs_above_sphere_pairs():
+    """The dynamic scheme cuts by estimated cost (modes.parallel: an overlapping sphere pair weighs
+    SPHERE_PAIR_WEIGHT = 10, one with an ellipsoid SOLVER_WEIGHT = 40, from resolve_range timings):
+    100 sphere pairs (rows 0..99) then 100 ellipsoid pairs (rows 100..199), all touching, one pair
+    a row, on 2 threads: half the cost is 2500 = 100 x 10 + 37.5 x 40, so thread 0 takes the 100
+    sphere pairs and 38 ellipsoid pairs (the row where the cost first reaches 2500), thread 1 the
+    other 62, where equal pairs (static) would cut at 100."""
+    n = 400
+    pi = np.arange(0, 400, 2)
+    pj = pi + 1
+    pos = np.zeros((n, 3))
+    pos[:, 0] = np.arange(n) * 1e-3
+    rbound = np.full(n, 1e-3)
+    shape = np.where(np.arange(n) < 200, 0, 1).astype(np.int8)
+    cuts = {}
+    for code in (DYNAMIC, STATIC):
+        bounds = np.zeros(3, dtype=np.int64)
+        split_pairs(code, 2, pi, pj, n, pos, rbound, shape, bounds, np.zeros(n, dtype=np.int8),
+                    np.zeros(3, dtype=np.int64), np.zeros(n, dtype=np.int64))
+        cuts[code] = bounds.tolist()
+    assert cuts[DYNAMIC] == [0, 138, 200] and cuts[STATIC] == [0, 100, 200]
 
 
 @pytest.mark.parametrize("scheme", ["partition", "frogleap", "headtail"])
