@@ -19,13 +19,14 @@ of whole rows (split_pairs): equal rows (partition), equal pairs (static), or eq
 work (dynamic, which re-balances at every rebuild instead of handing out chunks): a pair whose
 bounding spheres are apart counts 1, one whose bounding spheres overlap SPHERE_PAIR_WEIGHT between
 two spheres (closed form) and SOLVER_WEIGHT where an ellipsoid or poly-ellipsoid is in it (the
-iterative solve), so that a scene of spheres beside ellipsoids splits by cost, not by count. Thread t resolves range t and sums
-the forces of the particles whose pairs all lie in it as it goes, as one thread does (SPLIT);
-only the particles with pairs in two ranges gather. Where the ranges hold many particles this
-spares the gather and the per-pair stores: on 12k packed ellipsoids the gather alone cost as
-much as the rest of the per-particle pass. The per-particle pass (gather, walls, integration,
-derived quantities) is split in T contiguous blocks. Results never depend on the scheme or the
-split (DESIGN.md, Determinism): each particle receives its pair terms in ascending partner id.
+iterative solve), so that a scene of spheres beside ellipsoids splits by cost, not by count.
+Thread t resolves range t and sums the forces of the particles whose pairs all lie in it as it
+goes, as one thread does (SPLIT); only the particles with pairs in two ranges gather. Where the
+ranges hold many particles this spares the gather and the per-pair stores: on 12k packed
+ellipsoids the gather alone cost as much as the rest of the per-particle pass. The per-particle
+pass (gather, walls, integration, derived quantities) is split in T contiguous blocks of equal
+estimated cost (finish_cuts). Results never depend on the scheme or the split (DESIGN.md,
+Determinism): each particle receives its pair terms in ascending partner id.
 
 Busy time per thread is read from the CPU cycle counter around each thread's share of a phase
 (the scheduling level, not inside the physics) and converted to seconds by `cycles_per_second`.
@@ -56,6 +57,13 @@ DYNAMIC_PAIRS = 64    # candidate pairs per dynamic hand-out (the dynamic scheme
 # packed 2000, 0.35 us on the built-in mixed crystal; poly-ellipsoid 0.29 us on packed 2000).
 SPHERE_PAIR_WEIGHT = 10.0
 SOLVER_WEIGHT = 40.0
+# The per-particle pass (gather, walls, integration), in units of a sphere's without a wall
+# (dem.forces.finish_range timed over the spheres and over the ellipsoids of the mixed crystal,
+# with its walls and without, 2 cores: sphere 0.059 us, ellipsoid 0.142 us; a wall on the particle's
+# list adds 0.009 us to a sphere, 0.129 us to an ellipsoid, whose wall contact needs its support).
+FINISH_SOLID_WEIGHT = 2.4       # an ellipsoid or poly-ellipsoid
+FINISH_WALL_SPHERE = 0.15
+FINISH_WALL_SOLID = 2.2
 
 
 @intrinsic
@@ -340,14 +348,44 @@ def derive_threads(threads, lo, hi, bodies, polys, poly_scene):
         derive_all(lo + (t * (hi - lo)) // threads, lo + ((t + 1) * (hi - lo)) // threads, bodies, polys, poly_scene)
 
 
+@njit(cache=True)
+def finish_cuts(threads, n_owned, shape, near, cuts):
+    """Cut the owned particles 0..n_owned-1 into T contiguous blocks of equal estimated cost of the
+    per-particle pass, cuts [T+1]: a sphere weighs 1 (+ FINISH_WALL_SPHERE when near [n_owned] puts
+    it on the wall list), an ellipsoid or poly-ellipsoid (shape [n] codes) FINISH_SOLID_WEIGHT (+
+    FINISH_WALL_SOLID). Where every particle weighs the same the blocks are equal to within one."""
+    total = 0.0
+    for p in range(n_owned):
+        total += _finish_weight(shape[p], near[p])
+    cuts[0] = 0
+    t = 1
+    acc = 0.0
+    for p in range(n_owned):
+        while t < threads and acc >= t * total / threads:
+            cuts[t] = p
+            t += 1
+        acc += _finish_weight(shape[p], near[p])
+    while t <= threads:
+        cuts[t] = n_owned
+        t += 1
+
+
+@njit(cache=True, inline="always")
+def _finish_weight(code, near):
+    if code == SPHERE:
+        return 1.0 + FINISH_WALL_SPHERE * near
+    return FINISH_SOLID_WEIGHT + FINISH_WALL_SOLID * near
+
+
 @njit(parallel=True, cache=True)
-def finish_threads(threads, n, spheres, gathered, adj, bodies, walls, polys, gravity, dt, poly_scene, ref, outs, fin):
-    """dem.forces.finish_range (argument groups as there) of the owned particles 0..n-1 in T
-    contiguous blocks (particles are independent in this pass: each reads only its own pairs'
-    results). outs [T, >= OUT_LEN] is per-thread scratch; fin [T, >= FIN_LEN] holds the per-thread
-    results, combined here in thread order. Returns dem.forces.FINISHED."""
+def finish_threads(threads, cuts, spheres, gathered, adj, bodies, walls, polys, gravity, dt, poly_scene, ref, outs,
+                   fin):
+    """dem.forces.finish_range (argument groups as there) of the owned particles in T contiguous
+    blocks cuts[t]..cuts[t+1] (finish_cuts; particles are independent in this pass: each reads only
+    its own pairs' results). outs [T, >= OUT_LEN] is per-thread scratch; fin [T, >= FIN_LEN] holds
+    the per-thread results, combined here in thread order. Returns dem.forces.FINISHED."""
     for t in prange(threads):
-        r = finish_range((t * n) // threads, ((t + 1) * n) // threads, spheres, gathered, adj, bodies, walls, polys,
+        r = finish_range(cuts[t], cuts[t + 1], spheres, gathered, adj, bodies, walls, polys,
                          gravity, dt, poly_scene, ref, outs[t])
         fin[t, 0] = r[0]
         fin[t, 1] = r[1]

@@ -115,9 +115,12 @@ class ThreadsMode(SerialMode):
         return m
 
     def split(self):
-        """Under SPLIT: the T ranges of the new (gid-sorted) list, the particles that gather, and
-        those each range's thread zeroes and sums (modes.parallel.split_pairs)."""
+        """The blocks of the per-particle pass (modes.parallel.finish_cuts) and, under SPLIT, the T
+        ranges of the new (gid-sorted) list, the particles that gather, and those each range's
+        thread zeroes and sums (modes.parallel.split_pairs)."""
         s = self.state
+        self.finish_blocks = np.zeros(self.threads + 1, dtype=np.int64)
+        par.finish_cuts(self.threads, s.n_owned, s.shape, self.pairs.near, self.finish_blocks)
         if self.deliver != SPLIT:
             self.ranges = (STORE, s.n_owned, self.gat, np.zeros(self.threads + 1, dtype=np.int64),
                            np.zeros(0, dtype=np.int64))
@@ -146,7 +149,7 @@ class ThreadsMode(SerialMode):
     def finish(self):
         if self.threaded != "step":
             return super().finish()
-        return par.finish_threads(self.threads, self.state.n_owned, self.kind == SPHERE, self.deliver, self.adj,
+        return par.finish_threads(self.threads, self.finish_blocks, self.kind == SPHERE, self.deliver, self.adj,
                                   self.bodies, self.walls(), self.polys, self.gravity, self.dt, self.kind == POLY,
                                   self.pairs.ref, self.outs, self.fin)
 

@@ -9,7 +9,7 @@ import pytest
 from bench.run.prepare import load_prepared
 from dem.timestep import choose_time_step
 from dem.forces import SPLIT, STORE
-from modes.parallel import DYNAMIC, PARTITION, SCHEMES, STATIC, scheme_rows, split_pairs
+from modes.parallel import DYNAMIC, PARTITION, SCHEMES, STATIC, finish_cuts, scheme_rows, split_pairs
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 from tests.helpers import bench, one_line_error
@@ -187,6 +187,37 @@ def test_dynamic_split_weighs_ellipsoid_pairs_above_sphere_pairs():
                     np.zeros(3, dtype=np.int64), np.zeros(n, dtype=np.int64))
         cuts[code] = bounds.tolist()
     assert cuts[DYNAMIC] == [0, 138, 200] and cuts[STATIC] == [0, 100, 200]
+
+
+def test_finish_blocks_are_cut_at_equal_estimated_cost():
+    """The per-particle pass is cut by estimated cost (modes.parallel.finish_cuts: a sphere 1, an
+    ellipsoid 2.4, on the wall list + 0.15 and + 2.2, from finish_range timings). 100 spheres then
+    100 ellipsoids, none near a wall, 2 threads: half the cost is (100 + 240) / 2 = 170, first reached
+    after the 100 spheres and 30 ellipsoids (172), so the cut is at 130. All near a wall: half of
+    100 x 1.15 + 100 x 4.6 is 287.5, first reached after 100 spheres and 38 ellipsoids (289.8): 138.
+    Equal weights give blocks equal to within one particle."""
+    shape = np.where(np.arange(200) < 100, 0, 1).astype(np.int8)
+    cuts = np.zeros(3, dtype=np.int64)
+    finish_cuts(2, 200, shape, np.zeros(200, dtype=np.int8), cuts)
+    assert cuts.tolist() == [0, 130, 200]
+    finish_cuts(2, 200, shape, np.ones(200, dtype=np.int8), cuts)
+    assert cuts.tolist() == [0, 138, 200]
+    for n, t in ((7, 3), (100, 2), (101, 4)):
+        cuts = np.zeros(t + 1, dtype=np.int64)
+        finish_cuts(t, n, np.ones(n, dtype=np.int8), np.zeros(n, dtype=np.int8), cuts)
+        assert cuts[0] == 0 and cuts[-1] == n and np.all(np.abs(np.diff(cuts) - n / t) <= 1)
+
+
+@pytest.mark.parametrize("scheme", ["dynamic", "partition", "frogleap"])
+def test_mixed_crystal_bit_identical(scheme):
+    """The built-in mixed crystal (2000 spheres beside 2000 ellipsoids, all touching, walls), where
+    the dynamic split and the per-particle blocks fall away from the middle: 20 steps on 2
+    threads equal the serial ones exactly, contacts step by step too."""
+    ref, rows = reference("mixed", 20, None, "linkcell")
+    got, trows = run("mixed", 20, threads=2, scheme=scheme, neighbor="linkcell")
+    assert min(r["n_contacts"] for r in rows) > 7000
+    assert [r["n_contacts"] for r in trows] == [r["n_contacts"] for r in rows]
+    assert_same(ref, got)
 
 
 @pytest.mark.parametrize("scheme", ["partition", "frogleap", "headtail"])
