@@ -465,8 +465,11 @@ def redistribute(cart, grid, state, coords):
     drop_ghosts(state)
     n = state.n_owned
     target = grid.block_of(state.pos[:n])
-    dest = np.array([cart.Get_cart_rank([int(c) for c in t]) for t in target], dtype=np.int64) \
-        if n else np.zeros(0, dtype=np.int64)
+    # one Get_cart_rank per block, not per particle (that was 3 us a particle: 19 ms of a 12k refit)
+    dims = [int(d) for d in grid.dims]
+    rank_of = np.array([cart.Get_cart_rank([i, j, k]) for i in range(dims[0]) for j in range(dims[1])
+                        for k in range(dims[2])], dtype=np.int64).reshape(dims)
+    dest = rank_of[target[:, 0], target[:, 1], target[:, 2]] if n else np.zeros(0, dtype=np.int64)
     me = cart.Get_rank()
     fields = _owner_fields(state)
     counts = np.diff(state.hist_start)

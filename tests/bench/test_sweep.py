@@ -116,6 +116,7 @@ def test_update_grid_passes_to_the_mpi_points(tmp_path):
     the serial or thread points, which have no blocks; without it a point keeps the key (folder
     name) it had before the option existed, so --resume still finds sweeps made then."""
     from bench.sweep.points import make_points
+    from bench.sweep.records import reference_key
     res = bench("sweep", *SMALL, "--mappings", "1-1-1-1-2,2-1-1-2-1", "--update-grid", "25", "--dry-run",
                 "--out", str(tmp_path / "dry"))
     assert res.returncode == 0, res.stderr
@@ -141,6 +142,9 @@ def test_update_grid_passes_to_the_mpi_points(tmp_path):
     assert make_points(*args, "exact", 25, "extent")[1].key == make_points(*args, "exact", 25)[1].key
     assert make_points(*args, "exact", 25, "count")[1].key != make_points(*args, "exact", 25)[1].key
     assert make_points(*args, "exact", 0, "time")[1].balance == "extent"  # nothing to fit without update_grid
+    # an MPI point with a fitted grid measures its speedup and error against the sweep's serial point
+    serial, mpi = make_points(*args, "exact", 25, "time")
+    assert reference_key(mpi) == serial.key == make_points(*args)[0].key
     sweep_file.write_text('[sweep]\nmappings = ["2-2-1-1-1"]\nscene = "pluviation"\nupdate_grid = 7\n'
                           'balance = "count"\n')
     res = bench("sweep", "--file", str(sweep_file), "--dry-run", "--out", str(tmp_path / "dry4"))
