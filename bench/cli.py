@@ -141,16 +141,18 @@ def build_parser():
     pf.add_argument("--steps", type=positive_int, default=None,
                     help="timed steps (default 20; --what skin: steps per round, default 1000)")
     pf.add_argument("--what", default="all",
-                    choices=["all", "pairs", "ellipsoids", "spheres", "comm", "overhead", "skin", "contention"],
+                    choices=["all", "pairs", "ellipsoids", "spheres", "comm", "overhead", "skin", "contention",
+                             "split"],
                     help="comm: OSU-style ping-pong between neighbour ranks (latency, bandwidth, fitted "
                          "alpha/beta); overhead: the fixed cost of a step (48 particles) and 2 ranks against "
                          "serial with commuT + migraT against the wire; skin: the cost of a step against the "
                          "Verlet skin; contention: the efficiency ceiling of --procs workers that share "
-                         "nothing (independent serial copies of the scene at particles/procs each) (none of "
-                         "these is part of all)")
+                         "nothing (independent serial copies of the scene at particles/procs each); split: "
+                         "the costs behind the thread schemes' cost model, measured on the mixed crystal "
+                         "(none of these is part of all)")
     pf.add_argument("--repeats", type=positive_int, default=3,
                     help="--what overhead: alternating runs per configuration; --what skin: round-robin "
-                         "rounds; medians (default 3)")
+                         "rounds; --what split: timing rounds; medians (default 3)")
     pf.add_argument("--procs", type=positive_int, default=None,
                     help="--what comm: ranks, on the most cubic grid (default: the mapping's); --what "
                          "contention: workers (default 2)")
@@ -412,10 +414,20 @@ def cmd_perf(args):
     if args.what == "skin":
         from bench.studies.perf_skin import perf_skin
         return _one_line(perf_skin)(args)
+    if args.what == "split":
+        return _perf_report(args, lambda: _perf_split(args))
     if args.steps is None:
         args.steps = 20
     from bench.studies.perf import perf
     return perf(args)
+
+
+def _perf_split(args):
+    from bench.studies.perf_split import measure, report_lines
+    rep = measure(args.repeats, lambda msg: print(msg, file=sys.stderr, flush=True))
+    for line in report_lines(rep):
+        print(line)
+    return rep
 
 
 def _perf_contention(args):

@@ -52,14 +52,14 @@ STATIC_BLOCK = 64     # rows or pairs per prange iteration of the static scheme
 DYNAMIC_ROWS = 16     # rows per dynamic hand-out
 DYNAMIC_PAIRS = 64    # candidate pairs per dynamic hand-out (the dynamic scheme with split=False)
 # Dynamic split: the cost of resolving a candidate pair, in units of one whose bounding spheres are
-# apart (measured by timing dem.forces.resolve_range over rows of one kind at two skins, 2 cores:
+# apart (`bench perf --what split` measures these on the machine at hand; 2 cores:
 # apart 0.0066-0.0117 us; overlapping sphere pair 0.063 us; overlapping ellipsoid pair 0.27 us on
 # packed 2000, 0.35 us on the built-in mixed crystal; poly-ellipsoid 0.29 us on packed 2000).
 SPHERE_PAIR_WEIGHT = 10.0
 SOLVER_WEIGHT = 40.0
 # The per-particle pass (gather, walls, integration), in units of a sphere's without a wall
-# (dem.forces.finish_range timed over the spheres and over the ellipsoids of the mixed crystal,
-# with its walls and without, 2 cores: sphere 0.059 us, ellipsoid 0.142 us; a wall on the particle's
+# (`bench perf --what split`: dem.forces.finish_range over the spheres and over the ellipsoids of
+# the mixed crystal, with its walls and without; 2 cores: sphere 0.059 us, ellipsoid 0.142 us; a wall on the particle's
 # list adds 0.009 us to a sphere, 0.129 us to an ellipsoid, whose wall contact needs its support).
 FINISH_SOLID_WEIGHT = 2.4       # an ellipsoid or poly-ellipsoid
 FINISH_WALL_SPHERE = 0.15
