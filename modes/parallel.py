@@ -59,8 +59,9 @@ SPHERE_PAIR_WEIGHT = 10.0
 SOLVER_WEIGHT = 40.0
 # The per-particle pass (gather, walls, integration), in units of a sphere's without a wall
 # (`bench perf --what split`: dem.forces.finish_range over the spheres and over the ellipsoids of
-# the mixed crystal, with its walls and without; 2 cores: sphere 0.059 us, ellipsoid 0.142 us; a wall on the particle's
-# list adds 0.009 us to a sphere, 0.129 us to an ellipsoid, whose wall contact needs its support).
+# the mixed crystal, with its walls and without; 2 cores: sphere 0.059 us, ellipsoid 0.142 us; a
+# wall on the particle's list adds 0.009 us to a sphere, 0.129 us to an ellipsoid, whose wall
+# contact needs its support).
 FINISH_SOLID_WEIGHT = 2.4       # an ellipsoid or poly-ellipsoid
 FINISH_WALL_SPHERE = 0.15
 FINISH_WALL_SOLID = 2.2
@@ -186,6 +187,29 @@ def compact_pairs(threads, pi_t, pj_t, offsets, pi, pj):
 
 
 @njit(cache=True)
+def cut_at_equal_weight(w, allowed, threads, bounds):
+    """Cut the sequence of weights w [m] into T contiguous ranges of about equal weight: bounds [T+1]
+    = 0, the T-1 cuts, m, cut t at the first index k with allowed[k] (bool [m]) whose preceding
+    weight reaches t/T of the total (a range may be empty)."""
+    m = w.shape[0]
+    total = 0.0
+    for k in range(m):
+        total += w[k]
+    bounds[0] = 0
+    t = 1
+    acc = 0.0
+    for k in range(m):
+        if allowed[k]:
+            while t < threads and acc >= t * total / threads:
+                bounds[t] = k
+                t += 1
+        acc += w[k]
+    while t <= threads:
+        bounds[t] = m
+        t += 1
+
+
+@njit(cache=True)
 def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, shape, bounds, gat, home_start, home_items):
     """Cut the gid-sorted pair list (pi, pj [m]: rows of equal pi contiguous) into T ranges of whole
     rows, bounds [T+1] (pair indices), by the scheme `code`: equal rows (PARTITION), equal estimated
@@ -199,10 +223,11 @@ def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, shape, bounds, gat,
     particles the ranges sum themselves."""
     m = pi.shape[0]
     w = np.empty(m)
-    total = 0.0
+    row_start = np.empty(m, dtype=np.bool_)
     for k in range(m):
+        row_start[k] = k == 0 or pi[k] != pi[k - 1]
         if code == PARTITION:
-            w[k] = 1.0 if k == 0 or pi[k] != pi[k - 1] else 0.0
+            w[k] = 1.0 if row_start[k] else 0.0
         elif code == DYNAMIC:
             i = pi[k]
             j = pj[k]
@@ -215,19 +240,7 @@ def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, shape, bounds, gat,
                 w[k] = SOLVER_WEIGHT
         else:
             w[k] = 1.0
-        total += w[k]
-    bounds[0] = 0
-    t = 1
-    acc = 0.0
-    for k in range(m):
-        if k == 0 or pi[k] != pi[k - 1]:
-            while t < threads and acc >= t * total / threads:
-                bounds[t] = k
-                t += 1
-        acc += w[k]
-    while t <= threads:
-        bounds[t] = m
-        t += 1
+    cut_at_equal_weight(w, row_start, threads, bounds)
     home = np.full(n_owned, -1, dtype=np.int64)
     gat[:] = 0
     for t in range(threads):
@@ -354,20 +367,10 @@ def finish_cuts(threads, n_owned, shape, near, cuts):
     per-particle pass, cuts [T+1]: a sphere weighs 1 (+ FINISH_WALL_SPHERE when near [n_owned] puts
     it on the wall list), an ellipsoid or poly-ellipsoid (shape [n] codes) FINISH_SOLID_WEIGHT (+
     FINISH_WALL_SOLID). Where every particle weighs the same the blocks are equal to within one."""
-    total = 0.0
+    w = np.empty(n_owned)
     for p in range(n_owned):
-        total += _finish_weight(shape[p], near[p])
-    cuts[0] = 0
-    t = 1
-    acc = 0.0
-    for p in range(n_owned):
-        while t < threads and acc >= t * total / threads:
-            cuts[t] = p
-            t += 1
-        acc += _finish_weight(shape[p], near[p])
-    while t <= threads:
-        cuts[t] = n_owned
-        t += 1
+        w[p] = _finish_weight(shape[p], near[p])
+    cut_at_equal_weight(w, np.ones(n_owned, dtype=np.bool_), threads, cuts)
 
 
 @njit(cache=True, inline="always")

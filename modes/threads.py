@@ -129,8 +129,8 @@ class ThreadsMode(SerialMode):
         self.gat = np.zeros(s.n_owned, dtype=np.int8)
         home_start = np.zeros(self.threads + 1, dtype=np.int64)
         home_items = np.zeros(s.n_owned, dtype=np.int64)
-        par.split_pairs(self.code, self.threads, self.pairs.pi, self.pairs.pj, s.n_owned, s.pos, s.rbound, s.shape, bounds,
-                        self.gat, home_start, home_items)
+        par.split_pairs(self.code, self.threads, self.pairs.pi, self.pairs.pj, s.n_owned, s.pos, s.rbound, s.shape,
+                        bounds, self.gat, home_start, home_items)
         self.pairs.offsets = bounds
         self.ranges = (SPLIT, s.n_owned, self.gat, home_start, home_items)
 

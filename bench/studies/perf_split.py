@@ -66,9 +66,7 @@ def _finish_timings(mode, calls, repeats):
     m = mode
     s = m.state
     walls = m.walls()
-    n_walls = len(walls[0])
-    bare = tuple(np.ascontiguousarray(a[:0]) if isinstance(a, np.ndarray) and a.ndim >= 1 and a.shape[0] == n_walls
-                 else a for a in walls[:2]) + tuple(walls[2:])
+    bare = (walls[0][:0], walls[1][:0]) + tuple(walls[2:])  # no planes: the pass without wall contacts
     spheres = np.flatnonzero(s.shape[:s.n_owned] == SPHERE)
     cut = int(spheres[-1]) + 1  # the spheres come first in the mixed crystal
     out = []
