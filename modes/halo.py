@@ -253,7 +253,8 @@ class Halo:
         self.grid = grid
         self.lo, self.hi = grid.bounds(self.coords)
 
-    def _account(self, rank, nbytes):
+    def account(self, rank, nbytes):
+        """Count one message of nbytes [B] sent to rank (bytes_sent, msgs_sent, wire_s)."""
         self.bytes_sent += nbytes
         self.msgs_sent += 1
         if self.wire is not None:
@@ -280,7 +281,7 @@ class Halo:
             sizes[k] = (np.array([len(a) for a in outgoing[k]], dtype=np.int64) if outgoing[k] is not None
                         else np.zeros(na, dtype=np.int64))
             reqs.append(self.cart.Isend(sizes[k], dest=r, tag=k))
-            self._account(r, sizes[k].nbytes)
+            self.account(r, sizes[k].nbytes)
         MPI.Request.Waitall(reqs)
         incoming = [None] * len(DIRECTIONS)
         reqs = []
@@ -297,7 +298,7 @@ class Halo:
             for a in range(na):
                 if len(outgoing[k][a]):
                     buf = np.ascontiguousarray(outgoing[k][a])
-                    self._account(r, buf.nbytes)
+                    self.account(r, buf.nbytes)
                     reqs.append(self.cart.Isend(buf, dest=r, tag=100 + 32 * a + k))
         MPI.Request.Waitall(reqs)
         return incoming

@@ -5,9 +5,12 @@ rebuild step (DESIGN.md) migrates the particles that left the block (migraT), th
 ghosts from the up to 26 neighbour blocks (commuT), inside a border layer as wide as the largest
 bounding diameter plus the skin, so that every pair that can touch before the next rebuild is
 present; the steps between only forward the ghosts' moving fields (commuT). Then the serial (or
-threaded, for hybrid) step runs on owned + ghost particles: pairs with a ghost are computed on
-both ranks from identical inputs and identical contact history, gravity and integration touch
-owned particles only, and walls are visited only by blocks that touch them. Whether the next
+threaded, for hybrid) step runs on owned + ghost particles. A pair with a ghost is resolved once,
+by the owner of its lower-gid end, which sends the other end's terms back to its owner inside
+the resolution (newton, the default with one thread per rank: modes/newton.py; that message is
+commuT), or, in hybrid runs and with newton off, on both ranks from identical inputs and
+identical contact history. Gravity and integration touch owned particles only, and walls are
+visited only by blocks that touch them. Whether the next
 step rebuilds is decided collectively, in the one allreduce a step makes, which also carries the
 stability guard's sums. It is part of commuT and recorded alone as syncT: a rank that finishes
 its step early waits there for the slowest, so syncT holds the ranks' imbalance, and the
@@ -15,8 +18,9 @@ exchanges that follow it start in step (their time is the wire and the software 
 With update_grid K the block grid is fitted to the particles at the start and every K steps
 (refit_grid): the paper's equal blocks over their extent, or cut planes at equal particle count
 or at equal measured compute time (balance; the MPI counterpart of dynamic thread scheduling).
-Timers use MPI.Wtime. Halo and migration live in halo.py, the geometry of blocks in
-decomposition.py, the ping-pong wire model in wire.py; this module only orchestrates.
+Timers use MPI.Wtime. Halo and migration live in halo.py, the reverse exchange of Newton's third
+law in newton.py, the geometry of blocks in decomposition.py, the ping-pong wire model in wire.py;
+this module only orchestrates.
 """
 from collections import deque
 
@@ -25,7 +29,9 @@ import numpy as np
 from modes.base import ModeError, register
 from modes.decomposition import (BlockGrid, DecompositionError, balanced_grid, blended_grid, block_counts,
                                  border_width, extent_grid, fit_skin, load_profiles)
+from dem.forces import SPLIT, resolve_range
 from modes.halo import Halo
+from modes.newton import NewtonPlan, cross_layout, ghost_owner_directions
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 from modes.wire import WireModel, pingpong
@@ -50,13 +56,26 @@ class _Blocks:
     collective = True
     migrates = True
 
-    def setup(self, scene, dt, cart=None, skin=None, halo="26", update_grid=0, balance="extent", wire=True, **kw):
+    def setup(self, scene, dt, cart=None, skin=None, halo="26", update_grid=0, balance="extent", wire=True,
+              newton=None, **kw):
         if balance not in BALANCE:
             raise ModeError(f"unknown balance {balance!r} ({', '.join(BALANCE)})")
+        threaded = isinstance(self, ThreadsMode)
+        if newton is None:
+            newton = not threaded
+        if not isinstance(newton, (bool, np.bool_)):
+            raise ModeError(f"newton must be true or false, got {newton!r}")
+        if newton and threaded:
+            raise ModeError("newton needs one thread per process: a hybrid run resolves each cross-border "
+                            "pair on both of its ranks (newton off)")
         from mpi4py import MPI
         self.clock = MPI.Wtime
         self.mpi = MPI
         super().setup(scene, dt, skin=skin, **kw)
+        self.newton = bool(newton)
+        if self.newton:
+            self.deliver = SPLIT  # the particles with a cross-border pair gather (modes.newton)
+        self.reverse_time = 0.0
         s = self.state
         self.cart = cart
         dims = cart.Get_topo()[0]
@@ -104,6 +123,7 @@ class _Blocks:
 
     def _fresh(self):
         super()._fresh()
+        self.plan = None   # the reverse exchange of the current list (newton)
         if hasattr(self, "halo"):  # a warm-up twin exchanges through a halo of its own
             self.halo = self.halo.clone()
 
@@ -114,6 +134,12 @@ class _Blocks:
 
     def release(self):
         self.halo.free()
+        self._free_plan()
+
+    def _free_plan(self):
+        if self.plan is not None:
+            self.plan.free()
+            self.plan = None
 
     def refit_grid(self):
         """The paper's updateGrid: re-fit the block grid to the particle centres (balance "extent":
@@ -160,6 +186,7 @@ class _Blocks:
 
     def migrate(self):
         self.halo.free()  # a rebuild: the exchange started at the end of the last step is not needed
+        self._free_plan()
         if self._refit_due(self.steps_done + 1):
             return self.refit_grid()
         return self.halo.migrate(self.state)[0]
@@ -169,6 +196,60 @@ class _Blocks:
             self.halo.build(self.state, self.width, self.all_spheres)
         else:
             self.halo.forward(self.state)
+
+    def sync_history(self):
+        """With newton the received pairs' history first comes back from their resolvers
+        (modes.newton), so that the rows written here are those of both-sided resolution."""
+        if self.plan is not None:
+            self.plan.send_history(self.pairs.hist, self.halo.account)
+        super().sync_history()
+
+    def split(self):
+        """With newton: lay the new list out as sent | received | local pairs, mark the particles
+        with a cross-border pair to gather, and fix the reverse exchange (modes.newton); its
+        counts are checked with the neighbours (collective). Else the base mode's split."""
+        if not self.newton:
+            return super().split()
+        s = self.state
+        p = self.pairs
+        ghost_dir = ghost_owner_directions(self.grid, self.coords, s.pos[s.n_owned:s.n])
+        perm, sent, received = cross_layout(p.pi, p.pj, s.n_owned, ghost_dir)
+        for a in (p.pi, p.pj, p.hist, p.on):
+            a[:] = a[perm]
+        self._free_plan()
+        plan = NewtonPlan(self.cart, self.halo.ranks, sent, received, self.halo.wire)
+        plan.check_counts(self.halo.account)
+        self.gat = np.zeros(s.n_owned, dtype=np.int8)
+        self.gat[p.pi[:plan.m_sent]] = 1
+        self.gat[p.pj[plan.m_sent:plan.m_sent + plan.m_recv]] = 1
+        self.plan = plan
+
+    def resolve(self):
+        """With newton: the sent pairs, their terms on their way (commuT), the local pairs, then the
+        received terms (commuT); the received pairs are resolved by their i end's owner."""
+        if not self.newton:
+            return super().resolve()
+        plan, p, s, h = self.plan, self.pairs, self.state, self.halo
+        clock = self.clock
+        ms, mr = plan.m_sent, plan.m_recv
+        a = self._resolve_range(0, ms)
+        t0 = clock()
+        plan.start(p.pf, p.on, s.force, s.torque, s.n_owned, h.startall)
+        t1 = clock()
+        b = self._resolve_range(ms + mr, p.m)
+        t2 = clock()
+        plan.finish(p.pf, p.on, h.waitall)
+        self.reverse_time = (t1 - t0) + (clock() - t2)
+        h.bytes_sent += plan.bytes
+        h.msgs_sent += plan.msgs
+        h.wire_s += plan.wire_s
+        worst, worst_k = (a[2], a[3]) if a[2] >= b[2] else (b[2], b[3])
+        return a[0] + b[0], a[1] + b[1], worst, worst_k, a[4] + b[4]
+
+    def _resolve_range(self, k0, k1):
+        return self.kernel_call("resolve", resolve_range, (
+            self.kind, self.method, k0, k1, self.plist, self.bodies, self.polys, self.law, self.dt,
+            self.deliver, self.state.n_owned, self.gat, self.out, self.n0))
 
     def start_forward(self):
         if self.skin > 0:  # with a skin the next step may be a forward step: its messages leave now
@@ -187,9 +268,14 @@ class _Blocks:
         return bool(d[0] > 0.0) or self._refit_due(self.steps_done + 2)
 
     def step(self):
+        self.reverse_time = 0.0
         row = super().step()
         self.steps_done += 1
         h = self.halo
+        rt = self.reverse_time  # the reverse exchange inside the resolution is communication
+        row["commuT"] += rt
+        row["compuT"] -= rt
+        row["resolveT"] -= rt
         row["bytes_sent"] = h.bytes_sent
         row["msgs_sent"] = h.msgs_sent
         row["wire_s"] = h.wire_s

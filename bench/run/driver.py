@@ -173,6 +173,7 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
             "skin": mode.skin_fraction, "skin_m": mode.skin, "skin_requested": args.skin,
             "halo": args.halo if mapping.procs > 1 else None,
             "update_grid": args.update_grid if mapping.procs > 1 else None,
+            "newton": mode.newton if mapping.procs > 1 else None,
             "balance": args.balance if mapping.procs > 1 and args.update_grid else None,
             "dt": dt, "dt_auto": ts.auto,
             "dt_critical": ts.critical, "dt_details": ts.details, "walls": scene.walls, "gravity": scene.gravity.tolist(),

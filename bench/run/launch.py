@@ -30,6 +30,7 @@ from bench.run.threads_env import check_size, usable_cpus
 from modes.base import ModeError
 from modes.decomposition import BlockGrid, DecompositionError, border_width, fit_skin
 from modes.halo import compile_kernels
+from modes.newton import compile_kernels as compile_newton_kernels
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 
@@ -51,6 +52,7 @@ def warm_cache(scene, mapping, args, dt):
     else:
         SerialMode().setup(twin, dt=dt, neighbor=args.neighbor, contact_method=args.contact_method or "exact").warmup()
     compile_kernels()
+    compile_newton_kernels()
 
 
 def launch_mpi(args, mapping, scene, out, ts):
@@ -64,6 +66,9 @@ def launch_mpi(args, mapping, scene, out, ts):
             fit_skin(grid, width, args.skin * 2.0 * float(scene.state.rbound.max()), explicit=True)
     except DecompositionError as e:
         raise ModeError(str(e)) from None
+    if mapping.threads > 1 and getattr(args, "newton", "auto") == "on":
+        raise ModeError(f"--newton on needs one thread per process (mapping {mapping}): a hybrid run resolves "
+                        f"each cross-border pair on both of its ranks")
     starter = getattr(args, "mpi_starter", None)
     too_big = None if starter else check_size(str(mapping))
     if too_big:
@@ -120,7 +125,7 @@ def _run_argv(args, out):
     argv += ["--mapping", args.mapping, "--neighbor", args.neighbor, "--out", out,
              "--threaded", args.threaded, "--snapshot-every", str(args.snapshot_every), "--halo", args.halo,
              "--guard-overlap", str(args.guard_overlap), "--update-grid", str(args.update_grid),
-             "--balance", args.balance,
+             "--balance", args.balance, "--newton", getattr(args, "newton", "auto"),
              "--contact-method", args.contact_method or "exact",
              "--checkpoint-every", str(getattr(args, "checkpoint_every", 0) or 0)]
     for name in ("particles", "shape", "seed", "steps", "dt", "scheme", "warmup", "skin"):

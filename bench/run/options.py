@@ -110,6 +110,10 @@ def add_run_arguments(r):
                    help="how --update-grid fits the grid: extent (default, the paper's: equal blocks over the "
                         "particles' extent), count (cut planes at equal particle counts) or time (cut planes at "
                         "equal measured compute time, LAMMPS's weight time)")
+    r.add_argument("--newton", choices=["auto", "on", "off"], default="auto",
+                   help="P > 1: resolve each cross-border pair on one rank and send its other end's terms back "
+                        "(on; LAMMPS's newton on) or on both ranks (off); default auto: on for one thread per "
+                        "process, off for hybrid (where on is refused)")
     r.add_argument("--timeout", type=positive_int, default=3600, help="seconds before MPI ranks are killed")
     r.add_argument("--hang-timeout", type=seconds, default=30.0, metavar="S",
                    help="P > 1: stop the run when a rank's heartbeat is S seconds old while a peer's is fresh "
@@ -129,5 +133,6 @@ def mode_options(mapping, args, scheme):
     if mapping.threads > 1:
         opts.update(threads=mapping.threads, scheme=scheme, threaded=args.threaded)
     if mapping.procs > 1:
-        opts.update(halo=args.halo, update_grid=args.update_grid, balance=args.balance)
+        opts.update(halo=args.halo, update_grid=args.update_grid, balance=args.balance,
+                    newton={"on": True, "off": False}.get(getattr(args, "newton", "auto")))
     return opts

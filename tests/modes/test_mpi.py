@@ -4,6 +4,7 @@ import json
 import os
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from tests.helpers import GOOD, assert_same, bench, mpi_run, one_line_error, serial_state, write
@@ -157,8 +158,9 @@ def test_rebuilds_decided_together_and_forward_sends_moving_fields(tmp_path):
     """With a skin every rank rebuilds on the same steps (one collective decision); between
     rebuilds each rank sends one message per neighbour holding only the moving fields of the
     same ghosts: position, velocity, angular momentum, quaternion = 13 doubles = 104 bytes a
-    ghost for ellipsoids, so rank 0's bytes equal 104 x rank 1's ghosts on those steps."""
-    _, steps, info = mpi_run(tmp_path, "gas", 400, "2-2-1-1-1")
+    ghost for ellipsoids, so rank 0's bytes equal 104 x rank 1's ghosts on those steps (newton off:
+    the forward exchange alone; the reverse one is test_newton_resolves_each_cross_border_pair_once's)."""
+    _, steps, info = mpi_run(tmp_path, "gas", 400, "2-2-1-1-1", "--newton", "off")
     wide = steps.pivot(index="step", columns="rank")
     assert (wide["neighbor_rebuilt"][0] == wide["neighbor_rebuilt"][1]).all()
     between = wide[wide["neighbor_rebuilt"][0] == 0]
@@ -211,13 +213,14 @@ m.warmup()
 m.step()  # the first build: migration, ghosts, list
 s, p, h = m.state, m.pairs, m.halo
 keep = lambda: [s.pos, s.vel, s.quat, s.angmom, s.wall_hist, p.pi, p.hist, p.pf, p.on, m.rot, m.omega,
-                h.rounds[0].send_buf, h.rounds[0].recv_buf]
+                h.rounds[0].send_buf, h.rounds[0].recv_buf, m.plan.send_buf, m.plan.recv_buf]
 arrays = keep()
 before = rtsys.get_allocation_stats().alloc
 rows = [m.step() for _ in range(20)]
 out = {"rank": cart.Get_rank(), "allocs": rtsys.get_allocation_stats().alloc - before,
        "rebuilt": sum(r["neighbor_rebuilt"] for r in rows), "same": all(a is b for a, b in zip(arrays, keep())),
-       "msgs": [r["msgs_sent"] for r in rows], "ghosts": s.n - s.n_owned}
+       "msgs": [r["msgs_sent"] for r in rows], "ghosts": s.n - s.n_owned, "sent": m.plan.m_sent,
+       "received": m.plan.m_recv}
 m.release()
 with open(sys.argv[1] + f"/rank{cart.Get_rank()}.json", "w") as fh:
     json.dump(out, fh)
@@ -228,7 +231,9 @@ def test_forward_steps_allocate_nothing(tmp_path):
     """Under MPI a step between rebuilds allocates nothing either: on both ranks numba's allocator
     counts nothing (NRT statistics: every kernel of such a step, pack, unpack, derive, resolve and
     finish, runs without the runtime), the state, pair list and exchange buffers stay the same
-    objects, and each step sends exactly one message (the forward exchange to the one neighbour)."""
+    objects, and each step sends one message for the forward exchange to the one neighbour, and one
+    more where the rank resolves pairs whose other end the neighbour owns (newton: their terms go
+    back); what one rank sends, the other receives."""
     import subprocess
     import sys
     from tests.helpers import ROOT
@@ -244,7 +249,9 @@ def test_forward_steps_allocate_nothing(tmp_path):
     for r in ranks:
         assert r["rebuilt"] == 0 and r["ghosts"] > 0, r
         assert r["allocs"] == 0 and r["same"], r
-        assert r["msgs"] == [1] * 20, r
+        assert r["msgs"] == [1 + (r["sent"] > 0)] * 20, r
+    assert ranks[0]["sent"] == ranks[1]["received"] and ranks[1]["sent"] == ranks[0]["received"]
+    assert ranks[0]["sent"] + ranks[1]["sent"] > 0
 
 
 def _bed_in_tall_box():
@@ -335,3 +342,37 @@ def test_balance_time_gives_the_dearer_particles_a_smaller_block(tmp_path, tmp_p
     assert info["block_cuts_final"][0][0] > info["block_cuts"][0][0]
     assert steps["ellipsoid_calls"].sum() > 0 and steps["n_migrated"].sum() > 0
     assert_same(ref, got)
+
+
+def test_newton_resolves_each_cross_border_pair_once(tmp_path, tmp_path_factory):
+    """Newton's third law across ranks (modes/newton.py) on the patch test, 2 blocks: with newton
+    on, each touching pair is resolved (and counted) by exactly one rank, so the ranks' contact
+    counts add up, step by step, to serial's own count (the reference number comes from the serial
+    run of the same scene); with newton off the pairs across the border are counted on both ranks,
+    so the sum exceeds serial's. Both are bit-identical to serial, and with newton on each step
+    sends one more message per rank (the j ends' terms, 56 bytes a pair)."""
+    out = tmp_path / "serial"
+    res = bench("run", "--scene", "patch162", "--steps", "150", "--out", str(out), "--quiet")
+    assert res.returncode == 0, res.stderr
+    ref = dict(np.load(out / "state.npz"))
+    serial = pd.read_csv(out / "steps.csv").set_index("step")["n_contacts"]
+    on, steps_on, info_on = mpi_run(tmp_path / "on", "patch162", 150, "2-2-1-1-1", "--newton", "on")
+    off, steps_off, info_off = mpi_run(tmp_path / "off", "patch162", 150, "2-2-1-1-1", "--newton", "off")
+    assert info_on["newton"] is True and info_off["newton"] is False
+    assert_same(ref, on)
+    assert_same(ref, off)
+    sum_on = steps_on.groupby("step")["n_contacts"].sum()
+    sum_off = steps_off.groupby("step")["n_contacts"].sum()
+    assert (sum_on == serial).all()
+    assert (sum_off >= serial).all() and (sum_off > serial).sum() > 100
+    forward = steps_on["neighbor_rebuilt"] == 0
+    assert (steps_on.loc[forward, "msgs_sent"] == steps_off.loc[forward, "msgs_sent"] + 1).all()
+
+
+def test_newton_refused_for_hybrid_runs(tmp_path):
+    """A hybrid run resolves its cross-border pairs on both ranks: --newton on is refused in one line."""
+    res = bench("run", "--scene", "patch162", "--steps", "2", "--mapping", "2-2-1-1-2", "--newton", "on",
+                "--out", str(tmp_path / "x"), "--quiet")
+    assert res.returncode != 0
+    lines = [l for l in res.stderr.strip().splitlines() if l.strip()]
+    assert len(lines) == 1 and "newton" in lines[0] and "Traceback" not in res.stderr, res.stderr
