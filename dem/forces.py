@@ -170,16 +170,15 @@ def _deliver(k, i, j, f, sums):
     force, torque, n_owned, gat). SUM (one thread, pairs in gid order: see resolve_range) adds
     them to the owned ends, force[i] -= F, torque[i] += T_i, force[j] += F, torque[j] += T_j, and
     writes nothing per pair; STORE writes them to pf[k] for the gather (finish_range); SPLIT adds
-    them to the owned ends with gat == 0 and stores them when an owned end has gat == 1 or the j
-    end is a ghost (under MPI with Newton's third law its owner receives them: modes.newton)."""
+    them to the owned ends with gat == 0 and stores them when an owned end has gat == 1 (under MPI
+    with Newton's third law every owned end of a cross-border pair has: modes.newton)."""
     deliver, pf, force, torque, n_owned, gat = sums
     if deliver == SUM:
         sum_i, sum_j, store = i < n_owned, j < n_owned, False
     elif deliver == SPLIT:
         gi = i < n_owned and gat[i] != 0
         gj = j < n_owned and gat[j] != 0
-        # a ghost j end: the pair's terms travel back to j's owner (MPI with Newton's third law)
-        sum_i, sum_j, store = i < n_owned and not gi, j < n_owned and not gj, gi or gj or j >= n_owned
+        sum_i, sum_j, store = i < n_owned and not gi, j < n_owned and not gj, gi or gj
     else:
         sum_i, sum_j, store = False, False, True
     if sum_i:

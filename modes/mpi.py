@@ -6,7 +6,7 @@ ghosts from the up to 26 neighbour blocks (commuT), inside a border layer as wid
 bounding diameter plus the skin, so that every pair that can touch before the next rebuild is
 present; the steps between only forward the ghosts' moving fields (commuT). Then the serial (or
 threaded, for hybrid) step runs on owned + ghost particles. A pair with a ghost is resolved once,
-by the owner of its lower-gid end, which sends the other end's terms back to its owner inside
+by one of its two ranks (a hash of the two gids picks which), which sends the other end's terms to its owner inside
 the resolution (newton, the default with one thread per rank: modes/newton.py; that message is
 commuT), or, in hybrid runs and with newton off, on both ranks from identical inputs and
 identical contact history. Gravity and integration touch owned particles only, and walls are
@@ -213,15 +213,15 @@ class _Blocks:
         s = self.state
         p = self.pairs
         ghost_dir = ghost_owner_directions(self.grid, self.coords, s.pos[s.n_owned:s.n])
-        perm, sent, received = cross_layout(p.pi, p.pj, s.n_owned, ghost_dir)
+        perm, sent, received = cross_layout(p.pi, p.pj, s.gid, s.n_owned, ghost_dir)
         for a in (p.pi, p.pj, p.hist, p.on):
             a[:] = a[perm]
         self._free_plan()
         plan = NewtonPlan(self.cart, self.halo.ranks, sent, received, self.halo.wire)
         plan.check_counts(self.halo.account)
         self.gat = np.zeros(s.n_owned, dtype=np.int8)
-        self.gat[p.pi[:plan.m_sent]] = 1
-        self.gat[p.pj[plan.m_sent:plan.m_sent + plan.m_recv]] = 1
+        ends = np.concatenate([p.pi[:plan.m_sent + plan.m_recv], p.pj[:plan.m_sent + plan.m_recv]])
+        self.gat[ends[ends < s.n_owned]] = 1  # the owned end of every cross-border pair gathers
         self.plan = plan
 
     def resolve(self):
@@ -234,11 +234,11 @@ class _Blocks:
         ms, mr = plan.m_sent, plan.m_recv
         a = self._resolve_range(0, ms)
         t0 = clock()
-        plan.start(p.pf, p.on, s.force, s.torque, s.n_owned, h.startall)
+        plan.start(p.pi, p.pj, p.pf, p.on, s.force, s.torque, s.n_owned, h.startall)
         t1 = clock()
         b = self._resolve_range(ms + mr, p.m)
         t2 = clock()
-        plan.finish(p.pf, p.on, h.waitall)
+        plan.finish(p.pi, s.n_owned, p.pf, p.on, h.waitall)
         self.reverse_time = (t1 - t0) + (clock() - t2)
         h.bytes_sent += plan.bytes
         h.msgs_sent += plan.msgs

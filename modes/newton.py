@@ -3,23 +3,31 @@
 Without it each of the two ranks that hold a cross-border pair resolves it, from identical
 inputs, and keeps only its own end's terms (LAMMPS `newton off`): on 12k packed ellipsoids on 2
 blocks that is 2.8 % more pairs than serial, the ranks' only extra computation. With it (LAMMPS
-`newton on`, its reverse communication) the rank that owns the pair's i end resolves it (the
-pair list keeps gid[i] < gid[j], so that is the owner of the lower global id) and sends the j
-end's terms back to j's owner: force on j [3] [N], torque on j [3] [N m] and the touching flag,
-7 doubles (56 bytes) a pair, one message per neighbour, over persistent requests fixed at the
-rebuild, like the forward exchange of the ghosts (modes.halo).
+`newton on`, its reverse communication) one of the two ranks resolves the pair, in its canonical
+order (i the lower gid, as everywhere), and sends the other end's terms to that end's owner:
+the pair force [3] [N] (the i end takes its negation), the torque on that end [3] [N m] and the
+touching flag, 7 doubles (56 bytes) a pair, one message per neighbour, over persistent requests
+fixed at the rebuild, like the forward exchange of the ghosts (modes.halo).
+
+Which rank resolves: the owner of the i end where a hash of the pair's two gids (splitmix64,
+resolver_end) is even, of the j end where it is odd. Both ranks compute it from the gids alone.
+The simpler rule, the owner of the lower gid, gave rank 0 of a 12k packed bed on 2 blocks 1270
+cross pairs against rank 1's 670 (a scene built in lattice order numbers the particles along
+the axis the blocks cut): the hash splits them evenly whatever the numbering. (LAMMPS's rule,
+the ghost above the owned particle in z, then y, then x, splits the pairs across an x or y face
+but hands all those across a z face to the lower block.)
 
 The pair list is laid out at each rebuild (cross_layout) as
-    [sent: i owned, j a ghost | received: i a ghost, j owned | local: both owned],
-the sent pairs grouped by the direction of j's owner and the received ones by that of i's
-owner, each group in ascending (gid_i, gid_j). A step resolves the sent pairs, packs their j
-terms and starts the messages, resolves the local pairs while they travel, then waits and
-unpacks the received terms into the received pairs' records (pf, on), which nobody resolves
-here. Both ranks find the same cross pairs (the candidate test is symmetric, both hold both
-particles as identical copies, and the border layer is wider than any pair's reach), so what a
-rank sends and what its neighbour expects agree in membership and order without a message; the
-counts are checked at each rebuild all the same (one message per neighbour), and a mismatch is
-an error, never a silent one.
+    [sent: resolved here, the other end a ghost | received: resolved there | local: both owned],
+the sent pairs grouped by the direction of the ghost's owner, the received ones likewise, each
+group in ascending (gid_i, gid_j). A step resolves the sent pairs, packs the ghost ends' terms and
+starts the messages, resolves the local pairs while they travel, then waits and unpacks the
+received terms into the received pairs' records (pf, on), which nobody resolves here. Both ranks
+find the same cross pairs (the candidate test is symmetric, both hold both particles as identical
+copies, and the border layer is wider than any pair's reach), so what a rank sends and what its
+neighbour expects agree in membership and order without a message; the counts are checked at
+each rebuild all the same (one message per neighbour), and a mismatch is an error, never a
+silent one.
 
 Determinism (DESIGN.md): every particle with a cross pair gathers (gat = 1: dem.forces, SPLIT):
 it sums its stored and received terms in ascending partner gid, as serial does; the others sum
@@ -38,12 +46,13 @@ owner, one of the 26 neighbours.
 import numpy as np
 from numba import njit
 
-from dem.forces import PF_F, PF_TJ
+from dem.forces import PF_F, PF_TI, PF_TJ
 from dem.state import HIST_LEN
 from modes.base import compiled_entry
 from modes.decomposition import DIRECTIONS, OPPOSITE, direction_of
 
-# a received pair's terms: force on j [3], torque on j [3], touching flag
+# a received pair's terms: pair force [3] (on j; i takes its negation), torque on the receiver's end [3],
+# touching flag
 TERMS = 7
 # tags of the per-step messages, and of the rebuild's counts and history (apart from the halo's)
 REVERSE_TAG = 400
@@ -53,15 +62,16 @@ LOCAL = len(DIRECTIONS)   # the group key of a pair with both ends owned (after 
 
 
 @njit(cache=True, _nrt=False)
-def pack_sent(pf, on, m_sent, buf, force, torque, n_owned):
-    """buf[k] = (force on j, torque on j, on) of the sent pairs k < m_sent (buf [m_sent, TERMS]),
-    then zero the force and torque [n, 3] of the owned particles (0..n_owned-1): the sent pairs
-    are resolved first and sum into nobody (their i end gathers), so the sums of the local
-    pairs start here."""
+def pack_sent(pi, pj, pf, on, m_sent, buf, force, torque, n_owned):
+    """buf[k] = (pair force, torque on the ghost end, on) of the sent pairs k < m_sent (buf
+    [m_sent, TERMS]; the ghost is j where pj[k] >= n_owned, else i), then zero the force and
+    torque [n, 3] of the owned particles (0..n_owned-1): the sent pairs are resolved first and
+    sum into nobody (their owned end gathers), so the sums of the local pairs start here."""
     for k in range(m_sent):
+        tc = PF_TJ if pj[k] >= n_owned else PF_TI
         for c in range(3):
             buf[k, c] = pf[k, PF_F + c]
-            buf[k, 3 + c] = pf[k, PF_TJ + c]
+            buf[k, 3 + c] = pf[k, tc + c]
         buf[k, 6] = float(on[k])
     for p in range(n_owned):
         for c in range(3):
@@ -70,13 +80,15 @@ def pack_sent(pf, on, m_sent, buf, force, torque, n_owned):
 
 
 @njit(cache=True, _nrt=False)
-def unpack_received(buf, k0, pf, on):
-    """The received pairs k0.. take the j end's terms buf [m_recv, TERMS] into pf and on."""
+def unpack_received(buf, k0, pi, n_owned, pf, on):
+    """The received pairs k0.. take the pair force and their owned end's torque (j where the i end,
+    pi[k] >= n_owned, is the ghost) from buf [m_recv, TERMS] into pf, and the touching flag into on."""
     for u in range(buf.shape[0]):
         k = k0 + u
+        tc = PF_TJ if pi[k] >= n_owned else PF_TI
         for c in range(3):
             pf[k, PF_F + c] = buf[u, c]
-            pf[k, PF_TJ + c] = buf[u, 3 + c]
+            pf[k, tc + c] = buf[u, 3 + c]
         on[k] = np.int8(buf[u, 6])
 
 
@@ -86,20 +98,37 @@ def compile_kernels():
     on = np.zeros(1, dtype=np.int8)
     buf = np.zeros((1, TERMS))
     a = np.zeros((1, 3))
-    pack_sent(pf, on, 1, buf, a, a, 1)
-    unpack_received(buf, 0, pf, on)
+    idx = np.zeros(1, dtype=np.int64)
+    pack_sent(idx, idx, pf, on, 1, buf, a, a, 1)
+    unpack_received(buf, 0, idx, 1, pf, on)
 
 
-def cross_layout(pi, pj, n_owned, ghost_dir):
-    """The permutation [m] that lays a gid-sorted pair list out as sent | received | local (see the
-    module docstring) and the group sizes: (perm, sent [26] pairs per direction of j's owner,
-    received [26] pairs per direction of i's owner). ghost_dir [n - n_owned]: the direction
-    (modes.decomposition.DIRECTIONS) of each ghost's owner."""
+def resolver_end(gid_i, gid_j):
+    """1 where the j end's owner resolves the pair (gid_i, gid_j) [m], 0 where the i end's: the
+    lowest bit of splitmix64 (Steele, Lea & Flood 2014) of gid_i 2^32 + gid_j, so that the pairs
+    across a border split evenly between its two ranks however the particles are numbered."""
+    with np.errstate(over="ignore"):
+        x = (np.asarray(gid_i, dtype=np.uint64) << np.uint64(32)) ^ np.asarray(gid_j, dtype=np.uint64)
+        x = x + np.uint64(0x9E3779B97F4A7C15)
+        x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        x = x ^ (x >> np.uint64(31))
+    return (x & np.uint64(1)).astype(np.int64)
+
+
+def cross_layout(pi, pj, gid, n_owned, ghost_dir):
+    """The permutation [m] that lays a gid-sorted pair list (pi, pj [m] over local ids with global
+    ids gid [n]) out as sent | received | local (see the module docstring) and the group sizes:
+    (perm, sent [26] pairs per direction of the ghost's owner, received [26] likewise).
+    ghost_dir [n - n_owned]: the direction (modes.decomposition.DIRECTIONS) of each ghost's owner."""
     key = np.full(len(pi), 2 * LOCAL, dtype=np.int16)
-    sent = pj >= n_owned
-    recv = pi >= n_owned
-    key[sent] = ghost_dir[pj[sent] - n_owned]
-    key[recv] = LOCAL + ghost_dir[pi[recv] - n_owned]
+    j_ghost = pj >= n_owned
+    i_ghost = pi >= n_owned
+    cross = j_ghost | i_ghost
+    ghost = np.where(j_ghost, pj, pi)[cross]
+    # resolved here when the resolving end is the owned one: i (j a ghost) with bit 0, j with bit 1
+    here = resolver_end(gid[pi[cross]], gid[pj[cross]]) == (1 - j_ghost[cross].astype(np.int64))
+    key[cross] = ghost_dir[ghost - n_owned] + np.where(here, 0, LOCAL)
     perm = np.argsort(key, kind="stable")   # a radix sort on int16: O(m), the gid order kept in each group
     counts = np.bincount(key, minlength=2 * LOCAL + 1)
     return perm, counts[:LOCAL], counts[LOCAL:2 * LOCAL]
@@ -174,15 +203,16 @@ class NewtonPlan:
         else:
             entry(*args)
 
-    def start(self, pf, on, force, torque, n_owned, startall):
-        """Pack the sent pairs' j terms (and zero the owned sums: pack_sent) and start the messages."""
-        self._call(pack_sent, (pf, on, self.m_sent, self.send_buf, force, torque, n_owned))
+    def start(self, pi, pj, pf, on, force, torque, n_owned, startall):
+        """Pack the sent pairs' ghost-end terms (and zero the owned sums: pack_sent) and start the
+        messages."""
+        self._call(pack_sent, (pi, pj, pf, on, self.m_sent, self.send_buf, force, torque, n_owned))
         startall(self.requests)
 
-    def finish(self, pf, on, waitall):
+    def finish(self, pi, n_owned, pf, on, waitall):
         """Wait for the neighbours' terms and put them into the received pairs' records."""
         waitall(self.requests)
-        self._call(unpack_received, (self.recv_buf, self.m_sent, pf, on))
+        self._call(unpack_received, (self.recv_buf, self.m_sent, pi, n_owned, pf, on))
 
     def send_history(self, hist, account):
         """The sent pairs' history rows hist [m, HIST_LEN] (at their resolution's end) into the
