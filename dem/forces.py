@@ -68,8 +68,11 @@ PF_LEN = 9
 # how a resolution hands on the pair forces (the `deliver` argument): STORE every pair's into pf
 # (each particle gathers them), SUM them into the ends' force and torque as it goes (one thread,
 # pairs sorted by gid), SPLIT: SUM for the particles with gat[p] == 0, STORE for the pairs that
-# touch one with gat[p] == 1 (threads over ranges of the gid-sorted list: modes.parallel)
-STORE, SUM, SPLIT = 0, 1, 2
+# touch one with gat[p] == 1 (threads over ranges of the gid-sorted list: modes.parallel); TAKEN:
+# SUM, but a pair with a ghost end is not resolved: its terms are already in pf (MPI with Newton's
+# third law: resolved beforehand by this rank or received from the ghost's owner, modes.newton) and
+# are added to the owned end in the pair's place in the sequence
+STORE, SUM, SPLIT, TAKEN = 0, 1, 2, 3
 
 # ellipsoid contact methods (dem.contact.CONTACT_METHODS; dem/contact/methods.py): index = the `method` argument
 EXACT, PW, SEXTIC = 0, 1, 2
@@ -173,7 +176,7 @@ def _deliver(k, i, j, f, sums):
     them to the owned ends with gat == 0 and stores them when an owned end has gat == 1 (under MPI
     with Newton's third law every owned end of a cross-border pair has: modes.newton)."""
     deliver, pf, force, torque, n_owned, gat = sums
-    if deliver == SUM:
+    if deliver == SUM or deliver == TAKEN:
         sum_i, sum_j, store = i < n_owned, j < n_owned, False
     elif deliver == SPLIT:
         gi = i < n_owned and gat[i] != 0
@@ -206,6 +209,32 @@ def _deliver(k, i, j, f, sums):
     pf[k, PF_TJ] = f[6]
     pf[k, PF_TJ + 1] = f[7]
     pf[k, PF_TJ + 2] = f[8]
+
+
+@njit(cache=True, inline="always")
+def _take_stored(k, i, j, plist, sums):
+    """TAKEN: add the stored terms pf[k] of cross-border pair k to its owned end as SUM would have
+    added them when resolving it (nothing when it does not touch, on[k] == 0); returns -1 (the pair
+    is counted where it was resolved)."""
+    _, _, _, on, pf = plist
+    _, _, force, torque, n_owned, _ = sums
+    if on[k] == 0:
+        return -1.0
+    if i < n_owned:
+        force[i, 0] -= pf[k, PF_F]
+        force[i, 1] -= pf[k, PF_F + 1]
+        force[i, 2] -= pf[k, PF_F + 2]
+        torque[i, 0] += pf[k, PF_TI]
+        torque[i, 1] += pf[k, PF_TI + 1]
+        torque[i, 2] += pf[k, PF_TI + 2]
+    if j < n_owned:
+        force[j, 0] += pf[k, PF_F]
+        force[j, 1] += pf[k, PF_F + 1]
+        force[j, 2] += pf[k, PF_F + 2]
+        torque[j, 0] += pf[k, PF_TJ]
+        torque[j, 1] += pf[k, PF_TJ + 1]
+        torque[j, 2] += pf[k, PF_TJ + 2]
+    return -1.0
 
 
 @njit(cache=True, inline="always")
@@ -357,7 +386,12 @@ def _resolve_spheres(k0, k1, plist, bodies, law, dt, deliver, n_owned, gat):
     worst_k = -1
     rsum = 0.0
     for k in range(k0, k1):
-        r = _sphere_pair(k, pi[k], pj[k], bodies, law, plist, dt, sums)
+        i = pi[k]
+        j = pj[k]
+        if deliver == TAKEN and (i >= n_owned or j >= n_owned):
+            r = _take_stored(k, i, j, plist, sums)
+        else:
+            r = _sphere_pair(k, i, j, bodies, law, plist, dt, sums)
         if r >= 0.0:
             nc += 1
             rsum += r
@@ -382,7 +416,9 @@ def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, poly_scen
     for k in range(k0, k1):
         i = pi[k]
         j = pj[k]
-        if shape[i] == SPHERE and shape[j] == SPHERE:
+        if deliver == TAKEN and (i >= n_owned or j >= n_owned):
+            r = _take_stored(k, i, j, plist, sums)
+        elif shape[i] == SPHERE and shape[j] == SPHERE:
             r = _sphere_pair(k, i, j, bodies, law, plist, dt, sums)
         elif _apart(i, j, pos, rbound):
             on[k] = 0
@@ -415,11 +451,13 @@ def resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, deliver, 
     (finish_range), so both strategies give the same bits; it spares pf and the gather's second
     pass over the pairs. Threads whose pairs are resolved concurrently in any order STORE; threads over
     contiguous ranges of the sorted list SPLIT (see _deliver: gat [n_owned] int8 marks the particles
-    with pairs in two ranges; the caller zeroes the others' force and torque). kind (SPHERE,
+    with pairs in two ranges; the caller zeroes the others' force and torque). TAKEN (MPI with
+    Newton's third law) is SUM with the pairs that have a ghost end not resolved but added from pf,
+    where modes.newton put their terms (resolved beforehand by this rank, STORE, or received). kind (SPHERE,
     ELLIPSOID, POLY) picks the loop, so a scene pays only for the solvers its shapes use. out
     [OUT_LEN], n0 [3] are scratch. Returns RESOLVED: (contacts, solver calls, largest depth ratio
     = depth over the smaller minimum semi-axis, its pair or -1, sum of the depth ratios)."""
-    if deliver == SUM:
+    if deliver == SUM or deliver == TAKEN:
         force, torque = bodies[10], bodies[11]
         for p in range(n_owned):
             for c in range(3):

@@ -6,12 +6,12 @@ ghosts from the up to 26 neighbour blocks (commuT), inside a border layer as wid
 bounding diameter plus the skin, so that every pair that can touch before the next rebuild is
 present; the steps between only forward the ghosts' moving fields (commuT). Then the serial (or
 threaded, for hybrid) step runs on owned + ghost particles. A pair with a ghost is resolved once,
-by one of its two ranks (a hash of the two gids picks which), which sends the other end's terms to its owner inside
-the resolution (newton, the default with one thread per rank: modes/newton.py; that message is
-commuT), or, in hybrid runs and with newton off, on both ranks from identical inputs and
-identical contact history. Gravity and integration touch owned particles only, and walls are
-visited only by blocks that touch them. Whether the next
-step rebuilds is decided collectively, in the one allreduce a step makes, which also carries the
+by one of its two ranks (a hash of the two gids picks which), which sends the other end's terms
+to its owner inside the resolution (newton, the default with one thread per rank:
+modes/newton.py; that message is commuT), or, in hybrid runs and with newton off, on both ranks
+from identical inputs and identical contact history. Gravity and integration touch owned
+particles only, and walls are visited only by blocks that touch them. Whether the next step
+rebuilds is decided collectively, in the one allreduce a step makes, which also carries the
 stability guard's sums. It is part of commuT and recorded alone as syncT: a rank that finishes
 its step early waits there for the slowest, so syncT holds the ranks' imbalance, and the
 exchanges that follow it start in step (their time is the wire and the software around it).
@@ -29,7 +29,7 @@ import numpy as np
 from modes.base import ModeError, register
 from modes.decomposition import (BlockGrid, DecompositionError, balanced_grid, blended_grid, block_counts,
                                  border_width, extent_grid, fit_skin, load_profiles)
-from dem.forces import SPLIT, resolve_range
+from dem.forces import STORE, TAKEN, resolve_range
 from modes.halo import Halo
 from modes.newton import NewtonPlan, cross_layout, ghost_owner_directions
 from modes.serial import SerialMode
@@ -73,8 +73,6 @@ class _Blocks:
         self.mpi = MPI
         super().setup(scene, dt, skin=skin, **kw)
         self.newton = bool(newton)
-        if self.newton:
-            self.deliver = SPLIT  # the particles with a cross-border pair gather (modes.newton)
         self.reverse_time = 0.0
         s = self.state
         self.cart = cart
@@ -201,55 +199,46 @@ class _Blocks:
         """With newton the received pairs' history first comes back from their resolvers
         (modes.newton), so that the rows written here are those of both-sided resolution."""
         if self.plan is not None:
+            self.plan.put_back(self.pairs)
             self.plan.send_history(self.pairs.hist, self.halo.account)
         super().sync_history()
 
     def split(self):
-        """With newton: lay the new list out as sent | received | local pairs, mark the particles
-        with a cross-border pair to gather, and fix the reverse exchange (modes.newton); its
-        counts are checked with the neighbours (collective). Else the base mode's split."""
+        """With newton: pick out the cross-border pairs this rank resolves and those it receives, and
+        fix the reverse exchange (modes.newton); its counts are checked with the neighbours
+        (collective). Else the base mode's split."""
         if not self.newton:
             return super().split()
         s = self.state
         p = self.pairs
         ghost_dir = ghost_owner_directions(self.grid, self.coords, s.pos[s.n_owned:s.n])
-        perm, sent, received = cross_layout(p.pi, p.pj, s.gid, s.n_owned, ghost_dir)
-        for a in (p.pi, p.pj, p.hist, p.on):
-            a[:] = a[perm]
         self._free_plan()
-        plan = NewtonPlan(self.cart, self.halo.ranks, sent, received, self.halo.wire)
-        plan.check_counts(self.halo.account)
-        self.gat = np.zeros(s.n_owned, dtype=np.int8)
-        ends = np.concatenate([p.pi[:plan.m_sent + plan.m_recv], p.pj[:plan.m_sent + plan.m_recv]])
-        self.gat[ends[ends < s.n_owned]] = 1  # the owned end of every cross-border pair gathers
-        self.plan = plan
+        self.plan = NewtonPlan(self.cart, self.halo.ranks, cross_layout(p.pi, p.pj, s.gid, s.n_owned, ghost_dir),
+                               self.halo.wire)
+        self.plan.check_counts(self.halo.account)
+        self.plan.take_sent(p)
 
     def resolve(self):
-        """With newton: the sent pairs, their terms on their way (commuT), the local pairs, then the
-        received terms (commuT); the received pairs are resolved by their i end's owner."""
+        """With newton: the sent pairs (their own list), their terms to the neighbours and the
+        neighbours' back (commuT), then the whole list in gid order with the cross pairs' terms taken as they stand
+        (dem.forces, TAKEN); the received pairs are resolved by the ghost's owner."""
         if not self.newton:
             return super().resolve()
         plan, p, s, h = self.plan, self.pairs, self.state, self.halo
-        clock = self.clock
-        ms, mr = plan.m_sent, plan.m_recv
-        a = self._resolve_range(0, ms)
-        t0 = clock()
-        plan.start(p.pi, p.pj, p.pf, p.on, s.force, s.torque, s.n_owned, h.startall)
-        t1 = clock()
-        b = self._resolve_range(ms + mr, p.m)
-        t2 = clock()
-        plan.finish(p.pi, s.n_owned, p.pf, p.on, h.waitall)
-        self.reverse_time = (t1 - t0) + (clock() - t2)
+        a = self.kernel_call("resolve_sent", resolve_range, (
+            self.kind, self.method, 0, plan.m_sent, plan.list, self.bodies, self.polys, self.law, self.dt,
+            STORE, s.n_owned, self.gat, self.out, self.n0))
+        t0 = self.clock()
+        plan.exchange(p.pi, p.pf, p.on, s.n_owned, h.startall, h.waitall)
+        self.reverse_time = self.clock() - t0
         h.bytes_sent += plan.bytes
         h.msgs_sent += plan.msgs
         h.wire_s += plan.wire_s
-        worst, worst_k = (a[2], a[3]) if a[2] >= b[2] else (b[2], b[3])
+        b = self.kernel_call("resolve", resolve_range, (
+            self.kind, self.method, 0, p.m, self.plist, self.bodies, self.polys, self.law, self.dt,
+            TAKEN, s.n_owned, self.gat, self.out, self.n0))
+        worst, worst_k = (a[2], int(plan.sent_idx[a[3]])) if a[2] > b[2] else (b[2], b[3])
         return a[0] + b[0], a[1] + b[1], worst, worst_k, a[4] + b[4]
-
-    def _resolve_range(self, k0, k1):
-        return self.kernel_call("resolve", resolve_range, (
-            self.kind, self.method, k0, k1, self.plist, self.bodies, self.polys, self.law, self.dt,
-            self.deliver, self.state.n_owned, self.gat, self.out, self.n0))
 
     def start_forward(self):
         if self.skin > 0:  # with a skin the next step may be a forward step: its messages leave now

@@ -17,21 +17,26 @@ the axis the blocks cut): the hash splits them evenly whatever the numbering. (L
 the ghost above the owned particle in z, then y, then x, splits the pairs across an x or y face
 but hands all those across a z face to the lower block.)
 
-The pair list is laid out at each rebuild (cross_layout) as
-    [sent: resolved here, the other end a ghost | received: resolved there | local: both owned],
-the sent pairs grouped by the direction of the ghost's owner, the received ones likewise, each
-group in ascending (gid_i, gid_j). A step resolves the sent pairs, packs the ghost ends' terms and
-starts the messages, resolves the local pairs while they travel, then waits and unpacks the
-received terms into the received pairs' records (pf, on), which nobody resolves here. Both ranks
-find the same cross pairs (the candidate test is symmetric, both hold both particles as identical
-copies, and the border layer is wider than any pair's reach), so what a rank sends and what its
-neighbour expects agree in membership and order without a message; the counts are checked at
-each rebuild all the same (one message per neighbour), and a mismatch is an error, never a
-silent one.
+The pair list stays in ascending (gid_i, gid_j). At each rebuild cross_layout picks out the
+sent pairs (resolved here, the other end a ghost) and the received ones (resolved there) as index
+lists, each grouped by the direction of the ghost's owner and in list order within a group; the
+sent pairs are copied out, with their history, into a list of their own (take_sent). A step
+first resolves that list (one contiguous range, STORE: their terms into its pf), packs the ghost
+ends' terms and starts the messages, waits for and unpacks the neighbours' terms into the
+received pairs' records (pf, on), and then resolves the whole list in order as one thread does
+(dem.forces, TAKEN): each local pair is resolved and summed into its ends, each cross pair's
+stored terms are added to its owned end in the pair's place. Every particle thus sums its terms
+in ascending partner gid, as serial does, and no particle gathers: the result is bit-identical
+to serial. (Resolving the local pairs while the messages travel would need the particles with a
+cross pair to gather their terms afterwards: measured on 12k packed ellipsoids, 2 ranks, that
+gather, 600 particles a rank reading their pairs' scattered records, cost 0.3 ms a step, more
+than the pairs saved. The wait costs the skew of the short first phase.)
 
-Determinism (DESIGN.md): every particle with a cross pair gathers (gat = 1: dem.forces, SPLIT):
-it sums its stored and received terms in ascending partner gid, as serial does; the others sum
-as they are resolved, in the local group's gid order. The result is bit-identical to serial.
+Both ranks find the same cross pairs (the candidate test is symmetric, both hold both particles
+as identical copies, and the border layer is wider than any pair's reach), so what a rank sends
+and what its neighbour expects agree in membership and order without a message; the counts are
+checked at each rebuild all the same (one message per neighbour), and a mismatch is an error,
+never a silent one.
 
 History: the received pairs' contact history lives with the resolver. It travels back at each
 rebuild, and before a checkpoint, ahead of the list's history being written to the per-particle
@@ -46,7 +51,7 @@ owner, one of the 26 neighbours.
 import numpy as np
 from numba import njit
 
-from dem.forces import PF_F, PF_TI, PF_TJ
+from dem.forces import PF_F, PF_LEN, PF_TI, PF_TJ
 from dem.state import HIST_LEN
 from modes.base import compiled_entry
 from modes.decomposition import DIRECTIONS, OPPOSITE, direction_of
@@ -58,33 +63,34 @@ TERMS = 7
 REVERSE_TAG = 400
 COUNT_TAG = 450
 HISTORY_TAG = 500
-LOCAL = len(DIRECTIONS)   # the group key of a pair with both ends owned (after 26 sent, 26 received keys)
+NDIR = len(DIRECTIONS)
 
 
 @njit(cache=True, _nrt=False)
-def pack_sent(pi, pj, pf, on, m_sent, buf, force, torque, n_owned):
-    """buf[k] = (pair force, torque on the ghost end, on) of the sent pairs k < m_sent (buf
-    [m_sent, TERMS]; the ghost is j where pj[k] >= n_owned, else i), then zero the force and
-    torque [n, 3] of the owned particles (0..n_owned-1): the sent pairs are resolved first and
-    sum into nobody (their owned end gathers), so the sums of the local pairs start here."""
-    for k in range(m_sent):
-        tc = PF_TJ if pj[k] >= n_owned else PF_TI
+def pack_sent(sent, idx, pf, on, n_owned, buf):
+    """The sent pairs' records sent = (pi, pj, hist, on, pf) [s] (resolved as their own list) into
+    the send buffer, buf[u] = (pair force, torque on the ghost end, on) (buf [s, TERMS]; the ghost
+    is j where pj >= n_owned, else i), and into the pair list's records pf, on at their places
+    idx [s], where the in-order pass takes them (dem.forces, TAKEN)."""
+    spi, spj, _, son, spf = sent
+    for u in range(idx.shape[0]):
+        k = idx[u]
+        tc = PF_TJ if spj[u] >= n_owned else PF_TI
         for c in range(3):
-            buf[k, c] = pf[k, PF_F + c]
-            buf[k, 3 + c] = pf[k, tc + c]
-        buf[k, 6] = float(on[k])
-    for p in range(n_owned):
-        for c in range(3):
-            force[p, c] = 0.0
-            torque[p, c] = 0.0
+            buf[u, c] = spf[u, PF_F + c]
+            buf[u, 3 + c] = spf[u, tc + c]
+        buf[u, 6] = float(son[u])
+        for c in range(PF_LEN):
+            pf[k, c] = spf[u, c]
+        on[k] = son[u]
 
 
 @njit(cache=True, _nrt=False)
-def unpack_received(buf, k0, pi, n_owned, pf, on):
-    """The received pairs k0.. take the pair force and their owned end's torque (j where the i end,
-    pi[k] >= n_owned, is the ghost) from buf [m_recv, TERMS] into pf, and the touching flag into on."""
-    for u in range(buf.shape[0]):
-        k = k0 + u
+def unpack_received(buf, idx, pi, n_owned, pf, on):
+    """The received pairs k = idx[u] take the pair force and their owned end's torque (j where the i
+    end, pi[k] >= n_owned, is the ghost) from buf [r, TERMS] into pf, and the touching flag into on."""
+    for u in range(idx.shape[0]):
+        k = idx[u]
         tc = PF_TJ if pi[k] >= n_owned else PF_TI
         for c in range(3):
             pf[k, PF_F + c] = buf[u, c]
@@ -94,13 +100,12 @@ def unpack_received(buf, k0, pi, n_owned, pf, on):
 
 def compile_kernels():
     """Compile (into numba's cache) the pack and unpack kernels, so that ranks do not compile at once."""
-    pf = np.zeros((1, 9))
+    pf = np.zeros((1, PF_LEN))
     on = np.zeros(1, dtype=np.int8)
     buf = np.zeros((1, TERMS))
-    a = np.zeros((1, 3))
     idx = np.zeros(1, dtype=np.int64)
-    pack_sent(idx, idx, pf, on, 1, buf, a, a, 1)
-    unpack_received(buf, 0, idx, 1, pf, on)
+    pack_sent((idx, idx, np.zeros((1, HIST_LEN)), on, pf), idx, pf, on, 1, buf)
+    unpack_received(buf, idx, idx, 1, pf, on)
 
 
 def resolver_end(gid_i, gid_j):
@@ -117,36 +122,38 @@ def resolver_end(gid_i, gid_j):
 
 
 def cross_layout(pi, pj, gid, n_owned, ghost_dir):
-    """The permutation [m] that lays a gid-sorted pair list (pi, pj [m] over local ids with global
-    ids gid [n]) out as sent | received | local (see the module docstring) and the group sizes:
-    (perm, sent [26] pairs per direction of the ghost's owner, received [26] likewise).
-    ghost_dir [n - n_owned]: the direction (modes.decomposition.DIRECTIONS) of each ghost's owner."""
-    key = np.full(len(pi), 2 * LOCAL, dtype=np.int16)
+    """The cross-border pairs of a pair list (pi, pj [m] over local ids with global ids gid [n]):
+    (sent_idx [s], sent [26], received_idx [r], received [26]): the pairs resolved here and those
+    resolved by the ghost's owner, grouped by the direction of the ghost's owner (sent[d],
+    received[d] pairs in direction d), in list order within a group. ghost_dir [n - n_owned]: the
+    direction (modes.decomposition.DIRECTIONS) of each ghost's owner."""
     j_ghost = pj >= n_owned
-    i_ghost = pi >= n_owned
-    cross = j_ghost | i_ghost
-    ghost = np.where(j_ghost, pj, pi)[cross]
+    cross = np.flatnonzero(j_ghost | (pi >= n_owned))
+    jg = j_ghost[cross]
+    direction = ghost_dir[np.where(jg, pj[cross], pi[cross]) - n_owned]
     # resolved here when the resolving end is the owned one: i (j a ghost) with bit 0, j with bit 1
-    here = resolver_end(gid[pi[cross]], gid[pj[cross]]) == (1 - j_ghost[cross].astype(np.int64))
-    key[cross] = ghost_dir[ghost - n_owned] + np.where(here, 0, LOCAL)
-    perm = np.argsort(key, kind="stable")   # a radix sort on int16: O(m), the gid order kept in each group
-    counts = np.bincount(key, minlength=2 * LOCAL + 1)
-    return perm, counts[:LOCAL], counts[LOCAL:2 * LOCAL]
+    here = resolver_end(gid[pi[cross]], gid[pj[cross]]) == (1 - jg.astype(np.int64))
+    out = []
+    for mine in (here, ~here):
+        key = direction[mine].astype(np.int16)
+        order = np.argsort(key, kind="stable")   # a radix sort on int16: O(s), list order kept per group
+        out += [cross[mine][order], np.bincount(key, minlength=NDIR)]
+    return tuple(out)
 
 
 class NewtonPlan:
-    """The reverse exchange of one neighbour list (fixed at a rebuild): the sent pairs [0, m_sent)
-    in groups per direction (sent [26]), the received pairs [m_sent, m_sent + m_recv) likewise
-    (received [26]), buffers and persistent requests to the neighbour ranks (ranks [26], None where
-    there is none). bytes, msgs, wire_s: what one step sends."""
+    """The reverse exchange of one neighbour list (fixed at a rebuild): the sent pairs sent_idx
+    [s] in groups per direction (sent [26]), the received pairs received_idx [r] likewise (received
+    [26]) (cross_layout), buffers and persistent requests to the neighbour ranks (ranks [26], None
+    where there is none). bytes, msgs, wire_s: what one step sends."""
 
-    def __init__(self, cart, ranks, sent, received, wire):
+    def __init__(self, cart, ranks, layout, wire):
         self.cart = cart
         self.ranks = ranks
-        self.sent = np.asarray(sent, dtype=np.int64)
-        self.received = np.asarray(received, dtype=np.int64)
-        self.m_sent = int(self.sent.sum())
-        self.m_recv = int(self.received.sum())
+        self.sent_idx, self.sent, self.received_idx, self.received = layout
+        self.m_sent = len(self.sent_idx)
+        self.m_recv = len(self.received_idx)
+        self.list = None
         self.send_buf = np.zeros((self.m_sent, TERMS))
         self.recv_buf = np.zeros((self.m_recv, TERMS))
         self.requests = []
@@ -198,40 +205,56 @@ class NewtonPlan:
     def _call(self, kernel, args):
         entry = self.entries.get(kernel)
         if entry is None:
-            kernel(*args)  # through the dispatcher: compiles where needed
+            result = kernel(*args)  # through the dispatcher: compiles where needed
             self.entries[kernel] = compiled_entry(kernel, args)
-        else:
-            entry(*args)
+            return result
+        return entry(*args)
 
-    def start(self, pi, pj, pf, on, force, torque, n_owned, startall):
-        """Pack the sent pairs' ghost-end terms (and zero the owned sums: pack_sent) and start the
-        messages."""
-        self._call(pack_sent, (pi, pj, pf, on, self.m_sent, self.send_buf, force, torque, n_owned))
+    def take_sent(self, pairs):
+        """The sent pairs' own list (pi, pj, hist, on, pf) [s], copied out of the pair list
+        (dem.pairs.PairList) with their history: the first phase of a step resolves it as one
+        contiguous range, with the loop every mode uses; its history is the authority until
+        put_back."""
+        idx = self.sent_idx
+        self.list = (pairs.pi[idx], pairs.pj[idx], np.ascontiguousarray(pairs.hist[idx]), pairs.on[idx],
+                     np.zeros((self.m_sent, PF_LEN)))
+
+    def put_back(self, pairs):
+        """The sent pairs' history and touching flags back into the pair list (before its history is
+        read: a rebuild, a checkpoint)."""
+        if self.list is not None and self.m_sent:
+            pairs.hist[self.sent_idx] = self.list[2]
+            pairs.on[self.sent_idx] = self.list[3]
+
+    def exchange(self, pi, pf, on, n_owned, startall, waitall):
+        """Pack the sent pairs' ghost-end terms (and put them in their places of the pair list), start
+        the messages, wait for the neighbours' and put them into the received pairs' records."""
+        self._call(pack_sent, (self.list, self.sent_idx, pf, on, n_owned, self.send_buf))
         startall(self.requests)
-
-    def finish(self, pi, n_owned, pf, on, waitall):
-        """Wait for the neighbours' terms and put them into the received pairs' records."""
         waitall(self.requests)
-        self._call(unpack_received, (self.recv_buf, self.m_sent, pi, n_owned, pf, on))
+        self._call(unpack_received, (self.recv_buf, self.received_idx, pi, n_owned, pf, on))
 
     def send_history(self, hist, account):
-        """The sent pairs' history rows hist [m, HIST_LEN] (at their resolution's end) into the
+        """The sent pairs' history rows of hist [m, HIST_LEN] (at their resolution's end) into the
         neighbours' received pairs' rows, and theirs into this list's (one message each way per
         neighbour with pairs; called at a rebuild and before a checkpoint). account(rank, bytes) is
         told of each message sent."""
         from mpi4py import MPI
+        out = np.ascontiguousarray(hist[self.sent_idx])
+        into = np.empty((self.m_recv, HIST_LEN))
         reqs = []
-        so, ro = 0, self.m_sent
+        so = ro = 0
         for k, r in enumerate(self.ranks):
             ns, nr = int(self.sent[k]), int(self.received[k])
             if nr:
-                reqs.append(self.cart.Irecv(hist[ro:ro + nr], source=r, tag=HISTORY_TAG + int(OPPOSITE[k])))
+                reqs.append(self.cart.Irecv(into[ro:ro + nr], source=r, tag=HISTORY_TAG + int(OPPOSITE[k])))
             if ns:
-                reqs.append(self.cart.Isend(hist[so:so + ns], dest=r, tag=HISTORY_TAG + k))
+                reqs.append(self.cart.Isend(out[so:so + ns], dest=r, tag=HISTORY_TAG + k))
                 account(r, 8 * ns * HIST_LEN)
             so += ns
             ro += nr
         MPI.Request.Waitall(reqs)
+        hist[self.received_idx] = into
 
     def free(self):
         for req in self.requests:

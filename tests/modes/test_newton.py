@@ -3,40 +3,56 @@ the pack and unpack of the terms that travel back (the exchange itself runs in t
 import numpy as np
 
 from dem.forces import PF_F, PF_LEN, PF_TI, PF_TJ
+from dem.state import HIST_LEN
 from modes.decomposition import OPPOSITE
-from modes.newton import LOCAL, TERMS, cross_layout, pack_sent, resolver_end, unpack_received
+from modes.newton import NDIR, TERMS, cross_layout, pack_sent, resolver_end, unpack_received
 
 
 def _layout(gids_owned, gids_ghost, ghost_dir, gid_pairs):
-    """One rank's view: local ids owned then ghosts; its gid-sorted list of the given gid pairs."""
+    """One rank's view: local ids owned then ghosts, its gid-sorted list of the given gid pairs;
+    returns the gid pairs it sends and receives and the per-direction counts."""
     gid = np.array(gids_owned + gids_ghost)
     where = {g: k for k, g in enumerate(gid)}
     pairs = sorted(p for p in gid_pairs if p[0] in where and p[1] in where
                    and (where[p[0]] < len(gids_owned) or where[p[1]] < len(gids_owned)))
     pi = np.array([where[a] for a, _ in pairs])
     pj = np.array([where[b] for _, b in pairs])
-    perm, sent, received = cross_layout(pi, pj, gid, len(gids_owned), np.array(ghost_dir))
-    listed = [(int(gid[pi[k]]), int(gid[pj[k]])) for k in perm]
-    ms, mr = int(sent.sum()), int(received.sum())
-    return listed[:ms], listed[ms:ms + mr], listed[ms + mr:], sent, received
+    sent_idx, sent, recv_idx, received = cross_layout(pi, pj, gid, len(gids_owned), np.array(ghost_dir))
+    as_gids = lambda idx: [(int(gid[pi[k]]), int(gid[pj[k]])) for k in idx]
+    return as_gids(sent_idx), as_gids(recv_idx), sent, received
 
 
 def test_cross_layout_two_ranks_agree_and_each_pair_is_resolved_once():
     """Rank A owns gids 0-3 and holds 10, 11 as ghosts (owned by B, in direction 3 of A); B owns
-    10-12 and holds 1, 3 (from direction OPPOSITE[3]). The cross pairs (1,10), (3,10), (3,11), (1,11)
-    are each resolved by exactly one rank: what A sends, B receives in the same order and vice
-    versa; the local pairs stay in gid order after the cross ones."""
+    10-12 and holds 1, 3 (from direction OPPOSITE[3]). The cross pairs (1,10), (1,11), (3,10),
+    (3,11) are each resolved by exactly one rank: what A sends, B receives in the same order and
+    vice versa; no local pair is listed."""
     pairs = [(0, 1), (1, 10), (1, 11), (2, 3), (3, 10), (3, 11), (10, 11), (11, 12)]
     cross = [(1, 10), (1, 11), (3, 10), (3, 11)]
-    a_sent, a_recv, a_local, a_s, a_r = _layout([0, 1, 2, 3], [10, 11], [3, 3], pairs)
-    b_sent, b_recv, b_local, b_s, b_r = _layout([10, 11, 12], [1, 3], [OPPOSITE[3]] * 2, pairs)
-    assert a_local == [(0, 1), (2, 3)] and b_local == [(10, 11), (11, 12)]
+    a_sent, a_recv, a_s, a_r = _layout([0, 1, 2, 3], [10, 11], [3, 3], pairs)
+    b_sent, b_recv, b_s, b_r = _layout([10, 11, 12], [1, 3], [OPPOSITE[3]] * 2, pairs)
     assert a_sent == b_recv and b_sent == a_recv
     assert sorted(a_sent + b_sent) == cross
     assert a_s[3] == len(a_sent) and a_r[3] == len(a_recv) and a_s.sum() + a_r.sum() == 4
-    assert b_s[OPPOSITE[3]] == len(b_sent) and len(a_s) == LOCAL == 26
+    assert b_s[OPPOSITE[3]] == len(b_sent) and b_r[OPPOSITE[3]] == len(b_recv) and len(a_s) == NDIR == 26
     # which rank: the i end's owner where resolver_end is 0 (A owns every i end here)
     assert a_sent == [p for p in cross if resolver_end(p[0], p[1]) == 0]
+
+
+def test_cross_layout_groups_by_direction_in_list_order():
+    """Owned 0-1, ghosts 2 (owner in direction 5), 3 (direction 1), 4 (direction 5); every cross pair
+    (i owned, j ghost) resolved here or not by resolver_end; within each direction the list order
+    is kept and direction 1's group comes before direction 5's."""
+    gid = np.array([7, 9, 20, 30, 40])
+    pi = np.array([0, 0, 0, 1, 1, 1, 0])
+    pj = np.array([2, 3, 4, 2, 3, 4, 1])
+    sent_idx, sent, recv_idx, received = cross_layout(pi, pj, gid, 2, np.array([5, 1, 5]))
+    here = [k for k in range(6) if resolver_end(gid[pi[k]], gid[pj[k]]) == 0]
+    there = [k for k in range(6) if k not in here]
+    by_dir = lambda ks: [k for k in ks if pj[k] == 3] + [k for k in ks if pj[k] != 3]
+    assert sent_idx.tolist() == by_dir(here) and recv_idx.tolist() == by_dir(there)
+    assert sent[1] + sent[5] == len(here) and received[1] + received[5] == len(there)
+    assert sent[1] == sum(pj[k] == 3 for k in here)
 
 
 def test_resolver_splits_pairs_evenly_however_numbered():
@@ -53,30 +69,32 @@ def test_resolver_splits_pairs_evenly_however_numbered():
 def test_terms_pack_and_unpack_exactly():
     """The pair force, the ghost end's torque (T_j where j is the ghost, T_i where i is) and the
     touching flag of each sent pair arrive bit for bit in the receiver's pair records, the torque
-    in its own end's slot; packing also zeroes the owned particles' force and torque sums (and only
-    theirs) for the local pairs. Sender: owned 0-3, ghosts 4, 5; receiver: owned 0-1, ghosts 2-6."""
+    in its own end's slot, and nothing else is written; packing also puts each sent pair's record
+    (pf, on) at its place in the sender's pair list. Sender: owned 0-3, ghosts 4, 5; its sent list
+    holds pairs 3, 1, 0 of its pair list; receiver: owned 0-1, receiving into pairs 4, 2, 3."""
     rng = np.random.default_rng(5)
-    pf = rng.normal(size=(5, PF_LEN))
-    on = np.array([1, 0, 1, 1, 0], dtype=np.int8)
-    pi = np.array([0, 4, 1, 2, 3])   # pair 1: i is the ghost
-    pj = np.array([4, 2, 5, 3, 0])
+    spf = rng.normal(size=(3, PF_LEN))
+    son = np.array([1, 0, 1], dtype=np.int8)
+    spj = np.array([5, 2, 4])   # sent pairs 0 and 2: j is the ghost; sent pair 1: i is
+    spi = np.array([3, 4, 0])
+    sent = (spi, spj, np.zeros((3, HIST_LEN)), son, spf)
+    idx = np.array([3, 1, 0])
     buf = np.zeros((3, TERMS))
-    force = rng.normal(size=(6, 3))
-    torque = rng.normal(size=(6, 3))
-    ghost_rows = force[4:].copy(), torque[4:].copy()
-    pack_sent(pi, pj, pf, on, 3, buf, force, torque, 4)
-    assert np.all(force[:4] == 0.0) and np.all(torque[:4] == 0.0)
-    assert np.array_equal(force[4:], ghost_rows[0]) and np.array_equal(torque[4:], ghost_rows[1])
-    assert np.array_equal(buf[:, 3:6], pf[[0, 1, 2]][:, [6, 7, 8]] * [[1], [0], [1]]
-                          + pf[[0, 1, 2]][:, [3, 4, 5]] * [[0], [1], [0]])
-    # on the receiving rank the same pairs are (ghost i, owned j), (owned i, ghost j), (ghost i, owned j)
-    got = np.full((7, PF_LEN), 9.0)
-    got_on = np.zeros(7, dtype=np.int8)
-    rpi = np.array([0, 0, 5, 1, 6, 0, 0])
-    unpack_received(buf, 2, rpi, 2, got, got_on)
-    assert np.array_equal(got[2:5, PF_F:PF_F + 3], pf[:3, PF_F:PF_F + 3])
-    assert np.array_equal(got[2, PF_TJ:PF_TJ + 3], pf[0, PF_TJ:PF_TJ + 3]) and np.all(got[2, PF_TI:PF_TI + 3] == 9.0)
-    assert np.array_equal(got[3, PF_TI:PF_TI + 3], pf[1, PF_TI:PF_TI + 3]) and np.all(got[3, PF_TJ:PF_TJ + 3] == 9.0)
-    assert np.array_equal(got[4, PF_TJ:PF_TJ + 3], pf[2, PF_TJ:PF_TJ + 3]) and np.all(got[4, PF_TI:PF_TI + 3] == 9.0)
-    assert np.all(got[[0, 1, 5, 6]] == 9.0)
-    assert got_on.tolist() == [0, 0, 1, 0, 1, 0, 0]
+    pf = np.full((5, PF_LEN), 7.0)
+    on = np.full(5, 3, dtype=np.int8)
+    pack_sent(sent, idx, pf, on, 4, buf)
+    assert np.array_equal(buf[:, :3], spf[:, PF_F:PF_F + 3])
+    assert np.array_equal(buf[0, 3:6], spf[0, PF_TJ:PF_TJ + 3]) and np.array_equal(buf[1, 3:6], spf[1, PF_TI:PF_TI + 3])
+    assert np.array_equal(buf[2, 3:6], spf[2, PF_TJ:PF_TJ + 3]) and buf[:, 6].tolist() == [1.0, 0.0, 1.0]
+    assert np.array_equal(pf[idx], spf) and on.tolist() == [1, 0, 3, 1, 3] and np.all(pf[[2, 4]] == 7.0)
+    # on the receiver the same pairs are (ghost i, owned j), (owned i, ghost j), (ghost i, owned j)
+    got = np.full((5, PF_LEN), 9.0)
+    got_on = np.zeros(5, dtype=np.int8)
+    rpi = np.array([0, 0, 1, 6, 5])
+    unpack_received(buf, np.array([4, 2, 3]), rpi, 2, got, got_on)
+    for k, u in ((4, 0), (2, 1), (3, 2)):
+        assert np.array_equal(got[k, PF_F:PF_F + 3], buf[u, :3])
+    assert np.array_equal(got[4, PF_TJ:PF_TJ + 3], spf[0, PF_TJ:PF_TJ + 3]) and np.all(got[4, PF_TI:PF_TI + 3] == 9.0)
+    assert np.array_equal(got[2, PF_TI:PF_TI + 3], spf[1, PF_TI:PF_TI + 3]) and np.all(got[2, PF_TJ:PF_TJ + 3] == 9.0)
+    assert np.array_equal(got[3, PF_TJ:PF_TJ + 3], spf[2, PF_TJ:PF_TJ + 3]) and np.all(got[3, PF_TI:PF_TI + 3] == 9.0)
+    assert np.all(got[:2] == 9.0) and got_on.tolist() == [0, 0, 0, 1, 1]
