@@ -69,9 +69,10 @@ PF_LEN = 9
 # (each particle gathers them), SUM them into the ends' force and torque as it goes (one thread,
 # pairs sorted by gid), SPLIT: SUM for the particles with gat[p] == 0, STORE for the pairs that
 # touch one with gat[p] == 1 (threads over ranges of the gid-sorted list: modes.parallel); TAKEN:
-# SUM, but a pair with a ghost end is not resolved: its terms are already in pf (MPI with Newton's
-# third law: resolved beforehand by this rank or received from the ghost's owner, modes.newton) and
-# are added to the owned end in the pair's place in the sequence
+# SUM, but a pair with a ghost end is not resolved: its terms are already known (MPI with Newton's
+# third law: resolved beforehand by this rank or received from the ghost's owner, modes.newton),
+# one row each of the plist's pf in the order the pairs come in the list, and are added to the
+# owned end in the pair's place in the sequence
 STORE, SUM, SPLIT, TAKEN = 0, 1, 2, 3
 
 # ellipsoid contact methods (dem.contact.CONTACT_METHODS; dem/contact/methods.py): index = the `method` argument
@@ -212,28 +213,27 @@ def _deliver(k, i, j, f, sums):
 
 
 @njit(cache=True, inline="always")
-def _take_stored(k, i, j, plist, sums):
-    """TAKEN: add the stored terms pf[k] of cross-border pair k to its owned end as SUM would have
-    added them when resolving it (nothing when it does not touch, on[k] == 0); returns -1 (the pair
-    is counted where it was resolved)."""
-    _, _, _, on, pf = plist
+def _take_terms(c, i, j, terms, sums):
+    """TAKEN: add row c of terms [cross pairs, 7] = (pair force [3] [N], torque on the owned end [3]
+    [N m], touching flag) of a cross-border pair (i, j) to its owned end as SUM would have added them
+    when resolving it (nothing when it does not touch); returns -1 (the pair is counted where it
+    was resolved)."""
     _, _, force, torque, n_owned, _ = sums
-    if on[k] == 0:
+    if terms[c, 6] == 0.0:
         return -1.0
     if i < n_owned:
-        force[i, 0] -= pf[k, PF_F]
-        force[i, 1] -= pf[k, PF_F + 1]
-        force[i, 2] -= pf[k, PF_F + 2]
-        torque[i, 0] += pf[k, PF_TI]
-        torque[i, 1] += pf[k, PF_TI + 1]
-        torque[i, 2] += pf[k, PF_TI + 2]
-    if j < n_owned:
-        force[j, 0] += pf[k, PF_F]
-        force[j, 1] += pf[k, PF_F + 1]
-        force[j, 2] += pf[k, PF_F + 2]
-        torque[j, 0] += pf[k, PF_TJ]
-        torque[j, 1] += pf[k, PF_TJ + 1]
-        torque[j, 2] += pf[k, PF_TJ + 2]
+        force[i, 0] -= terms[c, 0]
+        force[i, 1] -= terms[c, 1]
+        force[i, 2] -= terms[c, 2]
+        p = i
+    else:
+        force[j, 0] += terms[c, 0]
+        force[j, 1] += terms[c, 1]
+        force[j, 2] += terms[c, 2]
+        p = j
+    torque[p, 0] += terms[c, 3]
+    torque[p, 1] += terms[c, 4]
+    torque[p, 2] += terms[c, 5]
     return -1.0
 
 
@@ -385,11 +385,13 @@ def _resolve_spheres(k0, k1, plist, bodies, law, dt, deliver, n_owned, gat):
     worst = 0.0
     worst_k = -1
     rsum = 0.0
+    c = 0
     for k in range(k0, k1):
         i = pi[k]
         j = pj[k]
         if deliver == TAKEN and (i >= n_owned or j >= n_owned):
-            r = _take_stored(k, i, j, plist, sums)
+            r = _take_terms(c, i, j, pf, sums)
+            c += 1
         else:
             r = _sphere_pair(k, i, j, bodies, law, plist, dt, sums)
         if r >= 0.0:
@@ -413,11 +415,13 @@ def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, poly_scen
     worst = 0.0
     worst_k = -1
     rsum = 0.0
+    c = 0
     for k in range(k0, k1):
         i = pi[k]
         j = pj[k]
         if deliver == TAKEN and (i >= n_owned or j >= n_owned):
-            r = _take_stored(k, i, j, plist, sums)
+            r = _take_terms(c, i, j, pf, sums)
+            c += 1
         elif shape[i] == SPHERE and shape[j] == SPHERE:
             r = _sphere_pair(k, i, j, bodies, law, plist, dt, sums)
         elif _apart(i, j, pos, rbound):
@@ -452,8 +456,9 @@ def resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, deliver, 
     pass over the pairs. Threads whose pairs are resolved concurrently in any order STORE; threads over
     contiguous ranges of the sorted list SPLIT (see _deliver: gat [n_owned] int8 marks the particles
     with pairs in two ranges; the caller zeroes the others' force and torque). TAKEN (MPI with
-    Newton's third law) is SUM with the pairs that have a ghost end not resolved but added from pf,
-    where modes.newton put their terms (resolved beforehand by this rank, STORE, or received). kind (SPHERE,
+    Newton's third law) is SUM with the pairs that have a ghost end not resolved but added from the
+    plist's pf, which then holds their terms, one row [7] per such pair in list order from k0 = 0
+    (modes.newton: resolved beforehand by this rank, STORE, or received). kind (SPHERE,
     ELLIPSOID, POLY) picks the loop, so a scene pays only for the solvers its shapes use. out
     [OUT_LEN], n0 [3] are scratch. Returns RESOLVED: (contacts, solver calls, largest depth ratio
     = depth over the smaller minimum semi-axis, its pair or -1, sum of the depth ratios)."""

@@ -229,14 +229,14 @@ class _Blocks:
             self.kind, self.method, 0, plan.m_sent, plan.list, self.bodies, self.polys, self.law, self.dt,
             STORE, s.n_owned, self.gat, self.out, self.n0))
         t0 = self.clock()
-        plan.exchange(p.pi, p.pf, p.on, s.n_owned, h.startall, h.waitall)
+        plan.exchange(s.n_owned, h.startall, h.waitall)
         self.reverse_time = self.clock() - t0
         h.bytes_sent += plan.bytes
         h.msgs_sent += plan.msgs
         h.wire_s += plan.wire_s
         b = self.kernel_call("resolve", resolve_range, (
-            self.kind, self.method, 0, p.m, self.plist, self.bodies, self.polys, self.law, self.dt,
-            TAKEN, s.n_owned, self.gat, self.out, self.n0))
+            self.kind, self.method, 0, p.m, (p.pi, p.pj, p.hist, p.on, plan.terms), self.bodies, self.polys, self.law,
+            self.dt, TAKEN, s.n_owned, self.gat, self.out, self.n0))
         worst, worst_k = (a[2], int(plan.sent_idx[a[3]])) if a[2] > b[2] else (b[2], b[3])
         return a[0] + b[0], a[1] + b[1], worst, worst_k, a[4] + b[4]
 

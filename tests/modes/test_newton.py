@@ -68,33 +68,25 @@ def test_resolver_splits_pairs_evenly_however_numbered():
 
 def test_terms_pack_and_unpack_exactly():
     """The pair force, the ghost end's torque (T_j where j is the ghost, T_i where i is) and the
-    touching flag of each sent pair arrive bit for bit in the receiver's pair records, the torque
-    in its own end's slot, and nothing else is written; packing also puts each sent pair's record
-    (pf, on) at its place in the sender's pair list. Sender: owned 0-3, ghosts 4, 5; its sent list
-    holds pairs 3, 1, 0 of its pair list; receiver: owned 0-1, receiving into pairs 4, 2, 3."""
+    touching flag of each sent pair arrive bit for bit in the receiver's terms (the torque being
+    that of its own end), and the sender's in-order pass gets the pair force and its own end's
+    torque; only the rows named are written. Sender: owned 0-3, ghosts 4, 5; its sent list holds
+    3 pairs whose terms are rows 2, 0, 3 of its 4 cross pairs; the receiver's are rows 1, 2, 0."""
     rng = np.random.default_rng(5)
     spf = rng.normal(size=(3, PF_LEN))
     son = np.array([1, 0, 1], dtype=np.int8)
     spj = np.array([5, 2, 4])   # sent pairs 0 and 2: j is the ghost; sent pair 1: i is
     spi = np.array([3, 4, 0])
     sent = (spi, spj, np.zeros((3, HIST_LEN)), son, spf)
-    idx = np.array([3, 1, 0])
     buf = np.zeros((3, TERMS))
-    pf = np.full((5, PF_LEN), 7.0)
-    on = np.full(5, 3, dtype=np.int8)
-    pack_sent(sent, idx, pf, on, 4, buf)
-    assert np.array_equal(buf[:, :3], spf[:, PF_F:PF_F + 3])
+    terms = np.full((4, TERMS), 7.0)
+    pack_sent(sent, np.array([2, 0, 3]), 4, buf, terms)
+    assert np.array_equal(buf[:, :3], spf[:, PF_F:PF_F + 3]) and buf[:, 6].tolist() == [1.0, 0.0, 1.0]
     assert np.array_equal(buf[0, 3:6], spf[0, PF_TJ:PF_TJ + 3]) and np.array_equal(buf[1, 3:6], spf[1, PF_TI:PF_TI + 3])
-    assert np.array_equal(buf[2, 3:6], spf[2, PF_TJ:PF_TJ + 3]) and buf[:, 6].tolist() == [1.0, 0.0, 1.0]
-    assert np.array_equal(pf[idx], spf) and on.tolist() == [1, 0, 3, 1, 3] and np.all(pf[[2, 4]] == 7.0)
-    # on the receiver the same pairs are (ghost i, owned j), (owned i, ghost j), (ghost i, owned j)
-    got = np.full((5, PF_LEN), 9.0)
-    got_on = np.zeros(5, dtype=np.int8)
-    rpi = np.array([0, 0, 1, 6, 5])
-    unpack_received(buf, np.array([4, 2, 3]), rpi, 2, got, got_on)
-    for k, u in ((4, 0), (2, 1), (3, 2)):
-        assert np.array_equal(got[k, PF_F:PF_F + 3], buf[u, :3])
-    assert np.array_equal(got[4, PF_TJ:PF_TJ + 3], spf[0, PF_TJ:PF_TJ + 3]) and np.all(got[4, PF_TI:PF_TI + 3] == 9.0)
-    assert np.array_equal(got[2, PF_TI:PF_TI + 3], spf[1, PF_TI:PF_TI + 3]) and np.all(got[2, PF_TJ:PF_TJ + 3] == 9.0)
-    assert np.array_equal(got[3, PF_TJ:PF_TJ + 3], spf[2, PF_TJ:PF_TJ + 3]) and np.all(got[3, PF_TI:PF_TI + 3] == 9.0)
-    assert np.all(got[:2] == 9.0) and got_on.tolist() == [0, 0, 0, 1, 1]
+    assert np.array_equal(buf[2, 3:6], spf[2, PF_TJ:PF_TJ + 3])
+    assert np.array_equal(terms[[2, 0, 3], :3], spf[:, PF_F:PF_F + 3]) and terms[[2, 0, 3], 6].tolist() == [1, 0, 1]
+    assert np.array_equal(terms[2, 3:6], spf[0, PF_TI:PF_TI + 3]) and np.array_equal(terms[0, 3:6], spf[1, PF_TJ:PF_TJ + 3])
+    assert np.array_equal(terms[3, 3:6], spf[2, PF_TI:PF_TI + 3]) and np.all(terms[1] == 7.0)
+    got = np.full((4, TERMS), 9.0)
+    unpack_received(buf, np.array([1, 2, 0]), got)
+    assert np.array_equal(got[[1, 2, 0]], buf) and np.all(got[3] == 9.0)
