@@ -61,6 +61,9 @@ def build_parser():
     sw.add_argument("--balance", choices=BALANCE, default="extent",
                     help="how --update-grid fits the grid: extent (default, the paper's), count (equal particle "
                          "counts) or time (equal measured compute time)")
+    sw.add_argument("--newton", choices=["auto", "on", "off"], default="auto",
+                    help="MPI points with one thread per process: resolve each pair across a border on one rank "
+                         "(on) or on both (off); default auto (on); hybrid points always resolve it on both")
     sw.add_argument("--pin", action="store_true")
     sw.add_argument("--ceiling", action="store_true",
                     help="also measure the machine's efficiency ceiling at each core count W of the sweep (W "
@@ -258,7 +261,7 @@ def cmd_run(args):
 
 SWEEP_FIELDS = {"mappings": str, "schemes": str, "scene": str, "particles": int, "shape": str, "steps": int,
                 "warmup": int, "repeats": int, "neighbor": str, "contact_method": str, "halo": str, "update_grid": int,
-                "balance": str, "pin": bool,
+                "balance": str, "newton": str, "pin": bool,
                 "ceiling": bool, "timeout": int,
                 "launcher": str, "out": str, "slurm": dict}
 
@@ -353,9 +356,11 @@ def cmd_sweep(args):
     if args.launcher not in LAUNCHERS:
         raise UsageError(f"bench sweep: unknown launcher {args.launcher!r} (launchers: {', '.join(LAUNCHERS)})")
     if args.neighbor not in NEIGHBOR_CHOICES or args.halo not in ("26", "6") or \
-            args.contact_method not in CONTACT_METHOD_CHOICES or args.balance not in BALANCE:
+            args.contact_method not in CONTACT_METHOD_CHOICES or args.balance not in BALANCE or \
+            args.newton not in ("auto", "on", "off"):
         raise UsageError(f"bench sweep: neighbor must be {'|'.join(NEIGHBOR_CHOICES)}, halo 26|6, "
-                         f"contact_method {'|'.join(CONTACT_METHOD_CHOICES)}, balance {'|'.join(BALANCE)}")
+                         f"contact_method {'|'.join(CONTACT_METHOD_CHOICES)}, balance {'|'.join(BALANCE)}, "
+                         f"newton auto|on|off")
     args.slurm = _slurm_options(args)
     if args.launcher != "slurm" and (args.slurm or args.no_submit):
         given = ", ".join(sorted(args.slurm)) or "no_submit"

@@ -52,7 +52,8 @@ def sweep(args):
         args.scene = os.path.abspath(args.scene)
     points = make_points(mappings, schemes, args.scene, args.particles, args.steps, args.warmup,
                          args.neighbor, args.shape, args.pin, args.halo, getattr(args, "contact_method", "exact"),
-                         getattr(args, "update_grid", 0) or 0, getattr(args, "balance", "extent") or "extent")
+                         getattr(args, "update_grid", 0) or 0, getattr(args, "balance", "extent") or "extent",
+                         getattr(args, "newton", "auto") or "auto")
     out = args.out
     ceiling = _ceiling(args, launcher, points) if getattr(args, "ceiling", False) else None
     if args.dry_run:

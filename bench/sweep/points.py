@@ -29,17 +29,20 @@ class Point:
     contact_method: str = "exact"
     update_grid: int = 0
     balance: str = "extent"
+    newton: str = "auto"
 
     @property
     def key(self):
         """Folder name: readable mapping and scheme plus a hash of every parameter (update_grid only
-        when set and balance only when not the paper's extent, so the points of sweeps from before
-        them keep their keys for --resume)."""
+        when set, balance only when not the paper's extent and newton only when not auto, so the
+        points of sweeps from before them keep their keys for --resume)."""
         params = asdict(self)
         if not params["update_grid"]:
             del params["update_grid"]
         if params["balance"] == "extent":
             del params["balance"]
+        if params["newton"] == "auto":
+            del params["newton"]
         digest = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:8]
         return f"{self.mapping}{'-' + self.scheme if self.scheme else ''}-{digest}"
 
@@ -60,6 +63,8 @@ class Point:
                 args += ["--update-grid", str(self.update_grid)]
                 if self.balance != "extent":
                     args += ["--balance", self.balance]
+            if self.newton != "auto":
+                args += ["--newton", self.newton]
         return args
 
 
@@ -70,9 +75,11 @@ def point_from_dict(d):
 
 
 def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, shape, pin, halo,
-                contact_method="exact", update_grid=0, balance="extent"):
+                contact_method="exact", update_grid=0, balance="extent", newton="auto"):
     """Points of a sweep: the serial reference first, then each mapping (x each scheme when it has
-    more than one thread), without duplicates, in the order given."""
+    more than one thread), without duplicates, in the order given. newton (auto, on, off) goes to
+    the points with more than one process and one thread each (hybrid points resolve a pair across
+    a border on both ranks)."""
     for s in schemes:
         if s not in SCHEMES:
             raise ModeError(f"unknown scheme {s!r} (schemes: {', '.join(SCHEMES)})")
@@ -84,7 +91,8 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
         for s in (schemes if m.threads > 1 else [""]):
             p = Point(str(m), s, scene, particles or 0, steps or 0, warmup, neighbor, shape or "", pin, halo,
                       contact_method, update_grid if m.procs > 1 else 0,
-                      balance if m.procs > 1 and update_grid else "extent")
+                      balance if m.procs > 1 and update_grid else "extent",
+                      newton if m.procs > 1 and m.threads == 1 else "auto")
             if p not in points:
                 points.append(p)
     points.sort(key=lambda p: p.mapping != SERIAL)  # the reference runs first

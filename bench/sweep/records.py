@@ -324,11 +324,11 @@ def manifest(out, points):
 
 def reference_key(point):
     """The key of the serial point with the same run parameters (the reference T(1) and state of its
-    speedup and error columns); the block grid's options (update_grid, balance) are the MPI points'
-    alone, so the serial point has them unset."""
+    speedup and error columns); the block grid's options (update_grid, balance) and newton are the
+    MPI points' alone, so the serial point has them unset."""
     from dataclasses import replace
     from bench.sweep.points import SERIAL
-    return replace(point, mapping=SERIAL, scheme="", update_grid=0, balance="extent").key
+    return replace(point, mapping=SERIAL, scheme="", update_grid=0, balance="extent", newton="auto").key
 
 
 def merge_manifest(out, info, entry):

@@ -153,6 +153,33 @@ def test_update_grid_passes_to_the_mpi_points(tmp_path):
     one_line_error(bench("sweep", "--file", str(sweep_file), "--dry-run", "--out", str(tmp_path / "dry5")), "balance")
 
 
+def test_newton_passes_to_the_pure_mpi_points(tmp_path):
+    """--newton on|off reaches the points with more than one process and one thread each (and a sweep
+    file's newton); hybrid points resolve a pair across a border on both ranks and get nothing, as
+    the serial and thread points; auto keeps a point's key (folder name) as it was before the
+    option, and an MPI point's reference is the sweep's serial point."""
+    from bench.sweep.points import make_points
+    from bench.sweep.records import reference_key
+    res = bench("sweep", *SMALL, "--mappings", "1-1-1-1-2,2-1-1-2-1,2-2-1-1-2", "--newton", "off", "--dry-run",
+                "--out", str(tmp_path / "dry"))
+    assert res.returncode == 0, res.stderr
+    lines = [line for line in res.stdout.splitlines() if "--mapping " in line]
+    assert len(lines) == 4
+    assert ["--newton off" in line for line in lines] == ["--mapping 2-1-1-2-1" in line for line in lines]
+    args = (["2-2-1-1-1", "2-2-1-1-2"], ["dynamic"], "pluviation", 200, 15, 0, "linkcell", None, False, "26")
+    assert make_points(*args)[1].key == "2-2-1-1-1-822c84b2"   # the key before newton existed (above)
+    assert make_points(*args, "exact", 0, "extent", "auto")[1].key == "2-2-1-1-1-822c84b2"
+    serial, mpi, hybrid = make_points(*args, "exact", 0, "extent", "on")
+    assert mpi.newton == "on" and mpi.key != "2-2-1-1-1-822c84b2" and hybrid.newton == "auto"
+    assert reference_key(mpi) == serial.key
+    sweep_file = tmp_path / "sweep.toml"
+    sweep_file.write_text('[sweep]\nmappings = ["2-2-1-1-1"]\nscene = "pluviation"\nnewton = "on"\n')
+    res = bench("sweep", "--file", str(sweep_file), "--dry-run", "--out", str(tmp_path / "dry2"))
+    assert res.returncode == 0 and "--newton on" in res.stdout, res.stderr
+    sweep_file.write_text('[sweep]\nmappings = ["2-2-1-1-1"]\nscene = "pluviation"\nnewton = "yes"\n')
+    one_line_error(bench("sweep", "--file", str(sweep_file), "--dry-run", "--out", str(tmp_path / "dry3")), "newton")
+
+
 def test_collect_rebuilds_runs_csv(tmp_path):
     """bench collect gathers the point folders (as Slurm jobs leave them) into the same rows, with
     the speedups of a local sweep: S = T(1)/T(p), so 1.0 exactly for the serial row, and efficiency
