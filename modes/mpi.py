@@ -26,10 +26,10 @@ from collections import deque
 
 import numpy as np
 
+from dem.forces import STORE, TAKEN, resolve_range
 from modes.base import ModeError, register
 from modes.decomposition import (BlockGrid, DecompositionError, balanced_grid, blended_grid, block_counts,
                                  border_width, extent_grid, fit_skin, load_profiles)
-from dem.forces import STORE, TAKEN, resolve_range
 from modes.halo import Halo
 from modes.newton import NewtonPlan, cross_layout, ghost_owner_directions
 from modes.serial import SerialMode
@@ -220,8 +220,8 @@ class _Blocks:
 
     def resolve(self):
         """With newton: the sent pairs (their own list), their terms to the neighbours and the
-        neighbours' back (commuT), then the whole list in gid order with the cross pairs' terms taken as they stand
-        (dem.forces, TAKEN); the received pairs are resolved by the ghost's owner."""
+        neighbours' back (commuT), then the whole list in gid order, the cross pairs' terms taken as
+        they stand (dem.forces, TAKEN); the received pairs are resolved by the ghost's owner."""
         if not self.newton:
             return super().resolve()
         plan, p, s, h = self.plan, self.pairs, self.state, self.halo
