@@ -174,8 +174,8 @@ def _deliver(k, i, j, f, sums):
     force, torque, n_owned, gat). SUM (one thread, pairs in gid order: see resolve_range) adds
     them to the owned ends, force[i] -= F, torque[i] += T_i, force[j] += F, torque[j] += T_j, and
     writes nothing per pair; STORE writes them to pf[k] for the gather (finish_range); SPLIT adds
-    them to the owned ends with gat == 0 and stores them when an owned end has gat == 1 (under MPI
-    with Newton's third law every owned end of a cross-border pair has: modes.newton)."""
+    them to the owned ends with gat == 0 and stores them when an owned end has gat == 1; TAKEN sums
+    as SUM does."""
     deliver, pf, force, torque, n_owned, gat = sums
     if deliver == SUM or deliver == TAKEN:
         sum_i, sum_j, store = i < n_owned, j < n_owned, False
@@ -215,7 +215,7 @@ def _deliver(k, i, j, f, sums):
 @njit(cache=True, inline="always")
 def _take_terms(c, i, j, terms, sums):
     """TAKEN: add row c of terms [cross pairs, 7] = (pair force [3] [N], torque on the owned end [3]
-    [N m], touching flag) of a cross-border pair (i, j) to its owned end as SUM would have added them
+    [N m], touching flag; modes.newton.TERMS) of a cross-border pair (i, j) to its owned end as SUM would have added them
     when resolving it (nothing when it does not touch); returns -1 (the pair is counted where it
     was resolved)."""
     _, _, force, torque, n_owned, _ = sums

@@ -26,6 +26,18 @@ def compiled_entry(kernel, args):
         return kernel
 
 
+def call_entry(entries, kernel, args):
+    """kernel(*args): the first call through its dispatcher (which compiles where needed), later
+    ones through the compiled entry point it leaves in entries (a dict per owner of a fixed set
+    of arrays: their types cannot change until the owner is replaced)."""
+    entry = entries.get(kernel)
+    if entry is None:
+        result = kernel(*args)
+        entries[kernel] = compiled_entry(kernel, args)
+        return result
+    return entry(*args)
+
+
 def register(name):
     def deco(cls):
         REGISTRY[name] = cls

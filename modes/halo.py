@@ -51,7 +51,7 @@ from numba import njit
 
 from dem.shapes import POLY_LEN, SPHERE
 from dem.state import HIST_LEN, bounding_radii, csr_rows
-from modes.base import compiled_entry
+from modes.base import call_entry
 from modes.decomposition import DIRECTIONS, OPPOSITE, direction_of, send_masks
 
 GHOST_SPHERE = ("gid", "material", "mass", "axes0", "inertia0", "pos", "vel", "angmom")
@@ -195,12 +195,7 @@ class _Round:
 
     def call(self, kernel, args):
         """kernel(*args), through its entry point after the first call."""
-        entry = self.kernels.get(kernel)
-        if entry is None:
-            kernel(*args)  # through the dispatcher: compiles where needed
-            self.kernels[kernel] = compiled_entry(kernel, args)
-        else:
-            entry(*args)
+        call_entry(self.kernels, kernel, args)
 
     def free(self):
         for req in self.requests:

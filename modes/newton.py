@@ -60,7 +60,7 @@ from numba import njit
 
 from dem.forces import PF_F, PF_LEN, PF_TI, PF_TJ
 from dem.state import HIST_LEN
-from modes.base import compiled_entry
+from modes.base import call_entry
 from modes.decomposition import DIRECTIONS, OPPOSITE, direction_of
 
 # a cross pair's terms: pair force [3] (on j; i takes its negation), torque on one end [3], touching flag
@@ -211,14 +211,6 @@ class NewtonPlan:
                 raise RuntimeError(f"cross-border pair lists disagree: rank {self.ranks[k]} sends {int(c[0])} "
                                    f"pairs, rank {self.cart.Get_rank()} expects {int(self.received[k])}")
 
-    def _call(self, kernel, args):
-        entry = self.entries.get(kernel)
-        if entry is None:
-            result = kernel(*args)  # through the dispatcher: compiles where needed
-            self.entries[kernel] = compiled_entry(kernel, args)
-            return result
-        return entry(*args)
-
     def take_sent(self, pairs):
         """The sent pairs' own list (pi, pj, hist, on, pf) [s], copied out of the pair list
         (dem.pairs.PairList) with their history: the first phase of a step resolves it as one
@@ -241,10 +233,10 @@ class NewtonPlan:
     def exchange(self, n_owned, startall, waitall):
         """Pack the sent pairs' terms (for the neighbours and for the in-order pass), start the
         messages, wait for the neighbours' and put them in the in-order pass's terms."""
-        self._call(pack_sent, (self.list, self.pos_sent, n_owned, self.send_buf, self.terms))
+        call_entry(self.entries, pack_sent, (self.list, self.pos_sent, n_owned, self.send_buf, self.terms))
         startall(self.requests)
         waitall(self.requests)
-        self._call(unpack_received, (self.recv_buf, self.pos_recv, self.terms))
+        call_entry(self.entries, unpack_received, (self.recv_buf, self.pos_recv, self.terms))
 
     def send_history(self, hist, account):
         """The sent pairs' history rows of hist [m, HIST_LEN] (at their resolution's end) into the

@@ -111,16 +111,20 @@ def test_local_dry_run(tmp_path):
     assert not any((tmp_path / "dry").rglob("run.json"))
 
 
+def dry_run_commands(out, *args):
+    """The point commands a `bench sweep --dry-run` of the small scene prints (it must succeed)."""
+    res = bench("sweep", *SMALL, *args, "--dry-run", "--out", str(out))
+    assert res.returncode == 0, res.stderr
+    return [line for line in res.stdout.splitlines() if "--mapping " in line]
+
+
 def test_update_grid_passes_to_the_mpi_points(tmp_path):
     """--update-grid K reaches the MPI points' commands (and a sweep file's update_grid = K), not
     the serial or thread points, which have no blocks; without it a point keeps the key (folder
     name) it had before the option existed, so --resume still finds sweeps made then."""
     from bench.sweep.points import make_points
     from bench.sweep.records import reference_key
-    res = bench("sweep", *SMALL, "--mappings", "1-1-1-1-2,2-1-1-2-1", "--update-grid", "25", "--dry-run",
-                "--out", str(tmp_path / "dry"))
-    assert res.returncode == 0, res.stderr
-    lines = [line for line in res.stdout.splitlines() if "--mapping " in line]
+    lines = dry_run_commands(tmp_path / "dry", "--mappings", "1-1-1-1-2,2-1-1-2-1", "--update-grid", "25")
     assert len(lines) == 3
     assert ["--update-grid 25" in line for line in lines] == ["--mapping 2-1-1-2-1" in line for line in lines]
     sweep_file = tmp_path / "sweep.toml"
@@ -134,10 +138,9 @@ def test_update_grid_passes_to_the_mpi_points(tmp_path):
     assert make_points(*args)[1].key == "2-2-1-1-1-822c84b2"
     assert make_points(*args, "exact", 25)[1].key != make_points(*args)[1].key
     # --balance rides with --update-grid to the MPI points; the paper's extent keeps the keys
-    res = bench("sweep", *SMALL, "--mappings", "1-1-1-1-2,2-1-1-2-1", "--update-grid", "25", "--balance", "time",
-                "--dry-run", "--out", str(tmp_path / "dry3"))
-    lines = [line for line in res.stdout.splitlines() if "--mapping " in line]
-    assert res.returncode == 0 and len(lines) == 3, res.stderr
+    lines = dry_run_commands(tmp_path / "dry3", "--mappings", "1-1-1-1-2,2-1-1-2-1", "--update-grid", "25",
+                             "--balance", "time")
+    assert len(lines) == 3
     assert ["--balance time" in line for line in lines] == ["--mapping 2-1-1-2-1" in line for line in lines]
     assert make_points(*args, "exact", 25, "extent")[1].key == make_points(*args, "exact", 25)[1].key
     assert make_points(*args, "exact", 25, "count")[1].key != make_points(*args, "exact", 25)[1].key
@@ -160,10 +163,7 @@ def test_newton_passes_to_the_pure_mpi_points(tmp_path):
     option, and an MPI point's reference is the sweep's serial point."""
     from bench.sweep.points import make_points
     from bench.sweep.records import reference_key
-    res = bench("sweep", *SMALL, "--mappings", "1-1-1-1-2,2-1-1-2-1,2-2-1-1-2", "--newton", "off", "--dry-run",
-                "--out", str(tmp_path / "dry"))
-    assert res.returncode == 0, res.stderr
-    lines = [line for line in res.stdout.splitlines() if "--mapping " in line]
+    lines = dry_run_commands(tmp_path / "dry", "--mappings", "1-1-1-1-2,2-1-1-2-1,2-2-1-1-2", "--newton", "off")
     assert len(lines) == 4
     assert ["--newton off" in line for line in lines] == ["--mapping 2-1-1-2-1" in line for line in lines]
     args = (["2-2-1-1-1", "2-2-1-1-2"], ["dynamic"], "pluviation", 200, 15, 0, "linkcell", None, False, "26")
