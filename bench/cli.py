@@ -62,8 +62,9 @@ def build_parser():
                     help="how --update-grid fits the grid: extent (default, the paper's), count (equal particle "
                          "counts) or time (equal measured compute time)")
     sw.add_argument("--newton", choices=["auto", "on", "off"], default="auto",
-                    help="MPI points with one thread per process: resolve each pair across a border on one rank "
-                         "(on) or on both (off); default auto (on); hybrid points always resolve it on both")
+                    help="MPI and hybrid points: resolve each pair across a border on one rank (on) or on both "
+                         "(off); default auto (on); hybrid points under frogleap or headtail always resolve it on "
+                         "both")
     sw.add_argument("--pin", action="store_true")
     sw.add_argument("--ceiling", action="store_true",
                     help="also measure the machine's efficiency ceiling at each core count W of the sweep (W "

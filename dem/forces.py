@@ -64,6 +64,9 @@ PF_F = 0       # force on j [3] [N] (i gets the exact negation)
 PF_TI = 3      # torque on i about its mass centre [3] [N m]
 PF_TJ = 6      # torque on j [3] [N m]
 PF_LEN = 9
+# a cross-border pair's terms under TAKEN: pair force [3] (on j; i takes its negation), torque on the
+# owned end [3], touching flag
+TERMS = 7
 
 # how a resolution hands on the pair forces (the `deliver` argument): STORE every pair's into pf
 # (each particle gathers them), SUM them into the ends' force and torque as it goes (one thread,
@@ -71,9 +74,10 @@ PF_LEN = 9
 # touch one with gat[p] == 1 (threads over ranges of the gid-sorted list: modes.parallel); TAKEN:
 # SUM, but a pair with a ghost end is not resolved: its terms are already known (MPI with Newton's
 # third law: resolved beforehand by this rank or received from the ghost's owner, modes.newton),
-# one row each of the plist's pf in the order the pairs come in the list, and are added to the
-# owned end in the pair's place in the sequence
-STORE, SUM, SPLIT, TAKEN = 0, 1, 2, 3
+# one row each of the `terms` argument in the order the pairs come in the list, and are added to
+# the owned end in the pair's place in the sequence; SPLIT_TAKEN: SPLIT with the cross pairs taken
+# as TAKEN takes them (hybrid with Newton), their terms stored into pf for an end that gathers
+STORE, SUM, SPLIT, TAKEN, SPLIT_TAKEN = 0, 1, 2, 3, 4
 
 # ellipsoid contact methods (dem.contact.CONTACT_METHODS; dem/contact/methods.py): index = the `method` argument
 EXACT, PW, SEXTIC = 0, 1, 2
@@ -175,11 +179,11 @@ def _deliver(k, i, j, f, sums):
     them to the owned ends, force[i] -= F, torque[i] += T_i, force[j] += F, torque[j] += T_j, and
     writes nothing per pair; STORE writes them to pf[k] for the gather (finish_range); SPLIT adds
     them to the owned ends with gat == 0 and stores them when an owned end has gat == 1; TAKEN sums
-    as SUM does."""
+    as SUM does, SPLIT_TAKEN as SPLIT."""
     deliver, pf, force, torque, n_owned, gat = sums
     if deliver == SUM or deliver == TAKEN:
         sum_i, sum_j, store = i < n_owned, j < n_owned, False
-    elif deliver == SPLIT:
+    elif deliver == SPLIT or deliver == SPLIT_TAKEN:
         gi = i < n_owned and gat[i] != 0
         gj = j < n_owned and gat[j] != 0
         sum_i, sum_j, store = i < n_owned and not gi, j < n_owned and not gj, gi or gj
@@ -213,24 +217,32 @@ def _deliver(k, i, j, f, sums):
 
 
 @njit(cache=True, inline="always")
-def _take_terms(c, i, j, terms, sums):
-    """TAKEN: add row c of terms [cross pairs, 7] = (pair force [3] [N], torque on the owned end [3]
-    [N m], touching flag; modes.newton.TERMS) of a cross-border pair (i, j) to its owned end as SUM would have added them
-    when resolving it (nothing when it does not touch); returns -1 (the pair is counted where it
-    was resolved)."""
-    _, _, force, torque, n_owned, _ = sums
+def _take_terms(c, k, i, j, terms, on, sums):
+    """TAKEN, SPLIT_TAKEN: deliver row c of terms [cross pairs, 7] = (pair force [3] [N], torque on
+    the owned end [3] [N m], touching flag; modes.newton.TERMS) of the cross-border pair k = (i, j)
+    to its owned end as SUM or SPLIT would have delivered it when resolving it: added to its force
+    and torque, or, under SPLIT_TAKEN for an end that gathers (gat == 1), written to pf[k] and
+    on[k] for the gather (nothing when it does not touch); returns -1 (the pair is counted where
+    it was resolved)."""
+    deliver, pf, force, torque, n_owned, gat = sums
+    p = i if i < n_owned else j
+    if deliver == SPLIT_TAKEN and gat[p] != 0:
+        on[k] = 1 if terms[c, 6] != 0.0 else 0
+        t = PF_TI if p == i else PF_TJ
+        for d in range(3):
+            pf[k, PF_F + d] = terms[c, d]
+            pf[k, t + d] = terms[c, 3 + d]
+        return -1.0
     if terms[c, 6] == 0.0:
         return -1.0
-    if i < n_owned:
+    if p == i:
         force[i, 0] -= terms[c, 0]
         force[i, 1] -= terms[c, 1]
         force[i, 2] -= terms[c, 2]
-        p = i
     else:
         force[j, 0] += terms[c, 0]
         force[j, 1] += terms[c, 1]
         force[j, 2] += terms[c, 2]
-        p = j
     torque[p, 0] += terms[c, 3]
     torque[p, 1] += terms[c, 4]
     torque[p, 2] += terms[c, 5]
@@ -377,9 +389,10 @@ def pair_contacts(pi, pj, pos, rot, axes, shape, method, poly_scene, polys, rows
 
 
 @njit(cache=True, _nrt=False)
-def _resolve_spheres(k0, k1, plist, bodies, law, dt, deliver, n_owned, gat):
+def _resolve_spheres(k0, k1, plist, bodies, law, dt, deliver, n_owned, gat, terms):
     """The sphere loop: no solver in it, so a sphere scene neither runs nor carries one."""
-    pi, pj, _, _, pf = plist
+    pi, pj, _, on, pf = plist
+    taking = deliver == TAKEN or deliver == SPLIT_TAKEN
     sums = (deliver, pf, bodies[10], bodies[11], n_owned, gat)
     nc = 0
     worst = 0.0
@@ -389,8 +402,8 @@ def _resolve_spheres(k0, k1, plist, bodies, law, dt, deliver, n_owned, gat):
     for k in range(k0, k1):
         i = pi[k]
         j = pj[k]
-        if deliver == TAKEN and (i >= n_owned or j >= n_owned):
-            r = _take_terms(c, i, j, pf, sums)
+        if taking and (i >= n_owned or j >= n_owned):
+            r = _take_terms(c, k, i, j, terms, on, sums)
             c += 1
         else:
             r = _sphere_pair(k, i, j, bodies, law, plist, dt, sums)
@@ -404,12 +417,14 @@ def _resolve_spheres(k0, k1, plist, bodies, law, dt, deliver, n_owned, gat):
 
 
 @njit(cache=True, _nrt=False)
-def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, poly_scene, deliver, n_owned, gat, out, n0):
+def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, poly_scene, deliver, n_owned, gat, terms, out,
+                        n0):
     """The loop of a scene with ellipsoids (and poly-ellipsoids when poly_scene): closed form for
     two spheres, the bounding-sphere test, then the solver of the pair's shapes."""
     pi, pj, hist, on, pf = plist
     pos, _, _, _, _, _, shape, axes, rbound, _, force, torque, rot, _ = bodies
     sums = (deliver, pf, force, torque, n_owned, gat)
+    taking = deliver == TAKEN or deliver == SPLIT_TAKEN
     nc = 0
     calls = 0
     worst = 0.0
@@ -419,8 +434,8 @@ def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, poly_scen
     for k in range(k0, k1):
         i = pi[k]
         j = pj[k]
-        if deliver == TAKEN and (i >= n_owned or j >= n_owned):
-            r = _take_terms(c, i, j, pf, sums)
+        if taking and (i >= n_owned or j >= n_owned):
+            r = _take_terms(c, k, i, j, terms, on, sums)
             c += 1
         elif shape[i] == SPHERE and shape[j] == SPHERE:
             r = _sphere_pair(k, i, j, bodies, law, plist, dt, sums)
@@ -442,7 +457,7 @@ def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, poly_scen
 
 
 @njit(cache=True, _nrt=False)
-def resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, deliver, n_owned, gat, out, n0):
+def resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, deliver, n_owned, gat, terms, out, n0):
     """Resolve pairs k0..k1-1 of the pair list plist: geometry (closed form for two spheres;
     otherwise the ellipsoid method CONTACT_METHODS[method]: EXACT = PW + Newton on S^2, PW =
     Perram-Wertheim depth only, SEXTIC = Yan 2010; poly-ellipsoids by the octant active set on
@@ -456,9 +471,10 @@ def resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, deliver, 
     pass over the pairs. Threads whose pairs are resolved concurrently in any order STORE; threads over
     contiguous ranges of the sorted list SPLIT (see _deliver: gat [n_owned] int8 marks the particles
     with pairs in two ranges; the caller zeroes the others' force and torque). TAKEN (MPI with
-    Newton's third law) is SUM with the pairs that have a ghost end not resolved but added from the
-    plist's pf, which then holds their terms, one row [7] per such pair in list order from k0 = 0
-    (modes.newton: resolved beforehand by this rank, STORE, or received). kind (SPHERE,
+    Newton's third law) is SUM with the pairs that have a ghost end not resolved but added from
+    terms [c, 7], one row per such pair in list order, row 0 the first at or after k0
+    (modes.newton: resolved beforehand by this rank, STORE, or received); SPLIT_TAKEN (hybrid with
+    Newton) is SPLIT with them taken so (_take_terms); other modes pass an empty terms. kind (SPHERE,
     ELLIPSOID, POLY) picks the loop, so a scene pays only for the solvers its shapes use. out
     [OUT_LEN], n0 [3] are scratch. Returns RESOLVED: (contacts, solver calls, largest depth ratio
     = depth over the smaller minimum semi-axis, its pair or -1, sum of the depth ratios)."""
@@ -469,9 +485,9 @@ def resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, deliver, 
                 force[p, c] = 0.0
                 torque[p, c] = 0.0
     if kind == SPHERE:
-        return _resolve_spheres(k0, k1, plist, bodies, law, dt, deliver, n_owned, gat)
+        return _resolve_spheres(k0, k1, plist, bodies, law, dt, deliver, n_owned, gat, terms)
     return _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, kind == POLY, deliver, n_owned, gat,
-                               out, n0)
+                               terms, out, n0)
 
 
 @njit(cache=True, _nrt=False)

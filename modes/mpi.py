@@ -7,8 +7,9 @@ bounding diameter plus the skin, so that every pair that can touch before the ne
 present; the steps between only forward the ghosts' moving fields (commuT). Then the serial (or
 threaded, for hybrid) step runs on owned + ghost particles. A pair with a ghost is resolved once,
 by one of its two ranks (a hash of the two gids picks which), which sends the other end's terms
-to its owner inside the resolution (newton, the default with one thread per rank:
-modes/newton.py; that message is commuT), or, in hybrid runs and with newton off, on both ranks
+to its owner inside the resolution (newton, the default: modes/newton.py; that message is
+commuT; hybrid runs take the terms in each thread's range of the list), or, with newton off and
+in hybrid runs under the schemes that store every pair's forces, on both ranks
 from identical inputs and identical contact history. Gravity and integration touch owned
 particles only, and walls are visited only by blocks that touch them. Whether the next step
 rebuilds is decided collectively, in the one allreduce a step makes, which also carries the
@@ -26,7 +27,7 @@ from collections import deque
 
 import numpy as np
 
-from dem.forces import STORE, TAKEN, resolve_range
+from dem.forces import SPLIT, STORE
 from modes.base import ModeError, register
 from modes.decomposition import (BlockGrid, DecompositionError, balanced_grid, blended_grid, block_counts,
                                  border_width, extent_grid, fit_skin, load_profiles)
@@ -60,19 +61,20 @@ class _Blocks:
               newton=None, **kw):
         if balance not in BALANCE:
             raise ModeError(f"unknown balance {balance!r} ({', '.join(BALANCE)})")
-        threaded = isinstance(self, ThreadsMode)
-        if newton is None:
-            newton = not threaded
-        if not isinstance(newton, (bool, np.bool_)):
+        if newton is not None and not isinstance(newton, (bool, np.bool_)):
             raise ModeError(f"newton must be true or false, got {newton!r}")
-        if newton and threaded:
-            raise ModeError("newton needs one thread per process: a hybrid run resolves each cross-border "
-                            "pair on both of its ranks (newton off)")
         from mpi4py import MPI
         self.clock = MPI.Wtime
         self.mpi = MPI
         super().setup(scene, dt, skin=skin, **kw)
-        self.newton = bool(newton)
+        # the threads' schemes that store every pair's forces (frogleap, headtail, split=False) cannot
+        # take a cross pair's terms in its place: they resolve cross pairs on both ranks
+        takes = self.deliver != STORE
+        if newton and not takes:
+            raise ModeError(f"newton needs a scheme that sums over ranges of the pair list (partition, static, "
+                            f"dynamic): the {self.scheme} scheme with split={self.deliver == SPLIT} stores every "
+                            "pair's forces (use newton off)")
+        self.newton = takes if newton is None else bool(newton)
         self.reverse_time = 0.0
         s = self.state
         self.cart = cart
@@ -206,7 +208,8 @@ class _Blocks:
     def split(self):
         """With newton: pick out the cross-border pairs this rank resolves and those it receives, and
         fix the reverse exchange (modes.newton); its counts are checked with the neighbours
-        (collective). Else the base mode's split."""
+        (collective); then the base mode's split, with the cross pairs' terms taken in their place.
+        Else the base mode's split."""
         if not self.newton:
             return super().split()
         s = self.state
@@ -217,26 +220,24 @@ class _Blocks:
                                self.halo.wire)
         self.plan.check_counts(self.halo.account)
         self.plan.take_sent(p)
+        super().split(self.plan.cross, self.plan.terms)
 
     def resolve(self):
-        """With newton: the sent pairs (their own list), their terms to the neighbours and the
-        neighbours' back (commuT), then the whole list in gid order, the cross pairs' terms taken as
-        they stand (dem.forces, TAKEN); the received pairs are resolved by the ghost's owner."""
+        """With newton: the sent pairs (their own list, STORE), their terms to the neighbours and the
+        neighbours' back (commuT), then the whole list as the base mode resolves it, the cross
+        pairs' terms taken in their place (dem.forces, TAKEN and SPLIT_TAKEN); the received pairs
+        are resolved by the ghost's owner."""
         if not self.newton:
             return super().resolve()
-        plan, p, s, h = self.plan, self.pairs, self.state, self.halo
-        a = self.kernel_call("resolve_sent", resolve_range, (
-            self.kind, self.method, 0, plan.m_sent, plan.list, self.bodies, self.polys, self.law, self.dt,
-            STORE, s.n_owned, self.gat, self.out, self.n0))
+        plan, s, h = self.plan, self.state, self.halo
+        a = self.resolve_stored("resolve_sent", plan.list, plan.m_sent)
         t0 = self.clock()
         plan.exchange(s.n_owned, h.startall, h.waitall)
         self.reverse_time = self.clock() - t0
         h.bytes_sent += plan.bytes
         h.msgs_sent += plan.msgs
         h.wire_s += plan.wire_s
-        b = self.kernel_call("resolve", resolve_range, (
-            self.kind, self.method, 0, p.m, (p.pi, p.pj, p.hist, p.on, plan.terms), self.bodies, self.polys, self.law,
-            self.dt, TAKEN, s.n_owned, self.gat, self.out, self.n0))
+        b = super().resolve()
         worst, worst_k = (a[2], int(plan.sent_idx[a[3]])) if a[2] > b[2] else (b[2], b[3])
         return a[0] + b[0], a[1] + b[1], worst, worst_k, a[4] + b[4]
 

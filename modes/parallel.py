@@ -39,12 +39,15 @@ from numba import get_thread_id, njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from dem.forces import SPLIT, finish_range, resolve_range
+from dem.forces import SPLIT, SPLIT_TAKEN, finish_range, resolve_range
 from dem.integrate import derive_all
 from dem.neighbor import HALF_SHELL, scan_rows
 from dem.shapes import SPHERE
 
 SCHEMES = ("partition", "frogleap", "headtail", "static", "dynamic")
+# the schemes whose resolution runs over ranges of the gid-sorted list (SPLIT); the others store
+# every pair's forces for the gather
+SPLIT_SCHEMES = ("partition", "static", "dynamic")
 PARTITION = 0
 STATIC = 3
 DYNAMIC = 4
@@ -210,12 +213,13 @@ def cut_at_equal_weight(w, allowed, threads, bounds):
 
 
 @njit(cache=True)
-def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, shape, bounds, gat, home_start, home_items):
+def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, shape, taken, bounds, gat, home_start, home_items):
     """Cut the gid-sorted pair list (pi, pj [m]: rows of equal pi contiguous) into T ranges of whole
     rows, bounds [T+1] (pair indices), by the scheme `code`: equal rows (PARTITION), equal estimated
     work (DYNAMIC: for a pair whose bounding spheres of radii rbound [n] [m] overlap at pos [n,3] [m],
-    SPHERE_PAIR_WEIGHT if both shape [n] codes are SPHERE, else SOLVER_WEIGHT; 1 for the others),
-    equal pairs (otherwise). Then gat [n_owned] int8 = 1 for
+    SPHERE_PAIR_WEIGHT if both shape [n] codes are SPHERE, else SOLVER_WEIGHT; 1 for the others and,
+    when taken, for the pairs with a ghost end, whose terms are taken, not resolved: dem.forces,
+    SPLIT_TAKEN), equal pairs (otherwise). Then gat [n_owned] int8 = 1 for
     the owned particles with pairs in two ranges (they gather), and each range's other particles,
     those it alone sums (plus, in range 0, the particles without pairs): home_items [n_owned -
     gathered] grouped by range, home_start [T+1]; their force and torque are zeroed by the thread of
@@ -231,6 +235,9 @@ def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, shape, bounds, gat,
         elif code == DYNAMIC:
             i = pi[k]
             j = pj[k]
+            if taken and (i >= n_owned or j >= n_owned):
+                w[k] = 1.0
+                continue
             d2 = (pos[j, 0] - pos[i, 0]) ** 2 + (pos[j, 1] - pos[i, 1]) ** 2 + (pos[j, 2] - pos[i, 2]) ** 2
             if d2 >= (rbound[i] + rbound[j]) ** 2:
                 w[k] = 1.0
@@ -284,10 +291,12 @@ def _fold_resolved(red, t, r):
 @njit(parallel=True, cache=True)
 def resolve_threads(code, threads, offsets, kind, method, plist, bodies, polys, law, dt, scratch, split):
     """Contact resolution of the pair list under a scheme (dem.forces.resolve_range, argument
-    groups as there). split = (deliver, n_owned, gat, home_start, home_items): with deliver SPLIT
-    (a gid-sorted list cut by split_pairs into the ranges offsets [T+1]) thread t zeroes the force
-    and torque of its range's particles home_items[home_start[t]:home_start[t+1]], then resolves
-    the pairs offsets[t]..offsets[t+1] summing theirs; else (STORE) every pair's forces are stored
+    groups as there). split = (deliver, n_owned, gat, home_start, home_items, terms, terms_start):
+    with deliver SPLIT or SPLIT_TAKEN (a gid-sorted list cut by split_pairs into the ranges offsets
+    [T+1]) thread t zeroes the force and torque of its range's particles
+    home_items[home_start[t]:home_start[t+1]], then resolves the pairs offsets[t]..offsets[t+1]
+    summing theirs (SPLIT_TAKEN, hybrid with Newton: the cross pairs' terms [c, 7] taken from row
+    terms_start[t] on); else (STORE) every pair's forces are stored
     for the gather, under frogleap and headtail thread t resolving the pairs it found,
     offsets[t]..offsets[t+1]; static: prange over blocks of STATIC_BLOCK pairs; dynamic: chunks of
     DYNAMIC_PAIRS from the atomic counter [1]. scratch = (outs [T, >= OUT_LEN], n0s [T, >= 3]
@@ -295,11 +304,11 @@ def resolve_threads(code, threads, offsets, kind, method, plist, bodies, polys, 
     cycles (column 0)); rows padded apart so that no two threads write one cache line.
     Returns dem.forces.RESOLVED over all threads."""
     outs, n0s, counter, red, busy = scratch
-    deliver, n_owned, gat, home_start, home_items = split
+    deliver, n_owned, gat, home_start, home_items, terms, terms_start = split
     m = offsets[threads]
     red[:, :] = 0.0
     red[:, 3] = -1.0
-    if deliver == SPLIT:
+    if deliver == SPLIT or deliver == SPLIT_TAKEN:
         force, torque = bodies[10], bodies[11]
         for t in prange(threads):
             c0 = cycle_counter()
@@ -308,8 +317,8 @@ def resolve_threads(code, threads, offsets, kind, method, plist, bodies, polys, 
                 for c in range(3):
                     force[p, c] = 0.0
                     torque[p, c] = 0.0
-            r = resolve_range(kind, method, offsets[t], offsets[t + 1], plist, bodies, polys, law, dt, SPLIT, n_owned,
-                              gat, outs[t], n0s[t])
+            r = resolve_range(kind, method, offsets[t], offsets[t + 1], plist, bodies, polys, law, dt, deliver, n_owned,
+                              gat, terms[terms_start[t]:], outs[t], n0s[t])
             _fold_resolved(red, t, r)
             busy[t, 0] += cycle_counter() - c0
     elif code == STATIC:
@@ -318,7 +327,7 @@ def resolve_threads(code, threads, offsets, kind, method, plist, bodies, polys, 
             c0 = cycle_counter()
             k = b * STATIC_BLOCK
             r = resolve_range(kind, method, k, min(m, k + STATIC_BLOCK), plist, bodies, polys, law, dt, deliver,
-                              n_owned, gat, outs[t], n0s[t])
+                              n_owned, gat, terms, outs[t], n0s[t])
             _fold_resolved(red, t, r)
             busy[t, 0] += cycle_counter() - c0
     else:
@@ -333,8 +342,8 @@ def resolve_threads(code, threads, offsets, kind, method, plist, bodies, polys, 
                     if k0 >= m:
                         break
                     k1 = min(m, k0 + DYNAMIC_PAIRS)
-                r = resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, deliver, n_owned, gat, outs[t],
-                                  n0s[t])
+                r = resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, deliver, n_owned, gat, terms,
+                                  outs[t], n0s[t])
                 _fold_resolved(red, t, r)
                 if code != DYNAMIC:
                     break

@@ -16,7 +16,7 @@ import numpy as np
 
 from dem.contact.ellipsoid import OUT_LEN
 from dem.contact import CONTACT_METHODS
-from dem.forces import (SUM, STORE, body_arrays, finish_range, law_tables, resolve_range, scene_kind, wall_arrays,
+from dem.forces import (SUM, STORE, TAKEN, TERMS, body_arrays, finish_range, law_tables, resolve_range, scene_kind, wall_arrays,
                         wall_candidates)
 from dem.integrate import derive_all
 from dem.neighbor import cell_order, find_pairs
@@ -79,6 +79,8 @@ class SerialMode:
         self.out = np.zeros(OUT_LEN)
         self.n0 = np.zeros(3)
         self.gat = np.zeros(0, dtype=np.int8)   # the particles that gather (threads: SPLIT)
+        self.no_terms = np.zeros((0, TERMS))     # the cross pairs' terms of TAKEN (MPI: modes.newton)
+        self.taking = (self.deliver, self.no_terms)  # how resolve delivers, and the terms it takes (split)
         self.ensure_derived()
 
     def warmup(self):
@@ -178,8 +180,12 @@ class SerialMode:
         self.split()
         self.adj = self.pairs.gather_arrays(self.deliver, self.gat)
 
-    def split(self):
-        """Who resolves which pairs of a new list (threads: modes/threads.py); nothing here."""
+    def split(self, cross=None, terms=None):
+        """Who resolves which pairs of a new list (threads: modes/threads.py): here the one thread
+        resolves them all, summing as it goes (SUM), or, given cross [c] (the ascending indices of
+        the pairs with a ghost end: MPI with Newton's third law, modes.newton), takes their terms
+        [c, TERMS] in their place (TAKEN)."""
+        self.taking = (self.deliver, self.no_terms) if cross is None else (TAKEN, terms)
 
     def migrate(self):
         """Hand particles that left the block to their new owner (MPI); returns how many left."""
@@ -211,10 +217,19 @@ class SerialMode:
         return hit[1](*args)
 
     def resolve(self):
-        """Contact resolution of the pair list; returns dem.forces.RESOLVED."""
+        """Contact resolution of the pair list (as split fixed it); returns dem.forces.RESOLVED."""
+        deliver, terms = self.taking
         return self.kernel_call("resolve", resolve_range, (
             self.kind, self.method, 0, self.pairs.m, self.plist, self.bodies, self.polys, self.law, self.dt,
-            self.deliver, self.state.n_owned, self.gat, self.out, self.n0))
+            deliver, self.state.n_owned, self.gat, terms, self.out, self.n0))
+
+    def resolve_stored(self, name, plist, m):
+        """Contact resolution of another list plist (pi, pj, hist, on, pf) of m pairs, every pair's
+        forces stored into its pf (STORE: MPI with Newton's third law, the pairs whose other end's
+        terms travel); returns dem.forces.RESOLVED."""
+        return self.kernel_call(name, resolve_range, (
+            self.kind, self.method, 0, m, plist, self.bodies, self.polys, self.law, self.dt, STORE,
+            self.state.n_owned, self.gat, self.no_terms, self.out, self.n0))
 
     @property
     def has_walls(self):

@@ -12,7 +12,7 @@ import numpy as np
 import numba
 
 from dem.contact.ellipsoid import OUT_LEN
-from dem.forces import SPLIT, STORE
+from dem.forces import SPLIT, SPLIT_TAKEN, STORE
 from dem.shapes import POLY, SPHERE
 from dem.neighbor import CellGrid
 from modes.base import ModeError, register
@@ -56,7 +56,7 @@ class ThreadsMode(SerialMode):
         self.threaded = threaded
         if not isinstance(split, (bool, np.bool_)):
             raise ModeError(f"split must be true or false, got {split!r}")
-        self.deliver = SPLIT if split and scheme in ("partition", "static", "dynamic") else STORE
+        self.deliver = SPLIT if split and scheme in par.SPLIT_SCHEMES else STORE
         numba.set_num_threads(self.threads)
         self.cap = 1024
         self.scan_busy = np.zeros(self.threads, dtype=np.int64)
@@ -76,13 +76,15 @@ class ThreadsMode(SerialMode):
         self.red = np.zeros((t, PAD))
         self.fin = np.zeros((t, PAD))
         self.busy_rows = np.zeros((t, PAD), dtype=np.int64)
+        self.busy_stored = np.zeros((t, PAD), dtype=np.int64)   # resolve_stored's (hybrid with newton)
+        self.stored = None
         self.counter = np.zeros(1, dtype=np.int64)
         self.scratch = (self.outs, self.n0s, self.counter, self.red, self.busy_rows)
 
     @property
     def busy(self):
         """Busy cycles [T] of each thread in the last contact resolution."""
-        return self.busy_rows[:, 0]
+        return self.busy_rows[:, 0] + self.busy_stored[:, 0]
 
     def warmup(self):
         numba.set_num_threads(self.threads)
@@ -114,30 +116,55 @@ class ThreadsMode(SerialMode):
         self.work_imbalance = float(self.tests.max() / max(self.tests.mean(), 1e-300))
         return m
 
-    def split(self):
+    def split(self, cross=None, terms=None):
         """The blocks of the per-particle pass (modes.parallel.finish_cuts) and, under SPLIT, the T
         ranges of the new (gid-sorted) list, the particles that gather, and those each range's
-        thread zeroes and sums (modes.parallel.split_pairs)."""
+        thread zeroes and sums (modes.parallel.split_pairs). Given cross [c] (the ascending indices
+        of the pairs with a ghost end: hybrid with Newton's third law, modes.newton) the ranges take
+        their terms [c, TERMS] in their place (SPLIT_TAKEN), range t from row terms_start[t] on."""
         s = self.state
-        self.finish_blocks = np.zeros(self.threads + 1, dtype=np.int64)
+        t1 = self.threads + 1
+        self.stored = None
+        self.finish_blocks = np.zeros(t1, dtype=np.int64)
         par.finish_cuts(self.threads, s.n_owned, s.shape, self.pairs.near, self.finish_blocks)
         if self.deliver != SPLIT:
-            self.ranges = (STORE, s.n_owned, self.gat, np.zeros(self.threads + 1, dtype=np.int64),
-                           np.zeros(0, dtype=np.int64))
+            if cross is not None:
+                raise ModeError(f"the {self.scheme} scheme stores every pair's forces: it cannot take cross-border "
+                                "terms (newton)")
+            self.ranges = (STORE, s.n_owned, self.gat, np.zeros(t1, dtype=np.int64), np.zeros(0, dtype=np.int64),
+                           self.no_terms, np.zeros(t1, dtype=np.int64))
             return
-        bounds = np.zeros(self.threads + 1, dtype=np.int64)
+        bounds = np.zeros(t1, dtype=np.int64)
         self.gat = np.zeros(s.n_owned, dtype=np.int8)
-        home_start = np.zeros(self.threads + 1, dtype=np.int64)
+        home_start = np.zeros(t1, dtype=np.int64)
         home_items = np.zeros(s.n_owned, dtype=np.int64)
         par.split_pairs(self.code, self.threads, self.pairs.pi, self.pairs.pj, s.n_owned, s.pos, s.rbound, s.shape,
-                        bounds, self.gat, home_start, home_items)
+                        cross is not None, bounds, self.gat, home_start, home_items)
         self.pairs.offsets = bounds
-        self.ranges = (SPLIT, s.n_owned, self.gat, home_start, home_items)
+        if cross is None:
+            self.ranges = (SPLIT, s.n_owned, self.gat, home_start, home_items, self.no_terms, np.zeros(t1, dtype=np.int64))
+        else:
+            self.ranges = (SPLIT_TAKEN, s.n_owned, self.gat, home_start, home_items, terms,
+                           np.searchsorted(cross, bounds).astype(np.int64))
 
     def resolve(self):
         self.busy_rows[:, 0] = 0
         return par.resolve_threads(self.code, self.threads, self.pairs.offsets, self.kind, self.method, self.plist,
                                    self.bodies, self.polys, self.law, self.dt, self.scratch, self.ranges)
+
+    def resolve_stored(self, name, plist, m):
+        """SerialMode.resolve_stored by the T threads, in chunks handed out at run time (STORE: the
+        order does not matter); its busy cycles count with the step's resolution (busy)."""
+        if self.stored is None or self.stored[0][-1] != m:  # fixed until the next rebuild: nothing allocated
+            offsets = np.zeros(self.threads + 1, dtype=np.int64)
+            offsets[-1] = m
+            self.stored = (offsets, (STORE, self.state.n_owned, self.gat, offsets, np.zeros(0, dtype=np.int64),
+                                     self.no_terms, offsets))
+        self.busy_stored[:, 0] = 0
+        outs, n0s, counter, red, _ = self.scratch
+        return par.resolve_threads(par.DYNAMIC, self.threads, self.stored[0], self.kind, self.method, plist,
+                                   self.bodies, self.polys, self.law, self.dt,
+                                   (outs, n0s, counter, red, self.busy_stored), self.stored[1])
 
     # --- the rest of the step --------------------------------------------------------------------
     def derive(self, lo, hi):

@@ -31,6 +31,7 @@ from modes.base import ModeError
 from modes.decomposition import BlockGrid, DecompositionError, border_width, fit_skin
 from modes.halo import compile_kernels
 from modes.newton import compile_kernels as compile_newton_kernels
+from modes.parallel import SPLIT_SCHEMES
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 
@@ -66,9 +67,11 @@ def launch_mpi(args, mapping, scene, out, ts):
             fit_skin(grid, width, args.skin * 2.0 * float(scene.state.rbound.max()), explicit=True)
     except DecompositionError as e:
         raise ModeError(str(e)) from None
-    if mapping.threads > 1 and getattr(args, "newton", "auto") == "on":
-        raise ModeError(f"--newton on needs one thread per process (mapping {mapping}): a hybrid run resolves "
-                        f"each cross-border pair on both of its ranks")
+    scheme = args.scheme or "dynamic"
+    if mapping.threads > 1 and getattr(args, "newton", "auto") == "on" and scheme not in SPLIT_SCHEMES:
+        raise ModeError(f"--newton on needs a scheme that sums over ranges of the pair list (partition, static, "
+                        f"dynamic): {scheme} stores every pair's forces and resolves each cross-border pair on "
+                        f"both of its ranks")
     starter = getattr(args, "mpi_starter", None)
     too_big = None if starter else check_size(str(mapping))
     if too_big:

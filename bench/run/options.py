@@ -112,8 +112,8 @@ def add_run_arguments(r):
                         "equal measured compute time, LAMMPS's weight time)")
     r.add_argument("--newton", choices=["auto", "on", "off"], default="auto",
                    help="P > 1: resolve each cross-border pair on one rank and send its other end's terms back "
-                        "(on; LAMMPS's newton on) or on both ranks (off); default auto: on for one thread per "
-                        "process, off for hybrid (where on is refused)")
+                        "(on; LAMMPS's newton on) or on both ranks (off); default auto: on, except under the thread "
+                        "schemes that store every pair's forces (frogleap, headtail), where on is refused")
     r.add_argument("--timeout", type=positive_int, default=3600, help="seconds before MPI ranks are killed")
     r.add_argument("--hang-timeout", type=seconds, default=30.0, metavar="S",
                    help="P > 1: stop the run when a rank's heartbeat is S seconds old while a peer's is fresh "

@@ -55,7 +55,7 @@ def _pair_timings(mode, calls, repeats):
     out = []
     for k0, k1 in ((0, first_solid), (first_solid, m.pairs.m)):
         t = _median_time(lambda: resolve_range(m.kind, m.method, k0, k1, m.plist, m.bodies, m.polys, m.law, m.dt,
-                                               m.deliver, s.n_owned, m.gat, m.out, m.n0), calls, repeats)
+                                               m.deliver, s.n_owned, m.gat, m.no_terms, m.out, m.n0), calls, repeats)
         out.append((int(near[k0:k1].sum()), int((~near[k0:k1]).sum()), t))
     return out
 

@@ -8,7 +8,7 @@ import json
 from dataclasses import asdict, dataclass, fields
 
 from modes.base import ModeError, parse_mapping
-from modes.parallel import SCHEMES
+from modes.parallel import SCHEMES, SPLIT_SCHEMES
 
 SERIAL = "1-1-1-1-1"
 
@@ -78,8 +78,8 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
                 contact_method="exact", update_grid=0, balance="extent", newton="auto"):
     """Points of a sweep: the serial reference first, then each mapping (x each scheme when it has
     more than one thread), without duplicates, in the order given. newton (auto, on, off) goes to
-    the points with more than one process and one thread each (hybrid points resolve a pair across
-    a border on both ranks)."""
+    the points with more than one process, except hybrid points under a scheme that stores every
+    pair's forces (frogleap, headtail: they resolve a pair across a border on both ranks)."""
     for s in schemes:
         if s not in SCHEMES:
             raise ModeError(f"unknown scheme {s!r} (schemes: {', '.join(SCHEMES)})")
@@ -92,7 +92,7 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
             p = Point(str(m), s, scene, particles or 0, steps or 0, warmup, neighbor, shape or "", pin, halo,
                       contact_method, update_grid if m.procs > 1 else 0,
                       balance if m.procs > 1 and update_grid else "extent",
-                      newton if m.procs > 1 and m.threads == 1 else "auto")
+                      newton if m.procs > 1 and (m.threads == 1 or s in SPLIT_SCHEMES) else "auto")
             if p not in points:
                 points.append(p)
     points.sort(key=lambda p: p.mapping != SERIAL)  # the reference runs first

@@ -156,21 +156,27 @@ def test_update_grid_passes_to_the_mpi_points(tmp_path):
     one_line_error(bench("sweep", "--file", str(sweep_file), "--dry-run", "--out", str(tmp_path / "dry5")), "balance")
 
 
-def test_newton_passes_to_the_pure_mpi_points(tmp_path):
-    """--newton on|off reaches the points with more than one process and one thread each (and a sweep
-    file's newton); hybrid points resolve a pair across a border on both ranks and get nothing, as
-    the serial and thread points; auto keeps a point's key (folder name) as it was before the
-    option, and an MPI point's reference is the sweep's serial point."""
+def test_newton_passes_to_the_mpi_points(tmp_path):
+    """--newton on|off reaches the points with more than one process (and a sweep file's newton),
+    hybrid ones too, except under the schemes that store every pair's forces (frogleap, headtail:
+    they resolve a pair across a border on both ranks) and get nothing, as the serial and thread
+    points; auto keeps a point's key (folder name) as it was before the option, and an MPI point's
+    reference is the sweep's serial point."""
     from bench.sweep.points import make_points
     from bench.sweep.records import reference_key
-    lines = dry_run_commands(tmp_path / "dry", "--mappings", "1-1-1-1-2,2-1-1-2-1,2-2-1-1-2", "--newton", "off")
-    assert len(lines) == 4
-    assert ["--newton off" in line for line in lines] == ["--mapping 2-1-1-2-1" in line for line in lines]
-    args = (["2-2-1-1-1", "2-2-1-1-2"], ["dynamic"], "pluviation", 200, 15, 0, "linkcell", None, False, "26")
+    lines = dry_run_commands(tmp_path / "dry", "--mappings", "1-1-1-1-2,2-1-1-2-1,2-2-1-1-2", "--schemes",
+                             "dynamic,frogleap", "--newton", "off")
+    assert len(lines) == 6
+    assert ["--newton off" in line for line in lines] == [
+        "--mapping 2-1-1-2-1" in line or ("--mapping 2-2-1-1-2" in line and "--scheme dynamic" in line)
+        for line in lines]
+    args = (["2-2-1-1-1", "2-2-1-1-2"], ["dynamic", "headtail"], "pluviation", 200, 15, 0, "linkcell", None, False,
+            "26")
     assert make_points(*args)[1].key == "2-2-1-1-1-822c84b2"   # the key before newton existed (above)
     assert make_points(*args, "exact", 0, "extent", "auto")[1].key == "2-2-1-1-1-822c84b2"
-    serial, mpi, hybrid = make_points(*args, "exact", 0, "extent", "on")
-    assert mpi.newton == "on" and mpi.key != "2-2-1-1-1-822c84b2" and hybrid.newton == "auto"
+    serial, mpi, hybrid, storing = make_points(*args, "exact", 0, "extent", "on")
+    assert mpi.newton == "on" and mpi.key != "2-2-1-1-1-822c84b2"
+    assert (hybrid.scheme, hybrid.newton, storing.scheme, storing.newton) == ("dynamic", "on", "headtail", "auto")
     assert reference_key(mpi) == serial.key
     sweep_file = tmp_path / "sweep.toml"
     sweep_file.write_text('[sweep]\nmappings = ["2-2-1-1-1"]\nscene = "pluviation"\nnewton = "on"\n')

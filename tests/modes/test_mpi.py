@@ -344,20 +344,23 @@ def test_balance_time_gives_the_dearer_particles_a_smaller_block(tmp_path, tmp_p
     assert_same(ref, got)
 
 
-def test_newton_resolves_each_cross_border_pair_once(tmp_path, tmp_path_factory):
-    """Newton's third law across ranks (modes/newton.py) on the patch test, 2 blocks: with newton
-    on, each touching pair is resolved (and counted) by exactly one rank, so the ranks' contact
-    counts add up, step by step, to serial's own count (the reference number comes from the serial
-    run of the same scene); with newton off the pairs across the border are counted on both ranks,
-    so the sum exceeds serial's. Both are bit-identical to serial, and with newton on each step
-    sends one more message per rank (the j ends' terms, 56 bytes a pair)."""
+@pytest.mark.parametrize("mapping", ["2-2-1-1-1", "2-2-1-1-2"])
+def test_newton_resolves_each_cross_border_pair_once(tmp_path, tmp_path_factory, mapping):
+    """Newton's third law across ranks (modes/newton.py) on the patch test, 2 blocks, pure MPI and
+    hybrid (2 threads, dynamic: the threads take the cross pairs' terms in their ranges, and on
+    rank 1 seven cross pairs have an owned end that gathers, as counted while writing this test):
+    with newton on, each touching pair is resolved (and counted) by exactly one rank, so the ranks'
+    contact counts add up, step by step, to serial's own count (the reference number comes from
+    the serial run of the same scene); with newton off the pairs across the border are counted on
+    both ranks, so the sum exceeds serial's. Both are bit-identical to serial, and with newton on
+    each step sends one more message per rank (the j ends' terms, 56 bytes a pair)."""
     out = tmp_path / "serial"
     res = bench("run", "--scene", "patch162", "--steps", "150", "--out", str(out), "--quiet")
     assert res.returncode == 0, res.stderr
     ref = dict(np.load(out / "state.npz"))
     serial = pd.read_csv(out / "steps.csv").set_index("step")["n_contacts"]
-    on, steps_on, info_on = mpi_run(tmp_path / "on", "patch162", 150, "2-2-1-1-1", "--newton", "on")
-    off, steps_off, info_off = mpi_run(tmp_path / "off", "patch162", 150, "2-2-1-1-1", "--newton", "off")
+    on, steps_on, info_on = mpi_run(tmp_path / "on", "patch162", 150, mapping, "--newton", "on")
+    off, steps_off, info_off = mpi_run(tmp_path / "off", "patch162", 150, mapping, "--newton", "off")
     assert info_on["newton"] is True and info_off["newton"] is False
     assert_same(ref, on)
     assert_same(ref, off)
@@ -369,8 +372,10 @@ def test_newton_resolves_each_cross_border_pair_once(tmp_path, tmp_path_factory)
     assert (steps_on.loc[forward, "msgs_sent"] == steps_off.loc[forward, "msgs_sent"] + 1).all()
 
 
-def test_newton_refused_for_hybrid_runs(tmp_path):
-    """A hybrid run resolves its cross-border pairs on both ranks: --newton on is refused in one line."""
-    res = bench("run", "--scene", "patch162", "--steps", "2", "--mapping", "2-2-1-1-2", "--newton", "on",
-                "--out", str(tmp_path / "x"), "--quiet")
-    one_line_error(res, "--newton on", "2-2-1-1-2")
+def test_newton_refused_for_storing_schemes(tmp_path):
+    """Under frogleap and headtail every pair's forces are stored and gathered, so a cross pair's
+    terms cannot be taken in its place: --newton on is refused in one line naming the scheme."""
+    for scheme in ("frogleap", "headtail"):
+        res = bench("run", "--scene", "patch162", "--steps", "2", "--mapping", "2-2-1-1-2", "--scheme", scheme,
+                    "--newton", "on", "--out", str(tmp_path / scheme), "--quiet")
+        one_line_error(res, "--newton on", scheme)

@@ -143,7 +143,7 @@ def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads):
     gat = np.zeros(n, dtype=np.int8)
     home_start = np.zeros(threads + 1, dtype=np.int64)
     home_items = np.zeros(n, dtype=np.int64)
-    split_pairs(code, threads, pi, pj, n, pos, rbound, np.zeros(n, dtype=np.int8), bounds, gat, home_start,
+    split_pairs(code, threads, pi, pj, n, pos, rbound, np.zeros(n, dtype=np.int8), False, bounds, gat, home_start,
                 home_items)
     assert bounds[0] == 0 and bounds[-1] == m and np.all(np.diff(bounds) >= 0)
     assert all(b in (0, m) or pi[b] != pi[b - 1] for b in bounds)
@@ -183,11 +183,34 @@ def test_dynamic_split_weighs_ellipsoid_pairs_above_sphere_pairs():
     cuts = {}
     for code in (DYNAMIC, STATIC):
         bounds = np.zeros(3, dtype=np.int64)
-        split_pairs(code, 2, pi, pj, n, pos, rbound, shape, bounds, np.zeros(n, dtype=np.int8),
+        split_pairs(code, 2, pi, pj, n, pos, rbound, shape, False, bounds, np.zeros(n, dtype=np.int8),
                     np.zeros(3, dtype=np.int64), np.zeros(n, dtype=np.int64))
         cuts[code] = bounds.tolist()
     assert cuts[DYNAMIC] == [0, 138, 200] and cuts[STATIC] == [0, 100, 200]
 
+
+
+def test_dynamic_split_weighs_taken_cross_pairs_one():
+    """Under hybrid with Newton's third law a pair with a ghost end is not resolved but its terms
+    taken (dem.forces, SPLIT_TAKEN), so the dynamic cut weighs it 1 (modes.parallel.split_pairs,
+    taken). The list of the test above with particles 301.. ghosts: pairs 150..199 (pi = 300..398)
+    cross. Cost 100 x 10 + 50 x 40 + 50 x 1 = 3050, half 1525, first reached after 14 ellipsoid
+    pairs (1000 + 14 x 40 = 1560): cut at pair 114. Without taken, the cut of the test above, 138."""
+    n = 400
+    n_owned = 301
+    pi = np.arange(0, 400, 2)
+    pj = pi + 1
+    pos = np.zeros((n, 3))
+    pos[:, 0] = np.arange(n) * 1e-3
+    rbound = np.full(n, 1e-3)
+    shape = np.where(np.arange(n) < 200, 0, 1).astype(np.int8)
+    cuts = {}
+    for taken in (True, False):
+        bounds = np.zeros(3, dtype=np.int64)
+        split_pairs(DYNAMIC, 2, pi, pj, n_owned, pos, rbound, shape, taken, bounds, np.zeros(n_owned, dtype=np.int8),
+                    np.zeros(3, dtype=np.int64), np.zeros(n_owned, dtype=np.int64))
+        cuts[taken] = bounds.tolist()
+    assert cuts == {True: [0, 114, 200], False: [0, 138, 200]}
 
 def test_finish_blocks_are_cut_at_equal_estimated_cost():
     """The per-particle pass is cut by estimated cost (modes.parallel.finish_cuts: a sphere 1, an
