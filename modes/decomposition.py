@@ -11,6 +11,7 @@ neighbours. Pure numpy: no MPI, no physics.
 import itertools
 
 import numpy as np
+from numba import njit
 
 # the 26 neighbour offsets, in a fixed order; direction k's opposite is 25 - k
 DIRECTIONS = np.array([d for d in itertools.product((-1, 0, 1), repeat=3) if d != (0, 0, 0)], dtype=np.int64)
@@ -186,29 +187,47 @@ def send_masks(pos, lo, hi, width):
     """For each of the 26 directions, the particles (centres pos [n, 3]) within `width` of the
     block faces on that side: a bool array [26, n]. Per axis, offset -1 needs x - lo < width,
     +1 needs hi - x < width, 0 nothing (a box-distance test, a superset of the sphere test)."""
-    near_lo = pos - lo < width
-    near_hi = hi - pos < width
-    masks = np.ones((len(DIRECTIONS), len(pos)), dtype=bool)
-    for k, d in enumerate(DIRECTIONS):
-        for axis in range(3):
-            if d[axis] < 0:
-                masks[k] &= near_lo[:, axis]
-            elif d[axis] > 0:
-                masks[k] &= near_hi[:, axis]
+    return _send_masks(np.ascontiguousarray(pos, dtype=np.float64), np.asarray(lo, dtype=np.float64),
+                       np.asarray(hi, dtype=np.float64), float(width), DIRECTIONS)
+
+
+@njit(cache=True)
+def _send_masks(pos, lo, hi, width, directions):
+    """send_masks in one pass over the particles (numpy's 26 x 3 passes took 0.17 ms a rebuild at
+    400 particles a rank)."""
+    n = pos.shape[0]
+    nd = directions.shape[0]
+    masks = np.empty((nd, n), dtype=np.bool_)
+    for p in range(n):
+        for k in range(nd):
+            ok = True
+            for a in range(3):
+                d = directions[k, a]
+                if (d < 0 and not pos[p, a] - lo[a] < width) or (d > 0 and not hi[a] - pos[p, a] < width):
+                    ok = False
+            masks[k, p] = ok
     return masks
 
 
 def direction_of(coords_from, coords_to):
     """Direction index k with coords_to = coords_from + DIRECTIONS[k] (coords_to [n, 3]);
     -1 where the target is not a neighbour (a particle that jumped more than a block)."""
-    d = np.asarray(coords_to) - np.asarray(coords_from)
-    out = np.full(len(d), -1, dtype=np.int64)
-    code = (d[:, 0] + 1) * 9 + (d[:, 1] + 1) * 3 + (d[:, 2] + 1)
+    return _direction_of(np.asarray(coords_from, dtype=np.int64).reshape(3),
+                         np.ascontiguousarray(coords_to, dtype=np.int64).reshape(-1, 3), DIRECTIONS)
+
+
+@njit(cache=True)
+def _direction_of(origin, to, directions):
     table = np.full(27, -1, dtype=np.int64)
-    for k, dd in enumerate(DIRECTIONS):
-        table[(dd[0] + 1) * 9 + (dd[1] + 1) * 3 + (dd[2] + 1)] = k
-    ok = np.all(np.abs(d) <= 1, axis=1)
-    out[ok] = table[code[ok]]
+    for k in range(directions.shape[0]):
+        table[(directions[k, 0] + 1) * 9 + (directions[k, 1] + 1) * 3 + (directions[k, 2] + 1)] = k
+    out = np.full(to.shape[0], -1, dtype=np.int64)
+    for p in range(to.shape[0]):
+        d0 = to[p, 0] - origin[0]
+        d1 = to[p, 1] - origin[1]
+        d2 = to[p, 2] - origin[2]
+        if abs(d0) <= 1 and abs(d1) <= 1 and abs(d2) <= 1:
+            out[p] = table[(d0 + 1) * 9 + (d1 + 1) * 3 + (d2 + 1)]
     return out
 
 
