@@ -60,7 +60,8 @@ def test_serial_restart_bit_identical(tmp_path, tmp_path_factory):
 
 CROSS = [("patch162", "2-2-1-1-1", "1-1-1-1-2"),   # checkpoint under 2 ranks, continue under 2 threads
          ("gas", "1-1-1-1-2", "2-1-2-1-1"),        # threads -> ranks; the gas then migrates across blocks
-         ("patch162", "1-1-1-1-1", "2-2-1-1-2")]   # serial -> hybrid 2 ranks x 2 threads
+         ("patch162", "1-1-1-1-1", "2-2-1-1-2"),   # serial -> hybrid 2 ranks x 2 threads
+         ("patch162", "2-2-1-1-2", "1-1-1-1-1")]   # hybrid (newton: the resolvers' history sent back) -> serial
 
 
 @pytest.mark.skipif(not HAS_MPI, reason="no mpiexec")

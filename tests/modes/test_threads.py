@@ -166,13 +166,10 @@ def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads):
         assert np.all(np.abs(np.diff(bounds) - m / threads) <= longest)
 
 
-def test_dynamic_split_weighs_ellipsoid_pairs_above_sphere_pairs():
-    """The dynamic scheme cuts by estimated cost (modes.parallel: an overlapping sphere pair weighs
-    SPHERE_PAIR_WEIGHT = 10, one with an ellipsoid SOLVER_WEIGHT = 40, from resolve_range timings):
-    100 sphere pairs (rows 0..99) then 100 ellipsoid pairs (rows 100..199), all touching, one pair
-    a row, on 2 threads: half the cost is 2500 = 100 x 10 + 37.5 x 40, so thread 0 takes the 100
-    sphere pairs and 38 ellipsoid pairs (the row where the cost first reaches 2500), thread 1 the
-    other 62, where equal pairs (static) would cut at 100."""
+def _cut_spheres_then_ellipsoids(code, n_owned, taken):
+    """split_pairs on 2 threads over 100 sphere pairs (rows 0..99) then 100 ellipsoid pairs (rows
+    100..199), all touching, one pair a row (pi = 0, 2, ..., 398, pj = pi + 1), particles
+    n_owned.. ghosts: the cut [0, c, 200]."""
     n = 400
     pi = np.arange(0, 400, 2)
     pj = pi + 1
@@ -180,14 +177,21 @@ def test_dynamic_split_weighs_ellipsoid_pairs_above_sphere_pairs():
     pos[:, 0] = np.arange(n) * 1e-3
     rbound = np.full(n, 1e-3)
     shape = np.where(np.arange(n) < 200, 0, 1).astype(np.int8)
-    cuts = {}
-    for code in (DYNAMIC, STATIC):
-        bounds = np.zeros(3, dtype=np.int64)
-        split_pairs(code, 2, pi, pj, n, pos, rbound, shape, False, bounds, np.zeros(n, dtype=np.int8),
-                    np.zeros(3, dtype=np.int64), np.zeros(n, dtype=np.int64))
-        cuts[code] = bounds.tolist()
-    assert cuts[DYNAMIC] == [0, 138, 200] and cuts[STATIC] == [0, 100, 200]
+    bounds = np.zeros(3, dtype=np.int64)
+    split_pairs(code, 2, pi, pj, n_owned, pos, rbound, shape, taken, bounds, np.zeros(n_owned, dtype=np.int8),
+                np.zeros(3, dtype=np.int64), np.zeros(n_owned, dtype=np.int64))
+    return bounds.tolist()
 
+
+def test_dynamic_split_weighs_ellipsoid_pairs_above_sphere_pairs():
+    """The dynamic scheme cuts by estimated cost (modes.parallel: an overlapping sphere pair weighs
+    SPHERE_PAIR_WEIGHT = 10, one with an ellipsoid SOLVER_WEIGHT = 40, from resolve_range timings):
+    100 sphere pairs (rows 0..99) then 100 ellipsoid pairs (rows 100..199), all touching, one pair
+    a row, on 2 threads: half the cost is 2500 = 100 x 10 + 37.5 x 40, so thread 0 takes the 100
+    sphere pairs and 38 ellipsoid pairs (the row where the cost first reaches 2500), thread 1 the
+    other 62, where equal pairs (static) would cut at 100."""
+    assert _cut_spheres_then_ellipsoids(DYNAMIC, 400, False) == [0, 138, 200]
+    assert _cut_spheres_then_ellipsoids(STATIC, 400, False) == [0, 100, 200]
 
 
 def test_dynamic_split_weighs_taken_cross_pairs_one():
@@ -196,21 +200,9 @@ def test_dynamic_split_weighs_taken_cross_pairs_one():
     taken). The list of the test above with particles 301.. ghosts: pairs 150..199 (pi = 300..398)
     cross. Cost 100 x 10 + 50 x 40 + 50 x 1 = 3050, half 1525, first reached after 14 ellipsoid
     pairs (1000 + 14 x 40 = 1560): cut at pair 114. Without taken, the cut of the test above, 138."""
-    n = 400
-    n_owned = 301
-    pi = np.arange(0, 400, 2)
-    pj = pi + 1
-    pos = np.zeros((n, 3))
-    pos[:, 0] = np.arange(n) * 1e-3
-    rbound = np.full(n, 1e-3)
-    shape = np.where(np.arange(n) < 200, 0, 1).astype(np.int8)
-    cuts = {}
-    for taken in (True, False):
-        bounds = np.zeros(3, dtype=np.int64)
-        split_pairs(DYNAMIC, 2, pi, pj, n_owned, pos, rbound, shape, taken, bounds, np.zeros(n_owned, dtype=np.int8),
-                    np.zeros(3, dtype=np.int64), np.zeros(n_owned, dtype=np.int64))
-        cuts[taken] = bounds.tolist()
-    assert cuts == {True: [0, 114, 200], False: [0, 138, 200]}
+    assert _cut_spheres_then_ellipsoids(DYNAMIC, 301, True) == [0, 114, 200]
+    assert _cut_spheres_then_ellipsoids(DYNAMIC, 301, False) == [0, 138, 200]
+
 
 def test_finish_blocks_are_cut_at_equal_estimated_cost():
     """The per-particle pass is cut by estimated cost (modes.parallel.finish_cuts: a sphere 1, an
