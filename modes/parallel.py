@@ -219,19 +219,21 @@ def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, shape, taken, bound
     work (DYNAMIC: for a pair whose bounding spheres of radii rbound [n] [m] overlap at pos [n,3] [m],
     SPHERE_PAIR_WEIGHT if both shape [n] codes are SPHERE, else SOLVER_WEIGHT; 1 for the others and,
     when taken, for the pairs with a ghost end, whose terms are taken, not resolved: dem.forces,
-    SPLIT_TAKEN), equal pairs (otherwise). Then gat [n_owned] int8 = 1 for
-    the owned particles with pairs in two ranges (they gather), and each range's other particles,
-    those it alone sums (plus, in range 0, the particles without pairs): home_items [n_owned -
-    gathered] grouped by range, home_start [T+1]; their force and torque are zeroed by the thread of
-    their range before it resolves (dem.forces.resolve_range, SPLIT). Returns the number of
-    particles the ranges sum themselves."""
+    SPLIT_TAKEN), equal pairs (otherwise): pair_weights, then cut_ranges. Returns the pairs'
+    weights w [m] (cut_ranges cuts them again when measured times rescale them)."""
+    w = pair_weights(code, pi, pj, n_owned, pos, rbound, shape, taken)
+    cut_ranges(w, threads, pi, pj, n_owned, bounds, gat, home_start, home_items)
+    return w
+
+
+@njit(cache=True)
+def pair_weights(code, pi, pj, n_owned, pos, rbound, shape, taken):
+    """The estimated cost w [m] of each pair of the list under the scheme `code` (split_pairs)."""
     m = pi.shape[0]
     w = np.empty(m)
-    row_start = np.empty(m, dtype=np.bool_)
     for k in range(m):
-        row_start[k] = k == 0 or pi[k] != pi[k - 1]
         if code == PARTITION:
-            w[k] = 1.0 if row_start[k] else 0.0
+            w[k] = 1.0 if k == 0 or pi[k] != pi[k - 1] else 0.0
         elif code == DYNAMIC:
             i = pi[k]
             j = pj[k]
@@ -247,6 +249,21 @@ def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, shape, taken, bound
                 w[k] = SOLVER_WEIGHT
         else:
             w[k] = 1.0
+    return w
+
+
+@njit(cache=True)
+def cut_ranges(w, threads, pi, pj, n_owned, bounds, gat, home_start, home_items):
+    """Cut the gid-sorted list (pi, pj [m]) into T ranges of whole rows and about equal weight w [m],
+    bounds [T+1]. Then gat [n_owned] int8 = 1 for the owned particles with pairs in two ranges
+    (they gather), and each range's other particles, those it alone sums (plus, in range 0, the
+    particles without pairs): home_items [n_owned - gathered] grouped by range, home_start [T+1];
+    their force and torque are zeroed by the thread of their range before it resolves
+    (dem.forces.resolve_range, SPLIT). Returns the number of particles the ranges sum themselves."""
+    m = pi.shape[0]
+    row_start = np.empty(m, dtype=np.bool_)
+    for k in range(m):
+        row_start[k] = k == 0 or pi[k] != pi[k - 1]
     cut_at_equal_weight(w, row_start, threads, bounds)
     home = np.full(n_owned, -1, dtype=np.int64)
     gat[:] = 0
@@ -271,6 +288,15 @@ def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, shape, taken, bound
             home_items[fill[t]] = p
             fill[t] += 1
     return home_start[threads]
+
+
+@njit(cache=True)
+def rescale_weights(w, bounds, factor):
+    """w[k] *= factor[t] for the pairs k of range t (bounds [T+1]): the measured cost per unit of
+    estimated weight of each range, relative to their mean."""
+    for t in range(factor.shape[0]):
+        for k in range(bounds[t], bounds[t + 1]):
+            w[k] *= factor[t]
 
 
 RED_LEN = 5      # per-thread row of dem.forces.RESOLVED

@@ -21,6 +21,13 @@ from modes.serial import SerialMode
 
 _CYCLES_PER_S = None
 PAD = 32   # doubles between two threads' rows of scratch: 256 bytes, more than a cache line and its neighbour
+# dynamic scheme: the ranges' cut is re-made from measured times (ThreadsMode.rebalance) when the
+# median over a window of REBALANCE_WINDOW steps of the threads' busy time in the resolution is
+# more than REBALANCE_ABOVE times its mean, each range's weights scaled half way (REBALANCE_KEEP of
+# the old kept) towards its measured cost per unit of estimated weight
+REBALANCE_WINDOW = 20
+REBALANCE_ABOVE = 1.01
+REBALANCE_KEEP = 0.5
 
 
 def cycles_per_second():
@@ -78,6 +85,10 @@ class ThreadsMode(SerialMode):
         self.busy_rows = np.zeros((t, PAD), dtype=np.int64)
         self.busy_stored = np.zeros((t, PAD), dtype=np.int64)   # resolve_stored's (hybrid with newton)
         self.stored = None
+        self.window = np.zeros((REBALANCE_WINDOW, t))   # busy cycles of the last steps (rebalance)
+        self.window_n = 0
+        self.recut = None      # the ranges' weight factors [T] of a re-cut due at the next resolution
+        self.recuts = 0        # re-cuts from measured times in this run
         self.counter = np.zeros(1, dtype=np.int64)
         self.scratch = (self.outs, self.n0s, self.counter, self.red, self.busy_rows)
 
@@ -134,20 +145,67 @@ class ThreadsMode(SerialMode):
             self.ranges = (STORE, s.n_owned, self.gat, np.zeros(t1, dtype=np.int64), np.zeros(0, dtype=np.int64),
                            self.no_terms, np.zeros(t1, dtype=np.int64))
             return
+        self.taken = (cross, terms)
+        self.weights = None
+        self._cut()
+
+    def _cut(self):
+        """The ranges of the list (the weights of split_pairs' estimate, or self.weights as measured
+        times rescaled them: cut_ranges), the particles that gather and those each range zeroes."""
+        s = self.state
+        p = self.pairs
+        t1 = self.threads + 1
+        cross, terms = self.taken
         bounds = np.zeros(t1, dtype=np.int64)
         self.gat = np.zeros(s.n_owned, dtype=np.int8)
         home_start = np.zeros(t1, dtype=np.int64)
         home_items = np.zeros(s.n_owned, dtype=np.int64)
-        par.split_pairs(self.code, self.threads, self.pairs.pi, self.pairs.pj, s.n_owned, s.pos, s.rbound, s.shape,
-                        cross is not None, bounds, self.gat, home_start, home_items)
-        self.pairs.offsets = bounds
+        if self.weights is None:
+            self.weights = par.split_pairs(self.code, self.threads, p.pi, p.pj, s.n_owned, s.pos, s.rbound, s.shape,
+                                           cross is not None, bounds, self.gat, home_start, home_items)
+        else:
+            par.cut_ranges(self.weights, self.threads, p.pi, p.pj, s.n_owned, bounds, self.gat, home_start,
+                           home_items)
+        p.offsets = bounds
         if cross is None:
             self.ranges = (SPLIT, s.n_owned, self.gat, home_start, home_items, self.no_terms, np.zeros(t1, dtype=np.int64))
         else:
             self.ranges = (SPLIT_TAKEN, s.n_owned, self.gat, home_start, home_items, terms,
                            np.searchsorted(cross, bounds).astype(np.int64))
+        self.window_n = 0
+
+    def rebalance(self):
+        """The dynamic scheme's feedback: after each window of REBALANCE_WINDOW steps with one cut
+        (no rebuild), when the threads' median busy times in the resolution differ by more than
+        REBALANCE_ABOVE, schedule a re-cut at the next resolution with each range's weights
+        scaled towards its measured cost per unit of estimated weight (two cores of one machine
+        need not run alike: on the 2-core VM the second thread took 5 % longer over the same
+        estimated work; the estimate alone left the threads' busy times 1.035 apart on 12k packed).
+        The cut never changes a result (DESIGN.md, Determinism)."""
+        if self.scheme != "dynamic" or self.deliver != SPLIT or self.window_n < REBALANCE_WINDOW:
+            return
+        self.window_n = 0
+        med = np.median(self.window, axis=0)
+        if med.min() <= 0 or med.max() <= REBALANCE_ABOVE * med.mean():
+            return
+        b = self.pairs.offsets
+        work = np.array([self.weights[b[t]:b[t + 1]].sum() for t in range(self.threads)])
+        if work.min() <= 0:
+            return
+        rate = med / work
+        self.recut = 1.0 + (1.0 - REBALANCE_KEEP) * (rate / np.mean(rate) - 1.0)
+
+    def _recut(self):
+        """Re-make the ranges from the weights rescaled by self.recut (within the resolution's time)."""
+        par.rescale_weights(self.weights, self.pairs.offsets, self.recut)
+        self.recut = None
+        self._cut()
+        self.adj = self.pairs.gather_arrays(self.deliver, self.gat)
+        self.recuts += 1
 
     def resolve(self):
+        if self.recut is not None:
+            self._recut()
         self.busy_rows[:, 0] = 0
         return par.resolve_threads(self.code, self.threads, self.pairs.offsets, self.kind, self.method, self.plist,
                                    self.bodies, self.polys, self.law, self.dt, self.scratch, self.ranges)
@@ -188,4 +246,10 @@ class ThreadsMode(SerialMode):
         row["busy_mean"] = float(busy.mean())
         row["imbalance"] = float(busy.max() / busy.mean()) if busy.mean() > 0 else 1.0
         row["work_imbalance"] = self.work_imbalance
+        if row["neighbor_rebuilt"]:
+            self.window_n = 0   # a new cut (and cold caches): its window starts with the next step
+        else:
+            self.window[self.window_n % REBALANCE_WINDOW] = self.busy_rows[:, 0]
+            self.window_n += 1
+            self.rebalance()
         return row

@@ -121,6 +121,52 @@ def test_split_ranges_sum_and_gather_bit_identical(scheme, split):
         assert mode.deliver == STORE
 
 
+def test_dynamic_recuts_from_measured_times_bit_identical():
+    """The dynamic scheme re-cuts its ranges when the threads' measured busy times differ
+    (ThreadsMode.rebalance). The cut never changes a result: packed 400 ellipsoids, 3 threads, a
+    re-cut forced every 7 steps with range weights scaled by (1.6, 0.7, 1.0), alternately reversed,
+    so the cuts move both ways; after 40 steps force, torque and state equal serial's exactly."""
+    def go(threads):
+        sc = load_prepared("packed", particles=400)
+        dt = choose_time_step(sc).dt
+        mode = ThreadsMode().setup(sc, dt=dt, threads=threads, scheme="dynamic") if threads > 1 else \
+            SerialMode().setup(sc, dt=dt)
+        cuts = []
+        for k in range(40):
+            if threads > 1 and k and k % 7 == 0:
+                mode.recut = np.array([1.6, 0.7, 1.0])[::1 if k % 14 else -1]
+                cuts.append(mode.pairs.offsets.tolist())
+            mode.step()
+        s = mode.state
+        order = np.argsort(s.gid[:s.n_owned])
+        return mode, mode.snapshot(), s.force[order].copy(), s.torque[order].copy(), cuts
+    _, ref_snap, ref_f, ref_t, _ = go(1)
+    mode, snap, f, t, cuts = go(3)
+    assert mode.recuts == 5 and len({tuple(c) for c in cuts}) == 5
+    assert_same(ref_snap, snap)
+    assert np.array_equal(ref_f, f) and np.array_equal(ref_t, t)
+
+
+def test_rebalance_scales_weights_towards_measured_cost():
+    """rebalance: a window of REBALANCE_WINDOW steps in which thread 0 was busy 2 units and thread 1
+    one, over ranges of equal estimated weight, gives costs per weight 2:1, i.e. 4/3 and 2/3 of
+    their mean, and weight factors half way there (REBALANCE_KEEP = 0.5): 7/6 and 5/6. Busy times
+    within REBALANCE_ABOVE = 1.01 of each other (1.0 and 1.005, max/mean 1.0025) give none."""
+    from modes import threads as th
+    sc = load_prepared("packed", particles=400)
+    mode = ThreadsMode().setup(sc, dt=choose_time_step(sc).dt, threads=2, scheme="dynamic")
+    mode.step()
+    mode.weights[:] = 1.0
+    mode.pairs.offsets[:] = [0, 100, 200]
+    for busy, want in (([2.0, 1.0], [7 / 6, 5 / 6]), ([1.0, 1.005], None)):
+        mode.recut = None
+        mode.window[:] = busy
+        mode.window_n = th.REBALANCE_WINDOW
+        mode.rebalance()
+        assert (mode.recut is None) if want is None else np.allclose(mode.recut, want, rtol=1e-12, atol=0)
+        assert mode.window_n == 0
+
+
 @pytest.mark.parametrize("code", [PARTITION, STATIC, DYNAMIC])
 @pytest.mark.parametrize("threads", [1, 2, 3, 5])
 def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads):
