@@ -16,7 +16,8 @@ last neighbour rebuild (the paper's loop: for each i, find and resolve its pairs
 pair's forces, and every particle gathers its own (dem.forces, STORE). Under partition, static
 and dynamic the list is sorted by global id and cut, at each rebuild, into T contiguous ranges
 of whole rows (split_pairs): equal rows (partition), equal pairs (static), or equal estimated
-work (dynamic, which re-balances at every rebuild instead of handing out chunks): a pair whose
+work (dynamic, which re-balances at every rebuild instead of handing out chunks, and between
+rebuilds re-cuts from the threads' measured busy times: modes.threads, rebalance): a pair whose
 bounding spheres are apart counts 1, one whose bounding spheres overlap SPHERE_PAIR_WEIGHT between
 two spheres (closed form) and SOLVER_WEIGHT where an ellipsoid or poly-ellipsoid is in it (the
 iterative solve), so that a scene of spheres beside ellipsoids splits by cost, not by count.

@@ -308,6 +308,7 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
                  "max_overlap_ratio": worst, "wall_s": wall,
                  "neighbor_rebuilds": mode.pairs.rebuilds,
                  "grid_updates": getattr(mode, "grid_updates", None),
+                 "thread_recuts": getattr(mode, "recuts", None),
                  "block_cuts_final": block_cuts(mode.grid) if hasattr(mode, "grid") else None,
                  "kinetic_energy_initial": ke0, "kinetic_energy_final": ke1, "energy_balance": energy,
                  "guard": {"overlap_limit": guard.overlap, "energy_factor": guard.energy_factor},
