@@ -16,8 +16,8 @@ import numpy as np
 
 from dem.contact.ellipsoid import OUT_LEN
 from dem.contact import CONTACT_METHODS
-from dem.forces import (SUM, STORE, TAKEN, TERMS, body_arrays, finish_range, law_tables, resolve_range, scene_kind, wall_arrays,
-                        wall_candidates)
+from dem.forces import (SUM, STORE, TAKEN, TERMS, body_arrays, finish_range, law_tables, resolve_range, scene_kind,
+                        wall_arrays, wall_candidates)
 from dem.integrate import derive_all
 from dem.neighbor import cell_order, find_pairs
 from dem.pairs import DEFAULT_SKIN, PairList

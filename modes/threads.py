@@ -168,7 +168,8 @@ class ThreadsMode(SerialMode):
                            home_items)
         p.offsets = bounds
         if cross is None:
-            self.ranges = (SPLIT, s.n_owned, self.gat, home_start, home_items, self.no_terms, np.zeros(t1, dtype=np.int64))
+            self.ranges = (SPLIT, s.n_owned, self.gat, home_start, home_items, self.no_terms,
+                           np.zeros(t1, dtype=np.int64))
         else:
             self.ranges = (SPLIT_TAKEN, s.n_owned, self.gat, home_start, home_items, terms,
                            np.searchsorted(cross, bounds).astype(np.int64))
