@@ -347,8 +347,8 @@ def test_balance_time_gives_the_dearer_particles_a_smaller_block(tmp_path, tmp_p
 @pytest.mark.parametrize("mapping", ["2-2-1-1-1", "2-2-1-1-2"])
 def test_newton_resolves_each_cross_border_pair_once(tmp_path, tmp_path_factory, mapping):
     """Newton's third law across ranks (modes/newton.py) on the patch test, 2 blocks, pure MPI and
-    hybrid (2 threads, dynamic: the threads take the cross pairs' terms in their ranges, and on
-    rank 1 seven cross pairs have an owned end that gathers, as counted while writing this test):
+    hybrid (2 threads, dynamic: the threads take the cross pairs' terms in their ranges; on one
+    rank seven cross pairs have an owned end that gathers, as counted while writing the test):
     with newton on, each touching pair is resolved (and counted) by exactly one rank, so the ranks'
     contact counts add up, step by step, to serial's own count (the reference number comes from
     the serial run of the same scene); with newton off the pairs across the border are counted on
