@@ -6,7 +6,7 @@ nearest edge block). Each block needs as ghosts every particle that can touch on
 a pair touches only if the centres are closer than r_i + r_j <= 2 r_max (bounding radii), so
 the border layer is the largest bounding diameter wide (slightly widened against round-off),
 and a block must be at least that wide, or a ghost would have to come from beyond the 26
-neighbours. Pure numpy: no MPI, no physics.
+neighbours. numpy and two small numba kernels (send_masks, direction_of): no MPI, no physics.
 """
 import itertools
 

@@ -149,13 +149,16 @@ def unpack_moving(buf, g0, pos, vel, angmom, quat, with_quat):
 
 
 def compile_kernels():
-    """Compile (into numba's cache) the pack and unpack kernels, so that ranks do not compile at once."""
+    """Compile (into numba's cache) the pack and unpack kernels and the border and direction tests
+    of the ghost choice and migration, so that ranks do not compile at once."""
     a = np.zeros((1, 3))
     q = np.zeros((1, 4))
     buf = np.zeros((1, 13))
     idx = np.zeros(1, dtype=np.int64)
     pack_moving(idx, a, a, a, q, True, buf)
     unpack_moving(buf, 0, a, a, a, q, True)
+    send_masks(a, np.zeros(3), np.ones(3), 0.1)
+    direction_of(np.zeros(3, dtype=np.int64), np.zeros((1, 3), dtype=np.int64))
 
 
 class _Round:
