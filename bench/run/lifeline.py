@@ -13,9 +13,11 @@ The chain of a sweep is `bench sweep` -> `bench run` (one repeat) -> `bench.run.
   re-parented to it rather than to init, so it can still find and kill it at the end.
 On systems without prctl (not Linux) the requests are no-ops and the signal handlers remain.
 """
+import contextlib
 import ctypes
 import os
 import signal
+import threading
 
 PR_SET_PDEATHSIG = 1
 PR_SET_CHILD_SUBREAPER = 36
@@ -85,6 +87,28 @@ def raise_on_signals(signals=(signal.SIGTERM, signal.SIGHUP)):
         raise Interrupted(signum)
     for s in signals:
         signal.signal(s, handler)
+
+
+@contextlib.contextmanager
+def signals_deferred(signals=(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)):
+    """Hold these signals back for the block, then deliver them, so that a record and its bookkeeping
+    (rows appended and the last step counted) are never split by an interrupt. A mask would not do:
+    any other thread (numba's workers) may take the signal and CPython then runs the handler in the
+    main thread at its next bytecode. Outside the main thread (no handlers there) it does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held = []
+    old = {}
+    try:
+        for s in signals:
+            old[s] = signal.signal(s, lambda signum, frame: held.append(signum))
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        for s in dict.fromkeys(held):
+            signal.raise_signal(s)  # now, to its own handler
 
 
 def exit_status(exc):

@@ -19,6 +19,8 @@ import time
 
 import numpy as np
 
+from bench.run.lifeline import signals_deferred
+
 
 FLUSH_ROWS = 100   # steps.csv rows kept in memory at most ...
 FLUSH_S = 1.0      # ... and seconds between appends
@@ -144,17 +146,18 @@ class StepWriter:
                 self._layout(row)
             lines.append(self.line % self.values(row))
         last = self.rows[-1]["step"] if self.rows else self.last_step
-        self.rows = []
         self.last = time.monotonic()
         if not lines:
             return
-        try:
-            self._append("".join(lines))
-        except OSError as e:
-            self._cut()
-            raise RecordError(f"cannot write {self.path}: {e.strerror or e} (rows up to step {self.last_step} "
-                              f"kept)") from None
-        self.last_step = last
+        with signals_deferred():  # the rows on disk and last_step agree whenever a signal lands
+            self.rows = []
+            try:
+                self._append("".join(lines))
+            except OSError as e:
+                self._cut()
+                raise RecordError(f"cannot write {self.path}: {e.strerror or e} (rows up to step "
+                                  f"{self.last_step} kept)") from None
+            self.last_step = last
 
     def _append(self, text):
         """Write `text` at the end of the whole rows with os.write, no buffer between: a failed

@@ -341,6 +341,35 @@ def test_step_writer_full_disk_cuts_back_to_whole_rows(tmp_path, monkeypatch):
     assert steps["step"].tolist() == list(range(1, 21))
 
 
+def test_signal_during_append_keeps_rows_and_count_in_step(tmp_path, monkeypatch):
+    """A SIGINT that lands while steps.csv rows are being appended is held until the append and its
+    count (last_step, which run.json reports as steps_done) are both done: the rows on disk and
+    the count then agree (20 and 20). CI once saw a SIGTERM between the two: 2100 rows on disk,
+    steps_done 2000."""
+    from bench.run import records
+    from bench.run.records import STEP_COLUMNS, StepWriter
+    path = tmp_path / "steps.csv"
+    w = StepWriter(str(path), flush_rows=10, flush_s=1e9)
+    row = {c: 0.001 for c in STEP_COLUMNS if c not in ("step", "rank", "nsf", "rss_mb")}
+    for k in range(1, 11):
+        w.write(k, 0, dict(row))
+    real = os.write
+
+    def write_then_signal(fd, data):  # the signal arrives mid-append, its handler as soon as it can
+        n = real(fd, data)
+        os.kill(os.getpid(), signal.SIGINT)
+        sum(range(1000))  # bytecodes in which an undeferred handler would run
+        return n
+    monkeypatch.setattr(records.os, "write", write_then_signal)
+    with pytest.raises(KeyboardInterrupt):
+        for k in range(11, 21):
+            w.write(k, 0, dict(row))
+    monkeypatch.setattr(records.os, "write", real)
+    assert w.last_step == 20
+    w.close()
+    assert pd.read_csv(path)["step"].tolist() == list(range(1, 21))
+
+
 def _mount_tmpfs(path, size):
     if shutil.which("mount") is None or os.geteuid() != 0:
         pytest.skip("needs root and mount for a small tmpfs")
