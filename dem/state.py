@@ -15,6 +15,7 @@ rewritten, never searched for free slots.
 import math
 
 import numpy as np
+from numba import njit
 
 from dem.contact.polyellipsoid import mass_properties_poly
 from dem.integrate import angular_velocity
@@ -32,11 +33,24 @@ HIST_LEN = 8
 
 def csr_rows(start, rows):
     """Entries of CSR rows `rows` (in that order): (index array into the CSR data, counts [len(rows)])."""
-    rows = np.asarray(rows, dtype=np.int64)
-    counts = start[rows + 1] - start[rows]
-    total = int(counts.sum())
-    offsets = np.repeat(start[rows] - (np.cumsum(counts) - counts), counts)
-    return offsets + np.arange(total, dtype=np.int64), counts
+    return _csr_rows(np.ascontiguousarray(start, dtype=np.int64), np.ascontiguousarray(rows, dtype=np.int64))
+
+
+@njit(cache=True)
+def _csr_rows(start, rows):
+    """csr_rows in two passes (numpy's six calls took 20 us at 800 rows)."""
+    counts = np.empty(rows.shape[0], dtype=np.int64)
+    total = 0
+    for u in range(rows.shape[0]):
+        counts[u] = start[rows[u] + 1] - start[rows[u]]
+        total += counts[u]
+    idx = np.empty(total, dtype=np.int64)
+    o = 0
+    for u in range(rows.shape[0]):
+        for e in range(start[rows[u]], start[rows[u] + 1]):
+            idx[o] = e
+            o += 1
+    return idx, counts
 
 
 def mass_properties(shape, axes, density):
@@ -181,14 +195,16 @@ class State:
                     "quat", "angmom", "force", "torque", "wall_hist", "poly")
 
     def permute_keep(self, rows):
-        """Keep only the owned particles `rows` (in that order), with their history rows."""
+        """Keep only the owned particles `rows` (in that order), with their history rows. take, not
+        fancy indexing: a row gather of a [n, 3] array takes a quarter of the time."""
         rows = np.asarray(rows, dtype=np.int64)
         hrows, counts = csr_rows(self.hist_start, rows)
         for f in self.PER_PARTICLE:
-            setattr(self, f, np.ascontiguousarray(getattr(self, f)[rows]))
-        self.hist_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        self.hist_partner = np.ascontiguousarray(self.hist_partner[hrows])
-        self.hist_val = np.ascontiguousarray(self.hist_val[hrows])
+            setattr(self, f, getattr(self, f).take(rows, axis=0))
+        self.hist_start = np.zeros(len(rows) + 1, dtype=np.int64)
+        np.cumsum(counts, out=self.hist_start[1:])
+        self.hist_partner = self.hist_partner.take(hrows)
+        self.hist_val = self.hist_val.take(hrows, axis=0)
         self.n_owned = len(rows)
 
     def permute(self, perm):

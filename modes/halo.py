@@ -52,7 +52,7 @@ from numba import njit
 from dem.shapes import POLY_LEN, SPHERE
 from dem.state import HIST_LEN, bounding_radii, csr_rows
 from modes.base import call_entry
-from modes.decomposition import DIRECTIONS, OPPOSITE, direction_of, send_masks
+from modes.decomposition import DIRECTIONS, OPPOSITE, BlockGrid, border_lists, direction_of
 
 GHOST_SPHERE = ("gid", "material", "mass", "axes0", "inertia0", "pos", "vel", "angmom")
 GHOST_GENERAL = ("gid", "shape", "material", "mass", "axes", "inertia", "pos", "vel", "angmom", "quat")
@@ -85,18 +85,20 @@ def _owner_fields(state):
 def _columns(state, fields, idx):
     """Rows idx of the state's fields as one float64 matrix [len(idx), sum widths] (gid and the
     small integer fields travel bit-exactly: gid by reinterpretation, the others as floats)."""
-    cols = []
+    out = np.empty((len(idx), sum(WIDTH[f] for f in fields)))
+    c = 0
     for f in fields:
+        w = WIDTH[f]
         if f == "gid":
-            cols.append(state.gid[idx].view(np.float64)[:, None])
+            out[:, c] = state.gid.take(idx).view(np.float64)
         elif f == "axes0":
-            cols.append(state.axes[idx, :1])
+            out[:, c] = state.axes[:, 0].take(idx)
         elif f == "inertia0":
-            cols.append(state.inertia[idx, :1])
-        else:
-            a = getattr(state, f)[idx]
-            cols.append(a.astype(np.float64).reshape(len(idx), WIDTH[f]))
-    return np.ascontiguousarray(np.concatenate(cols, axis=1)) if cols else np.zeros((len(idx), 0))
+            out[:, c] = state.inertia[:, 0].take(idx)
+        else:  # take: a row gather of [n, 3] at a quarter of the time of a[idx]
+            out[:, c:c + w] = getattr(state, f).take(idx, axis=0).reshape(len(idx), w)
+        c += w
+    return out
 
 
 def _split(rows, fields):
@@ -157,7 +159,10 @@ def compile_kernels():
     idx = np.zeros(1, dtype=np.int64)
     pack_moving(idx, a, a, a, q, True, buf)
     unpack_moving(buf, 0, a, a, a, q, True)
-    send_masks(a, np.zeros(3), np.ones(3), 0.1)
+    border_lists(a, np.zeros(3), np.ones(3), 0.1)
+    BlockGrid(((0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), (2, 1, 1)).block_of(a)
+    BlockGrid(((0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), (2, 1, 1), cuts=([0.5], [], [])).block_of(a)
+    csr_rows(np.zeros(2, dtype=np.int64), idx)
     direction_of(np.zeros(3, dtype=np.int64), np.zeros((1, 3), dtype=np.int64))
 
 
@@ -334,8 +339,8 @@ class Halo:
         for dirs in self._round_dirs():
             if self.halo == "26":
                 # direct: each border particle goes straight to every neighbour that needs it
-                masks = send_masks(state.pos[:n], self.lo, self.hi, width)
-                lists = [np.flatnonzero(masks[k]) for k in dirs]
+                start, items = border_lists(state.pos[:n], self.lo, self.hi, width)
+                lists = [items[start[k]:start[k + 1]] for k in dirs]
             else:
                 # a sweep along one axis forwards the ghosts of the earlier sweeps too, so edge and
                 # corner neighbours are served in two or three hops (the same particles as the
@@ -434,12 +439,12 @@ class Halo:
             sel = leaving[dirs == k]
             rows = np.empty((len(sel), ncol))
             rows[:, :base] = _columns(state, fields, sel)
-            rows[:, base:base + nw * HIST_LEN] = state.wall_hist[sel].reshape(len(sel), nw * HIST_LEN)
+            rows[:, base:base + nw * HIST_LEN] = state.wall_hist.take(sel, axis=0).reshape(len(sel), nw * HIST_LEN)
             rows[:, -1] = counts[sel]
             hrows, _ = csr_rows(state.hist_start, sel)
             h = np.empty((len(hrows), 1 + HIST_LEN))
             h[:, 0] = state.hist_partner[hrows].view(np.float64)
-            h[:, 1:] = state.hist_val[hrows]
+            h[:, 1:] = state.hist_val.take(hrows, axis=0)
             out[k] = (rows, h)
         incoming = self.exchange(out, (ncol, 1 + HIST_LEN))
         if len(leaving):
@@ -476,8 +481,8 @@ def redistribute(cart, grid, state, coords):
     for r in range(cart.Get_size()):
         sel = np.flatnonzero(dest == r) if r != me else np.zeros(0, dtype=np.int64)
         hrows, _ = csr_rows(state.hist_start, sel)
-        outgoing.append((_columns(state, fields, sel), state.wall_hist[sel], counts[sel],
-                         state.hist_partner[hrows], state.hist_val[hrows]))
+        outgoing.append((_columns(state, fields, sel), state.wall_hist.take(sel, axis=0), counts[sel],
+                         state.hist_partner[hrows], state.hist_val.take(hrows, axis=0)))
     incoming = cart.alltoall(outgoing)  # rare: pickled lists are fine here
     state.permute_keep(np.flatnonzero(dest == me))
     for rows, wall, hc, hp, hv in incoming:

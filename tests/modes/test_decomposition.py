@@ -7,7 +7,7 @@ import pytest
 from dem.state import State
 from modes.decomposition import (DIRECTIONS, OPPOSITE, BlockGrid, DecompositionError, balanced_grid, blended_grid,
                                  block_counts, border_width, direction_of, extent_grid, fit_skin, load_profiles,
-                                 send_masks)
+                                 border_lists)
 from modes.halo import GHOST_GENERAL, GHOST_SPHERE, _columns, _split, pack_moving, unpack_moving
 
 UNIT = ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
@@ -34,18 +34,23 @@ def test_owner_of_a_centre():
     assert g.neighbour((1, 0, 0), int(np.flatnonzero((DIRECTIONS == (1, 0, 0)).all(axis=1))[0])) is None
 
 
-def test_send_masks_cover_every_touching_pair(rng):
+def test_border_lists_cover_every_touching_pair(rng):
     """Completeness of the ghost choice: on a 3x3x3 grid, for every particle i of the centre block
-    and every particle j of neighbour block k with |x_i - x_j| < width, i is in direction k's send
-    mask (else block k would miss a contact). 4000 random centres, width 0.1 of a 1/3 block."""
+    and every particle j of neighbour block k with |x_i - x_j| < width, i is in direction k's border
+    list (else block k would miss a contact). 4000 random centres, width 0.1 of a 1/3 block."""
     g = BlockGrid(UNIT, (3, 3, 3))
     width = 0.1
     pos = rng.random((4000, 3))
     owner = g.block_of(pos)
     centre = np.all(owner == 1, axis=1)
     lo, hi = g.bounds((1, 1, 1))
-    masks = send_masks(pos[centre], lo, hi, width)
+    start, items = border_lists(pos[centre], lo, hi, width)
     pi = pos[centre]
+    masks = np.zeros((len(DIRECTIONS), len(pi)), dtype=bool)
+    for k in range(len(DIRECTIONS)):
+        lst = items[start[k]:start[k + 1]]
+        assert np.all(np.diff(lst) > 0)  # ascending, each once
+        masks[k, lst] = True
     checked = 0
     for k, d in enumerate(DIRECTIONS):
         pj = pos[np.all(owner == 1 + d, axis=1)]
@@ -84,6 +89,33 @@ def test_extent_grid_splits_the_particles_not_the_box():
     # span here) are not checked
     assert fitted.fits(0.1) and not fitted.fits(0.2)
     assert block_counts(fitted, np.zeros((0, 3))).tolist() == [[[0, 0]]]
+
+
+def test_block_of_and_border_lists_are_their_formulas(rng):
+    """The numba kernels are the formulas of their docstrings, element for element: block_of =
+    clip(floor((x - lo) / h), 0, dims - 1) on a uniform 3x2x4 grid and searchsorted(cuts, x, right)
+    on a grid of cut planes, for 5000 centres in and around the box (some on a face); each border
+    list = the ascending centres with x - lo < w where the direction's offset is -1 and hi - x < w
+    where it is +1, on every axis."""
+    pos = rng.uniform(-0.2, 1.2, (5000, 3))
+    pos[:50, 0] = 0.5  # on the face between the two x blocks
+    g = BlockGrid(UNIT, (3, 2, 4))
+    want = np.clip(np.floor((pos - g.lo) / g.h).astype(np.int64), 0, g.dims - 1)
+    assert np.array_equal(g.block_of(pos), want)
+    cuts = ([0.5, 0.61], [0.2], [0.3, 0.45, 0.9])
+    c = BlockGrid(UNIT, (3, 2, 4), cuts=cuts)
+    want = np.stack([np.searchsorted(cuts[a], pos[:, a], side="right") for a in range(3)], axis=1)
+    assert np.array_equal(c.block_of(pos), want)
+    lo, hi, w = np.array([0.2, 0.1, 0.3]), np.array([0.7, 0.8, 0.6]), 0.12
+    start, items = border_lists(pos, lo, hi, w)
+    for k, d in enumerate(DIRECTIONS):
+        need = np.ones(len(pos), dtype=bool)
+        for a in range(3):
+            if d[a] < 0:
+                need &= pos[:, a] - lo[a] < w
+            elif d[a] > 0:
+                need &= hi[a] - pos[:, a] < w
+        assert np.array_equal(items[start[k]:start[k + 1]], np.flatnonzero(need)), k
 
 
 def test_grid_with_cut_planes():

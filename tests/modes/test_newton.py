@@ -66,6 +66,29 @@ def test_resolver_splits_pairs_evenly_however_numbered():
         assert 0.49 < share < 0.51, (stride, share)
 
 
+def _splitmix_bit(a, b):
+    """splitmix64's finalizer (Steele, Lea & Flood 2014) of a 2^32 + b in Python integers mod 2^64:
+    the reference for resolver_end, whose kernel wraps uint64 arithmetic."""
+    mask = (1 << 64) - 1
+    x = ((a << 32) ^ b) & mask
+    x = (x + 0x9E3779B97F4A7C15) & mask
+    x = ((x ^ (x >> 30)) * 0xBF58476D1CE4E5B9) & mask
+    x = ((x ^ (x >> 27)) * 0x94D049BB133111EB) & mask
+    return (x ^ (x >> 31)) & 1
+
+
+def test_resolver_end_is_splitmix64(rng):
+    """resolver_end on 2000 gid pairs up to 2^31 (and a few at the ends of the range) equals the
+    lowest bit of splitmix64 computed in Python's unbounded integers, so both ranks of any pair
+    agree with the documented rule."""
+    a = rng.integers(0, 2**31, 2000)
+    b = rng.integers(0, 2**31, 2000)
+    a[:3], b[:3] = [0, 2**31 - 1, 5], [1, 2**31 - 2, 5]
+    got = resolver_end(a, b)
+    assert got.tolist() == [_splitmix_bit(int(x), int(y)) for x, y in zip(a, b)]
+    assert resolver_end(7, 9) == _splitmix_bit(7, 9)
+
+
 def test_terms_pack_and_unpack_exactly():
     """The pair force, the ghost end's torque (T_j where j is the ghost, T_i where i is) and the
     touching flag of each sent pair arrive bit for bit in the receiver's terms (the torque being
