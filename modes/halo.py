@@ -235,6 +235,7 @@ class Halo:
         self.startall = MPI.Prequest.Startall
         self.waitall = MPI.Request.Waitall
         self.rounds = []
+        self.ghost_dirs = None  # the direction of each ghost's owner [n_ghost] (direct exchange), or None
         self.started = False   # the first forward round's messages are on their way (forward_start)
         self.with_quat = True
         self.reset_counters()
@@ -359,6 +360,9 @@ class Halo:
             g0 = state.n
             self.rounds.append(_Round(self.cart, dirs, self.ranks, lists, counts, g0, mwidth, self.wire))
             self._append(state, incoming, fields, all_spheres)
+        # direct exchange: each ghost came from its owner, appended in direction order; after the
+        # sweeps of --halo 6 an edge or corner ghost was forwarded, so its owner is found by place
+        self.ghost_dirs = np.repeat(np.asarray(dirs, dtype=np.int64), counts) if self.halo == "26" else None
         return state.n - n
 
     def _start(self, rd, state):
