@@ -133,6 +133,9 @@ class _Blocks:
         self.compute_times.clear()  # the twin's steps (compilation) are no measure of this block's load
 
     def release(self):
+        """Complete the forward exchange the last step started and free every persistent request.
+        Call it before MPI_Finalize: a started exchange still reads from and writes into this
+        rank's buffers (a script that skipped it once died in malloc at exit)."""
         self.halo.free()
         self._free_plan()
 
