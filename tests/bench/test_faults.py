@@ -361,9 +361,15 @@ def test_signal_during_append_keeps_rows_and_count_in_step(tmp_path, monkeypatch
         sum(range(1000))  # bytecodes in which an undeferred handler would run
         return n
     monkeypatch.setattr(records.os, "write", write_then_signal)
-    with pytest.raises(KeyboardInterrupt):
-        for k in range(11, 21):
-            w.write(k, 0, dict(row))
+    # SIGINT as a foreground command has it: a suite started in the background of a
+    # non-interactive shell inherits it ignored (_as_in_a_terminal)
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            for k in range(11, 21):
+                w.write(k, 0, dict(row))
+    finally:
+        signal.signal(signal.SIGINT, before)
     monkeypatch.setattr(records.os, "write", real)
     assert w.last_step == 20
     w.close()
