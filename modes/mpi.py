@@ -217,8 +217,8 @@ class _Blocks:
             return super().split()
         s = self.state
         p = self.pairs
-        ghost_dir = self.halo.ghost_dirs
-        if ghost_dir is None:
+        ghost_dir = self.halo.ghost_dirs  # from the messages of the last build (direct exchange)
+        if ghost_dir is None or len(ghost_dir) != s.n - s.n_owned:  # else from the ghosts' places
             ghost_dir = ghost_owner_directions(self.grid, self.coords, s.pos[s.n_owned:s.n])
         self._free_plan()
         self.plan = NewtonPlan(self.cart, self.halo.ranks, cross_layout(p.pi, p.pj, s.gid, s.n_owned, ghost_dir),
