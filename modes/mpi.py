@@ -247,8 +247,7 @@ class _Blocks:
         return a[0] + b[0], a[1] + b[1], worst, worst_k, a[4] + b[4]
 
     def start_forward(self):
-        if self.skin > 0:  # with a skin the next step may be a forward step: its messages leave now
-            self.halo.forward_start(self.state)
+        self.halo.forward_start(self.state)  # the next step is a forward step: its messages leave now
 
     def decide(self, max_disp2, flag, ke, wg):
         d = self.decision

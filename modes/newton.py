@@ -46,7 +46,15 @@ the step). What a rank repeats without Newton grows with the ranks (12k packed: 
 on 2 ranks, +5.0 % on 4, +7.4 % on 8, +11.8 % on 16). Designs measured and left: the pairs'
 terms in their own rows of pf (a cache miss a pair on a 2.6 MB array: 0.1 ms a step more), and
 the local pairs resolved while the messages travel, the particles with a cross pair then
-gathering their terms (600 particles a rank: 0.3 ms a step more).
+gathering their terms (600 particles a rank: 0.3 ms a step more). Measured again in December
+2026 with compact slots instead of the gather (the pass writes each waiting particle's terms in
+list order into its own rows of a small array, checked only on the pairs listed as touching one,
+and the particle sums them after the messages: bit-identical to serial): the pass alone 54-130 us
+dearer on 67k pairs (488 waiting particles, 5894 slots), and 2-rank steps on 12k packed 0.15-0.38
+ms dearer (blocks of 8 steps alternating in one job, 4 jobs), its commuT 40-100 us higher: the
+wait after the pass was no shorter than the one before it, as mpich progresses messages only
+inside MPI calls (an asynchronous progress thread, MPIR_CVAR_ASYNC_PROGRESS, would take a core
+from the ranks), so nothing travelled during the pass.
 
 Both ranks find the same cross pairs (the candidate test is symmetric, both hold both particles
 as identical copies, and the border layer is wider than any pair's reach), so what a rank sends

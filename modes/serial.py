@@ -195,7 +195,8 @@ class SerialMode:
         """Exchange ghosts (MPI): new ones on a rebuild, else the moving fields of the same ones."""
 
     def start_forward(self):
-        """Start the next step's ghost refresh at the end of this one (MPI); nothing here."""
+        """Start the next step's ghost refresh at the end of this one, once it is decided that the
+        next step does not rebuild (MPI); nothing here."""
 
     def decide(self, max_disp2, flag, ke, wg):
         """Whether the next step rebuilds (some particle moved half the skin), and the run's sums
@@ -308,8 +309,9 @@ class SerialMode:
         if wall_worst > worst:
             worst = wall_worst
         t3 = clock()
-        self.start_forward()
         self.rebuild_next = self.decide(disp2, float(n_bad > 0 or worst > self.guard_overlap), ke, wg)
+        if not self.rebuild_next:
+            self.start_forward()
         t4 = clock()
         commu += t4 - t3 if self.collective else 0.0
         s = self.state

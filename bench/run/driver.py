@@ -25,6 +25,7 @@ from bench.run.prepare import prepare
 from bench.run.records import (RecordError, Reserve, StepWriter, environment, merge_step_files, prepare_output,
                                read_step_rows, write_json, write_state)
 from bench.run.snapshots import write_snapshot
+from bench.run.transport import transport_info
 from dem.scene import SceneError, load_scene
 from dem.timestep import TimeStep, choose_time_step
 from modes.base import ModeError, mode_for, parse_mapping
@@ -168,7 +169,7 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
             "procs": mapping.procs, "px": mapping.px, "py": mapping.py, "pz": mapping.pz,
             "threads": mapping.threads, "scheme": scheme,
             "threaded": args.threaded if mapping.threads > 1 else None, "pin": args.pin,
-            "threading": _threading_info(),
+            "threading": _threading_info(), "mpi_transport": transport_info(),
             "neighbor": args.neighbor, "contact_method": getattr(args, "contact_method", "exact"),
             "skin": mode.skin_fraction, "skin_m": mode.skin, "skin_requested": args.skin,
             "halo": args.halo if mapping.procs > 1 else None,

@@ -10,7 +10,8 @@ raises): the supervisor forwards signals, stops the ranks at the timeout, names 
 or stopped responding (heartbeats), keeps and marks the records, and dies with this process, which
 forwards SIGINT, SIGTERM and SIGHUP to it and waits for it (issue 15). Environment:
 NUMBA_NUM_THREADS = T; more ranks x threads than usable CPUs get a one-line warning and
-OMP_WAIT_POLICY=PASSIVE. --pin binds each rank to T cores: Hydra (MPICH) `-bind-to core:T`; the
+OMP_WAIT_POLICY=PASSIVE; mpich's shared-memory cells sized for a step's messages
+(bench.run.transport). --pin binds each rank to T cores: Hydra (MPICH) `-bind-to core:T`; the
 Open MPI equivalent is `--map-by slot:PE=T --bind-to core`, and Slurm's `srun --cpus-per-task=T
 --cpu-bind=cores`. `--mpi-starter CMD` replaces `mpiexec -n P` (a Slurm job starts its ranks with
 `srun --mpi=pmi2 ...`, bench.sweep.slurm); the starter then places the ranks, possibly over
@@ -27,6 +28,7 @@ import sys
 
 from bench.run.lifeline import Interrupted, child_env, inherited_lock
 from bench.run.threads_env import check_size, usable_cpus
+from bench.run.transport import transport_env
 from modes.base import ModeError
 from modes.decomposition import BlockGrid, DecompositionError, border_width, fit_skin
 from modes.halo import compile_kernels
@@ -88,7 +90,7 @@ def launch_mpi(args, mapping, scene, out, ts):
         if args.pin:
             cmd += ["-bind-to", f"core:{mapping.threads}"]
     warm_cache(scene, mapping, args, ts.dt)
-    env = dict(os.environ, NUMBA_NUM_THREADS=str(mapping.threads))
+    env = transport_env(dict(os.environ, NUMBA_NUM_THREADS=str(mapping.threads)))
     cpus = usable_cpus()
     if not starter and mapping.procs * mapping.threads > cpus:
         env.setdefault("OMP_WAIT_POLICY", "PASSIVE")

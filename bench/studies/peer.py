@@ -41,6 +41,8 @@ from importlib import resources
 
 import numpy as np
 
+from bench.run.transport import transport_env
+
 # the bed's box [m], from the bed's description (packed_N10000.json of the peer benchmark)
 BOX = ((0.0, 0.0, 0.0), (0.052, 0.052, 0.0754))
 DT = 2e-7
@@ -187,7 +189,7 @@ class Lammps:
 
     def run(self, procs, steps, timeout):
         """One timed run; returns seconds per step."""
-        env = dict(os.environ, OMP_NUM_THREADS="1")
+        env = transport_env(dict(os.environ, OMP_NUM_THREADS="1"))  # the transport our runs have
         env["PATH"] = os.path.dirname(self.lmp[0]) + os.pathsep + env.get("PATH", "")  # its MPICH's helpers
         cmd = self.mpiexec + ["-n", str(procs)] + self.lmp + [
             "-in", self.script, "-var", "datafile", self.data, "-var", "nsteps", str(steps), "-var", "dt", repr(DT),
@@ -224,8 +226,8 @@ class Liggghts:
         with resources.files("bench.studies.peers").joinpath("in.sq_crystal").open("rb") as src, \
                 open(self.script, "wb") as dst:
             shutil.copyfileobj(src, dst)
-        self.env = dict(os.environ, OMP_NUM_THREADS="1", OMPI_ALLOW_RUN_AS_ROOT="1",
-                        OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+        self.env = transport_env(dict(os.environ, OMP_NUM_THREADS="1", OMPI_ALLOW_RUN_AS_ROOT="1",
+                                      OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1"))
         dump = os.path.join(out, "crystal_step0.dump")
         res = _run(self.binary + ["-in", self.script, "-log", os.path.join(out, "log.step0"), "-echo", "none"]
                    + self._vars(0) + ["-var", "dump0", "1", "-var", "dumpfile", dump],

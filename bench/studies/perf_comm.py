@@ -24,6 +24,7 @@ import tempfile
 import numpy as np
 
 from bench.run.launch import mpiexec_path
+from bench.run.transport import transport_env
 from bench.run.threads_env import usable_cpus
 from modes.base import ModeError, parse_mapping
 
@@ -146,7 +147,7 @@ def perf_comm(args):
         if getattr(args, "patterns", False):
             cmd.append("--patterns")
         try:
-            proc = subprocess.Popen(cmd, start_new_session=True)
+            proc = subprocess.Popen(cmd, start_new_session=True, env=transport_env(dict(os.environ)))
             rc = proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)

@@ -1,0 +1,50 @@
+"""The MPI library's shared-memory transport, sized for the messages of a step.
+
+mpich (the PyPI wheel; ch4, POSIX shared memory) copies a message into a cell of the receiver's
+queue when it is started, and the sender is done ("eager"), only up to about 4 KiB by default;
+a larger one goes by rendezvous (CMA): its data moves once both ranks are inside MPI calls, and
+mpich has no progress thread, so a message started at the end of a step waits, at the next
+step's start, for a handshake with a rank that may still be in its own Python. The messages of a
+step are larger than 4 KiB: 12k packed ellipsoids on 2 blocks send 82 kB of moving fields
+(the forward exchange) and 53 kB of Newton terms each way. MPICH_EAGER makes the cells 128 KiB
+and moves the rendezvous threshold there, so that messages up to about 128 KiB leave at their
+start, and larger ones go by CMA as before. The cost: the queues' shared memory, 64 cells (the
+default) x 128 KiB = 8 MiB a rank.
+
+Measured with mpich 5.0.2 on 2 cores (2 ranks): the sender of an 8-64 KiB message whose receiver
+comes 3 ms late waited 3.0 ms before (rendezvous), 4-14 us after; on 12k packed ellipsoids
+(300 steps a run, runs alternating, two each) the forward exchange's wait at a step's start fell
+from 40-90 us to 19-20 us and a step's commuT less its syncT (the ranks' imbalance) from
+200-267 us to 177-209 us (the slower rank's steps to within the noise, 11.35 and 11.45 ms
+before, 11.35 and 11.31 after).
+
+The same variables go to the peers' runs (bench.studies.peer), which start the same mpich, so
+that both sides of a comparison have the same transport, and to `bench perf --what comm`, so
+that its ping-pong measures the wire the runs use. They are left alone where the user sets any
+of them (their choice stands) or sets DEM_BENCH_MPI_TRANSPORT=library (the library's defaults);
+Open MPI ignores them. run.json records them (mpi_transport).
+"""
+import os
+
+CELL = 131072
+MPICH_EAGER = {
+    "MPIR_CVAR_CH4_SHM_POSIX_IQUEUE_CELL_SIZE": str(CELL),
+    "MPIR_CVAR_CH4_PACK_BUFFER_SIZE": str(CELL),      # mpich refuses a pack buffer below the cell
+    "MPIR_CVAR_CH4_IPC_CMA_P2P_THRESHOLD": str(CELL),
+}
+OPT_OUT = "DEM_BENCH_MPI_TRANSPORT"
+
+
+def transport_env(env):
+    """env (a dict, changed in place) with MPICH_EAGER unless the user set any of its variables or
+    DEM_BENCH_MPI_TRANSPORT=library; returns env."""
+    if env.get(OPT_OUT, "").strip().lower() == "library" or any(k in env for k in MPICH_EAGER):
+        return env
+    env.update(MPICH_EAGER)
+    return env
+
+
+def transport_info(environ=None):
+    """The transport variables of this process (run.json's mpi_transport): {} where none is set."""
+    environ = os.environ if environ is None else environ
+    return {k: environ[k] for k in MPICH_EAGER if k in environ}
