@@ -191,6 +191,11 @@ def main(argv=None):
     from bench.run.records import RecordError
     try:
         args = build_parser().parse_args(argv)
+        from bench.run.transport import transport_setting
+        try:
+            transport_setting()  # the variable every MPI start reads: refused here, before any work
+        except ValueError as e:
+            raise UsageError(str(e)) from None
         return COMMANDS[args.command](args)
     except UsageError as e:
         msg = str(e)

@@ -24,10 +24,12 @@ between them), the work splits by how often it is needed:
   2 ranks, 1521 falling ellipsoids (127 ghosts, 13 kB): the forward exchange inside a step took
   42-48 us started in the step (pack 3-15 us, transfer 14 us from the later send to the receive,
   skew 3-8 us, unpack 2-3 us). Against the messages started before the decision (the order
-  until December 2026), blocks of 8 steps of each order alternating in one 2-rank job (medians
-  of the slower rank's steps, two jobs each): 1521 falling ellipsoids 0.165 against 0.167 ms,
-  500 packed 0.478 against 0.481 ms, 12k packed the same within the noise (11.88 against 11.86,
-  12.17 against 12.19 ms); and a step before a rebuild no longer sends what it then drops.
+  until December 2026, emulated by wrapping the step's two calls, which adds a few us of
+  Python), blocks of 8 steps of each order alternating in one 2-rank job (medians of the slower
+  rank's steps, two jobs each): 1521 falling ellipsoids 0.165 against 0.167 ms, 500 packed 0.478
+  against 0.481 ms, 12k packed 11.88 against 11.86 and 12.17 against 12.19 ms: the same within
+  what the emulation adds and the noise; a step before a rebuild no longer sends what it then
+  drops.
 
 Ghosts are exact binary copies, so each rank derives the same rotation matrix and angular
 velocity from them as the owner does.

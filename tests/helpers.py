@@ -41,8 +41,8 @@ pos = [0.01179, 0.01, 0.0011]
 """
 
 
-def bench(*args, cwd=None, timeout=300):
-    env = dict(os.environ, PYTHONPATH=ROOT)
+def bench(*args, cwd=None, timeout=300, env=None):
+    env = dict(os.environ, PYTHONPATH=ROOT, **(env or {}))  # env: variables added for this command
     return subprocess.run([sys.executable, "-m", "bench", *args], capture_output=True, text=True,
                           cwd=cwd or ROOT, timeout=timeout, env=env)
 

@@ -13,7 +13,8 @@ default) x 128 KiB = 8 MiB a rank.
 
 Measured with mpich 5.0.2 on 2 cores (2 ranks): the sender of an 8-64 KiB message whose receiver
 comes 3 ms late waited 3.0 ms before (rendezvous), 4-14 us after; on 12k packed ellipsoids
-(300 steps a run, runs alternating, two each) the forward exchange's wait at a step's start fell
+(300 steps a run, runs alternating, two each; the rendezvous threshold then at 1 MB, which takes
+these messages, all below the cell, by the same eager path) the forward exchange's wait at a step's start fell
 from 40-90 us to 19-20 us and a step's commuT less its syncT (the ranks' imbalance) from
 200-267 us to 177-209 us (the slower rank's steps to within the noise, 11.35 and 11.45 ms
 before, 11.35 and 11.31 after).
@@ -21,7 +22,8 @@ before, 11.35 and 11.31 after).
 The same variables go to the peers' runs (bench.studies.peer), which start the same mpich, so
 that both sides of a comparison have the same transport, and to `bench perf --what comm`, so
 that its ping-pong measures the wire the runs use. They are left alone where the user sets any
-of them (their choice stands) or sets DEM_BENCH_MPI_TRANSPORT=library (the library's defaults);
+of them (their choice stands) or sets DEM_BENCH_MPI_TRANSPORT=library (the library's defaults;
+`step`, or unset, is this sizing; any other value is refused in one line by the bench command);
 Open MPI ignores them. run.json records them (mpi_transport).
 """
 import os
@@ -33,12 +35,23 @@ MPICH_EAGER = {
     "MPIR_CVAR_CH4_IPC_CMA_P2P_THRESHOLD": str(CELL),
 }
 OPT_OUT = "DEM_BENCH_MPI_TRANSPORT"
+SETTINGS = ("step", "library")   # DEM_BENCH_MPI_TRANSPORT: sized for the step (default), or mpich's own
+
+
+def transport_setting(environ=None):
+    """DEM_BENCH_MPI_TRANSPORT of environ (default os.environ): "step" when unset or empty, else its
+    value; ValueError naming the variable and its values for anything else."""
+    environ = os.environ if environ is None else environ
+    value = environ.get(OPT_OUT, "").strip().lower() or "step"
+    if value not in SETTINGS:
+        raise ValueError(f"{OPT_OUT}={environ[OPT_OUT]!r}: expected one of {', '.join(SETTINGS)}")
+    return value
 
 
 def transport_env(env):
     """env (a dict, changed in place) with MPICH_EAGER unless the user set any of its variables or
     DEM_BENCH_MPI_TRANSPORT=library; returns env."""
-    if env.get(OPT_OUT, "").strip().lower() == "library" or any(k in env for k in MPICH_EAGER):
+    if transport_setting(env) == "library" or any(k in env for k in MPICH_EAGER):
         return env
     env.update(MPICH_EAGER)
     return env

@@ -24,8 +24,8 @@ import tempfile
 import numpy as np
 
 from bench.run.launch import mpiexec_path
-from bench.run.transport import transport_env
 from bench.run.threads_env import usable_cpus
+from bench.run.transport import transport_env
 from modes.base import ModeError, parse_mapping
 
 DEFAULT_MAPPING = "2-2-1-1-1"

@@ -7,9 +7,7 @@ import pytest
 
 from bench.run.launch import mpiexec_path
 from bench.run.transport import MPICH_EAGER, OPT_OUT, transport_env, transport_info
-from tests.helpers import ROOT
-
-pytestmark = pytest.mark.skipif(mpiexec_path() is None, reason="no mpiexec")
+from tests.helpers import ROOT, bench, one_line_error
 
 
 def test_transport_env_set_unless_the_user_chose():
@@ -20,6 +18,14 @@ def test_transport_env_set_unless_the_user_chose():
     mine = {"MPIR_CVAR_CH4_IPC_CMA_P2P_THRESHOLD": "1000000"}
     assert transport_env(dict(mine)) == mine
     assert transport_env({OPT_OUT: "library"}) == {OPT_OUT: "library"} and transport_info({OPT_OUT: "library"}) == {}
+    assert {k: v for k, v in transport_env({OPT_OUT: "step"}).items() if k != OPT_OUT} == MPICH_EAGER
+
+
+def test_unknown_transport_setting_refused_in_one_line():
+    """A misspelt DEM_BENCH_MPI_TRANSPORT is refused in one line naming it and its values (exit 2),
+    before any work, never applied as if it were the default."""
+    res = bench("scenes", env={OPT_OUT: "libary"})
+    one_line_error(res, OPT_OUT, "libary", "step, library")
 
 
 # rank 0 starts a message of NBYTES and sees whether it completes before rank 1 posts the receive:
@@ -48,6 +54,7 @@ else:
 """
 
 
+@pytest.mark.skipif(mpiexec_path() is None, reason="no mpiexec")
 @pytest.mark.parametrize("nbytes", [82_000, 120_000])
 def test_step_sized_message_leaves_at_its_start(nbytes):
     """Under the launcher's variables a message of a step's size (82 kB: the moving fields of the
