@@ -65,6 +65,9 @@ def build_parser():
                     help="MPI and hybrid points: resolve each pair across a border on one rank (on) or on both "
                          "(off); default auto (on); hybrid points under frogleap or headtail always resolve it on "
                          "both")
+    sw.add_argument("--skin", type=skin_fraction, default=None, metavar="F",
+                    help="neighbour-list skin of every point, fraction of the largest bounding diameter (default "
+                         "bench run's, 0.1; 0: neighbours estimated every step, the paper's way)")
     sw.add_argument("--pin", action="store_true")
     sw.add_argument("--ceiling", action="store_true",
                     help="also measure the machine's efficiency ceiling at each core count W of the sweep (W "
@@ -267,7 +270,7 @@ def cmd_run(args):
 
 SWEEP_FIELDS = {"mappings": str, "schemes": str, "scene": str, "particles": int, "shape": str, "steps": int,
                 "warmup": int, "repeats": int, "neighbor": str, "contact_method": str, "halo": str, "update_grid": int,
-                "balance": str, "newton": str, "pin": bool,
+                "balance": str, "newton": str, "skin": float, "pin": bool,
                 "ceiling": bool, "timeout": int,
                 "launcher": str, "out": str, "slurm": dict}
 
@@ -314,6 +317,9 @@ def _sweep_file(args):
                             value == 0 and not zero_ok or value > 2**62):
             raise UsageError(f"{key} in {args.file} must be a {'non-negative' if zero_ok else 'positive'} "
                              f"integer, got {_short(value)}")
+        if want is float and (isinstance(value, bool) or not isinstance(value, (int, float))
+                              or not 0.0 <= value <= 10.0):
+            raise UsageError(f"{key} in {args.file} must be a fraction in [0, 10], got {_short(value)}")
         if want is bool and not isinstance(value, bool):
             raise UsageError(f"{key} in {args.file} must be true or false, got {value!r}")
         default = build_parser()._subparsers._group_actions[0].choices["sweep"].get_default(key)

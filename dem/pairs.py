@@ -12,11 +12,14 @@ k's j end), so the gather needs no other lookup.
 
 Across a rebuild the history is carried from the old list to the new one by the pair's global
 ids (carry_history_sorted merges two lists sorted by (gid_i, gid_j); carry_history_rows searches
-the owned end's old adjacency row), so memory order may change in between. Where particles
-migrate (MPI) it travels through the state's per-particle CSR instead (dem.state: rows keyed by
-partner gid, the form that moves with a particle and is saved in caches): history_to_csr writes
-it from the old list, history_from_csr reads it into the new one (from the pair's owned end;
-both ends hold identical rows). This is LAMMPS' fix neigh/history in kind.
+the owned end's old adjacency row), so memory order may change in between. A particle that
+migrates (MPI) takes its history along in the state's per-particle CSR (dem.state: rows keyed by
+partner gid, the form that moves with a particle and is saved in caches): leaver_history_csr
+writes the leaving particles' rows from the old list, and at the next build the pairs whose
+owned end came with rows take them (history_from_rows_where_present), every other pair the
+carry (both ends hold identical rows); history_to_csr writes every particle's rows (caches,
+checkpoints) and history_from_csr reads them into a first list. This is LAMMPS' fix
+neigh/history in kind, which packs the history of the atoms exchange() sends.
 """
 import numpy as np
 from numba import njit
@@ -132,6 +135,58 @@ def history_to_csr(adj_start, adj_items, pi, pj, gid, on, hist, n_owned):
     return start, partner, val
 
 
+@njit(cache=True)
+def leaver_history_csr(leaving, pi, pj, gid, on, hist, n_owned):
+    """history_to_csr for the owned particles with leaving[p] != 0 only (leaving [n_owned] int8; the
+    others get empty rows), from one pass over the pairs, without the adjacency: (hist_start
+    [n_owned+1], hist_partner [nnz] partner gid, ascending per particle, hist_val [nnz, HIST_LEN]).
+    The rows a migrating particle takes to its new owner: the particles that stay keep their
+    history in the list (PairList.set, rows=True)."""
+    start = np.zeros(n_owned + 1, dtype=np.int64)
+    m = pi.shape[0]
+    for k in range(m):
+        if on[k]:
+            i = pi[k]
+            j = pj[k]
+            if i < n_owned and leaving[i]:
+                start[i + 1] += 1
+            if j < n_owned and leaving[j]:
+                start[j + 1] += 1
+    for p in range(n_owned):
+        start[p + 1] += start[p]
+    nnz = start[n_owned]
+    partner = np.empty(nnz, dtype=np.int64)
+    val = np.empty((nnz, HIST_LEN))
+    if nnz == 0:
+        return start, partner, val
+    fill = start[:-1].copy()
+    for k in range(m):
+        if on[k]:
+            i = pi[k]
+            j = pj[k]
+            if i < n_owned and leaving[i]:
+                _insert_row(start[i], fill, i, gid[j], hist, k, partner, val)
+            if j < n_owned and leaving[j]:
+                _insert_row(start[j], fill, j, gid[i], hist, k, partner, val)
+    return start, partner, val
+
+
+@njit(inline="always")
+def _insert_row(first, fill, own, g, hist, k, partner, val):
+    """Put pair k's history row into own's rows (from first, filled up to fill[own]) in ascending
+    partner gid g, by insertion (rows are short): the order history_to_csr gives."""
+    r = fill[own]
+    fill[own] += 1
+    while r > first and partner[r - 1] > g:
+        partner[r] = partner[r - 1]
+        for h in range(HIST_LEN):
+            val[r, h] = val[r - 1, h]
+        r -= 1
+    partner[r] = g
+    for h in range(HIST_LEN):
+        val[r, h] = hist[k, h]
+
+
 @njit(inline="always")
 def _owned_end(i, j, gid, n_owned):
     """(the pair's owned end, the other end's gid): the end whose rows hold the pair's history."""
@@ -152,6 +207,25 @@ def history_from_csr(pi, pj, gid, n_owned, hist_start, hist_partner, hist_val, h
     """Give each pair the history row of its owned end (on[k] = 1), or none (on[k] = 0)."""
     for k in range(pi.shape[0]):
         own, partner = _owned_end(pi[k], pj[k], gid, n_owned)
+        on[k] = 0
+        for r in range(hist_start[own], hist_start[own + 1]):
+            g = hist_partner[r]
+            if g == partner:
+                _take_row(hist, on, k, hist_val, r)
+                break
+            if g > partner:
+                break
+
+
+@njit(cache=True, _nrt=False)
+def history_from_rows_where_present(pi, pj, gid, n_owned, hist_start, hist_partner, hist_val, hist, on):
+    """After a carry: each pair whose owned end (history_from_csr's) has rows in the per-particle
+    CSR takes its history from them instead (a particle that migrated in brings every contact it
+    had; the pairs of the others keep what the carry gave)."""
+    for k in range(pi.shape[0]):
+        own, partner = _owned_end(pi[k], pj[k], gid, n_owned)
+        if hist_start[own + 1] == hist_start[own]:
+            continue
         on[k] = 0
         for r in range(hist_start[own], hist_start[own + 1]):
             g = hist_partner[r]
@@ -286,11 +360,15 @@ class PairList:
             self._adj = pair_adjacency(self.pi, self.pj, self.gid, self.n_owned)
         return self._adj
 
-    def set(self, m, gid, n_owned, hist_start, hist_partner, hist_val, pos, by_gid=False, carry=False):
+    def set(self, m, gid, n_owned, hist_start, hist_partner, hist_val, pos, by_gid=False, carry=False,
+            rows=False):
         """Adopt the m pairs written into buffers(), with their history: carry=True takes it from
-        the current list (the same particles, in any memory order: gid identifies them; a serial
-        or thread run), else from the per-particle CSR (hist_start, hist_partner, hist_val: a
-        first build, or particles that migrated). by_gid: first sort the pairs by (gid_i, gid_j),
+        the current list (the same particles, in any memory order: gid identifies them), else from
+        the per-particle CSR (hist_start, hist_partner, hist_val: a first build). With carry and
+        rows=True (particles migrated: MPI), a pair whose owned end has rows in the CSR (it came
+        from another rank, which wrote them: leaver_history_csr) takes them instead of the carry;
+        the others were in the old list (a pair that can touch has both ends there, one of them
+        owned, the other owned or a ghost). by_gid: first sort the pairs by (gid_i, gid_j),
         the order in which one thread can sum each particle's forces as it resolves them; the
         adjacency is then built only on demand."""
         old, old_m, old_gid, old_sorted = self._cur, self.m, self.gid, self.sorted
@@ -315,14 +393,20 @@ class PairList:
         else:
             carry_history_rows(self.pi, self.pj, gid, n_owned, old_adj[0], old_adj[1], opi, opj, old_gid, oon,
                                ohist, self.hist, self.on)
+        if carry and rows and len(hist_partner):
+            history_from_rows_where_present(self.pi, self.pj, gid, n_owned, hist_start, hist_partner, hist_val,
+                                            self.hist, self.on)
         self.ref = pos[:n_owned].copy()
         self.rebuilds += 1
 
-    def history(self, gid, n_owned):
-        """The per-particle CSR (hist_start, hist_partner, hist_val) of the touching pairs."""
+    def history(self, gid, n_owned, leaving=None):
+        """The per-particle CSR (hist_start, hist_partner, hist_val) of the touching pairs; given
+        leaving [n_owned] int8, only the rows of the particles marked (leaver_history_csr)."""
         if self.rebuilds == 0:
             return np.zeros(n_owned + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, HIST_LEN))
         if self.n_owned != n_owned or not np.array_equal(self.gid[:n_owned], gid[:n_owned]):
             raise ValueError("pair list history read for particles other than those it was built for")
+        if leaving is not None:
+            return leaver_history_csr(leaving, self.pi, self.pj, gid, self.on, self.hist, n_owned)
         adj_start, adj_items = self.adjacency()
         return history_to_csr(adj_start, adj_items, self.pi, self.pj, gid, self.on, self.hist, n_owned)

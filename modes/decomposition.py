@@ -262,6 +262,22 @@ def _border_lists(pos, lo, hi, width, needs):
     return start, items
 
 
+def outside_block(target, coords):
+    """1 where a particle's block target [n, 3] is not `coords` [3], else 0: int8 [n] (numpy's
+    (target != coords).any(axis=1) took 180 us at 6000 particles)."""
+    return _outside_block(np.ascontiguousarray(target, dtype=np.int64),
+                          np.asarray(coords, dtype=np.int64).reshape(3))
+
+
+@njit(cache=True)
+def _outside_block(target, coords):
+    out = np.zeros(target.shape[0], dtype=np.int8)
+    for p in range(target.shape[0]):
+        if target[p, 0] != coords[0] or target[p, 1] != coords[1] or target[p, 2] != coords[2]:
+            out[p] = 1
+    return out
+
+
 def direction_of(coords_from, coords_to):
     """Direction index k with coords_to = coords_from + DIRECTIONS[k] (coords_to [n, 3]);
     -1 where the target is not a neighbour (a particle that jumped more than a block)."""

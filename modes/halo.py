@@ -5,7 +5,9 @@ between them), the work splits by how often it is needed:
 
 - on neighbour-rebuild steps, migration (migraT): particles whose centre left the block move to
   the neighbour that owns it with their whole state, wall history and contact history (rows
-  keyed by partner gid), so the tangential springs never reset (the paper's code loses them);
+  keyed by partner gid, written for the leaving particles only: modes.mpi leaver_history), so
+  the tangential springs never reset (the paper's code loses them); when nobody leaves, one
+  round of counts is all that travels;
   then the choice of ghosts (commuT): each block sends the owned particles inside the border
   layer to each neighbour that needs them, with every field the contact kernels read, directly
   to all 26 neighbours (the paper's exchange, --halo 26) or in three sweeps of two messages that
@@ -58,7 +60,7 @@ from numba import njit
 from dem.shapes import POLY_LEN, SPHERE
 from dem.state import HIST_LEN, bounding_radii, csr_rows
 from modes.base import call_entry
-from modes.decomposition import DIRECTIONS, OPPOSITE, BlockGrid, border_lists, direction_of
+from modes.decomposition import DIRECTIONS, OPPOSITE, BlockGrid, border_lists, direction_of, outside_block
 
 GHOST_SPHERE = ("gid", "material", "mass", "axes0", "inertia0", "pos", "vel", "angmom")
 GHOST_GENERAL = ("gid", "shape", "material", "mass", "axes", "inertia", "pos", "vel", "angmom", "quat")
@@ -170,6 +172,7 @@ def compile_kernels():
     BlockGrid(((0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), (2, 1, 1), cuts=([0.5], [], [])).block_of(a)
     csr_rows(np.zeros(2, dtype=np.int64), idx)
     direction_of(np.zeros(3, dtype=np.int64), np.zeros((1, 3), dtype=np.int64))
+    outside_block(np.zeros((1, 3), dtype=np.int64), np.zeros(3, dtype=np.int64))
 
 
 class _Round:
@@ -424,14 +427,18 @@ class Halo:
         append_ghosts(state, g)
 
     # --- migration ----------------------------------------------------------------------------
-    def migrate(self, state):
+    def migrate(self, state, found=None):
         """Move owned particles whose centre left this block to the neighbour block that holds
         it, with their whole state and contact history (a neighbour-rebuild step; ghosts are
-        dropped first). Returns (sent, received)."""
+        dropped first; found: (their blocks [n_owned, 3], outside_block's marks [n_owned]) when
+        already found). Returns (sent, received)."""
         drop_ghosts(state)
         n = state.n_owned
-        target = self.grid.block_of(state.pos[:n])
-        leaving = np.flatnonzero(np.any(target != self.coords, axis=1))
+        if found is None or len(found[0]) != n:
+            target = self.grid.block_of(state.pos[:n])
+            found = (target, outside_block(target, self.coords))
+        target = found[0]
+        leaving = np.flatnonzero(found[1])
         dirs = direction_of(self.coords, target[leaving])
         if np.any(dirs < 0):
             p = leaving[np.flatnonzero(dirs < 0)[0]]
@@ -444,7 +451,7 @@ class Halo:
         counts = np.diff(state.hist_start)
         out = [None] * len(DIRECTIONS)
         for k, r in enumerate(self.ranks):
-            if r is None:
+            if r is None or not len(leaving):  # nobody leaves: the counts round says so
                 continue
             sel = leaving[dirs == k]
             rows = np.empty((len(sel), ncol))

@@ -140,6 +140,11 @@ class SerialMode:
         s = self.state
         s.hist_start, s.hist_partner, s.hist_val = self.pairs.history(s.gid, s.n_owned)
 
+    def leaver_history(self):
+        """At a rebuild that migrates (MPI), before migration: the state's per-particle rows of the
+        particles that will leave (here: every owned particle's, sync_history)."""
+        self.sync_history()
+
     def reorder(self):
         """With a skin, re-sort the owned particles at each rebuild, for locality (memory order never
         changes results: DESIGN.md, Determinism): by global id where the pairs are resolved in gid
@@ -169,11 +174,10 @@ class SerialMode:
         self.derive(0, s.n)
         reach = s.rbound + 0.5 * self.skin if self.skin > 0 else s.rbound
         m = self.find_pairs(reach)
-        # the first build takes the state's own (loaded) history; later ones carry the list's own
-        # unless particles migrated (their rows came through the state)
-        carry = bool(self.pairs.rebuilds) and not self.migrates
+        # the first build takes the state's own (loaded) history; later ones carry the list's own,
+        # and where particles migrated (MPI) the pairs of those that came take their rows (state)
         self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos,
-                       by_gid=self.deliver != STORE, carry=carry)
+                       by_gid=self.deliver != STORE, carry=bool(self.pairs.rebuilds), rows=self.migrates)
         self.pairs.near = np.zeros(s.n_owned, dtype=np.int8)
         wall_candidates(s.n_owned, s.pos, reach, *self.wall_planes(), s.wall_hist, self.pairs.near)
         self.plist = self.pairs.arrays
@@ -284,7 +288,7 @@ class SerialMode:
         sent = 0
         if rebuild:
             if self.pairs.rebuilds and self.migrates:  # history rows travel with migrants
-                self.sync_history()
+                self.leaver_history()
             ta = clock()
             sent = self.migrate()
             tb = clock()

@@ -30,12 +30,13 @@ class Point:
     update_grid: int = 0
     balance: str = "extent"
     newton: str = "auto"
+    skin: float = None   # the neighbour-list skin fraction of every point (None: bench run's default)
 
     @property
     def key(self):
         """Folder name: readable mapping and scheme plus a hash of every parameter (update_grid only
-        when set, balance only when not the paper's extent and newton only when not auto, so the
-        points of sweeps from before them keep their keys for --resume)."""
+        when set, balance only when not the paper's extent, newton only when not auto and skin only
+        when given, so the points of sweeps from before them keep their keys for --resume)."""
         params = asdict(self)
         if not params["update_grid"]:
             del params["update_grid"]
@@ -43,6 +44,8 @@ class Point:
             del params["balance"]
         if params["newton"] == "auto":
             del params["newton"]
+        if params["skin"] is None:
+            del params["skin"]
         digest = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:8]
         return f"{self.mapping}{'-' + self.scheme if self.scheme else ''}-{digest}"
 
@@ -57,6 +60,8 @@ class Point:
             args.append("--pin")
         if self.contact_method != "exact":
             args += ["--contact-method", self.contact_method]
+        if self.skin is not None:
+            args += ["--skin", repr(float(self.skin))]
         if self.mapping.split("-")[0] != "1":
             args += ["--halo", self.halo]
             if self.update_grid:
@@ -75,9 +80,10 @@ def point_from_dict(d):
 
 
 def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, shape, pin, halo,
-                contact_method="exact", update_grid=0, balance="extent", newton="auto"):
+                contact_method="exact", update_grid=0, balance="extent", newton="auto", skin=None):
     """Points of a sweep: the serial reference first, then each mapping (x each scheme when it has
-    more than one thread), without duplicates, in the order given. newton (auto, on, off) goes to
+    more than one thread), without duplicates, in the order given; skin (a fraction, or None for
+    bench run's default) goes to every point, the serial reference included. newton (auto, on, off) goes to
     the points with more than one process, except hybrid points under a scheme that stores every
     pair's forces (frogleap, headtail: they resolve a pair across a border on both ranks)."""
     for s in schemes:
@@ -92,7 +98,8 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
             p = Point(str(m), s, scene, particles or 0, steps or 0, warmup, neighbor, shape or "", pin, halo,
                       contact_method, update_grid if m.procs > 1 else 0,
                       balance if m.procs > 1 and update_grid else "extent",
-                      newton if m.procs > 1 and (m.threads == 1 or s in SPLIT_SCHEMES) else "auto")
+                      newton if m.procs > 1 and (m.threads == 1 or s in SPLIT_SCHEMES) else "auto",
+                      None if skin is None else float(skin))
             if p not in points:
                 points.append(p)
     points.sort(key=lambda p: p.mapping != SERIAL)  # the reference runs first

@@ -42,7 +42,7 @@ RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores"
                "particles", "steps", "repeats", "status", "reason", "totalT", "commuT", "migraT", "compuT",
                "syncT", "wireT", "above_wireT", "neighborT", "resolveT", "overhead_pct", "speedup", "efficiency", "edsf", "rss_mb", "err_max",
                "err_rms", "stable", "wall_s", "load_before", "load_after", "contact_method",
-               "foreign_cores", "foreign_cpu_s", "step_spread", "totalT_spread", "flag"]
+               "skin", "foreign_cores", "foreign_cpu_s", "step_spread", "totalT_spread", "flag"]
 
 
 TEXT_COLUMNS = ("point", "mapping", "scheme", "neighbor", "scene", "status", "reason", "stable", "contact_method",
@@ -198,7 +198,7 @@ def summarise(point, rep_dirs, ref_state, t1, statuses=None):
         walls.append(info.get("wall_s", math.nan))
         loads.append(info.get("load") or {})
         spreads.append((info.get("step_time") or {}).get("spread"))
-        row.update(particles=info["particles"], steps=info["steps"], stable=info["stable"])
+        row.update(particles=info["particles"], steps=info["steps"], stable=info["stable"], skin=info.get("skin"))
         state = dict(np.load(os.path.join(d, "state.npz")))
     for k in times[0]:
         row[k] = float(np.median([t[k] for t in times]))

@@ -241,6 +241,29 @@ def test_unwritable_sweep_folder(tmp_path):
     one_line_error(bench("sweep", *SMALL, "--mappings", "1-1-1-1-1", "--out", str(blocker / "sub")), "not writable")
 
 
+def test_skin_reaches_every_point(tmp_path):
+    """`bench sweep --skin 0` (the paper's every-step neighbour estimate under every mapping, the
+    serial reference included, so that speedups compare like with like): each point's command
+    carries it (dry run), from the command line or a sweep file; a skin outside [0, 10] is one
+    line, exit 2, and the default keeps the points' keys (no --skin in their commands)."""
+    res = bench("sweep", *SMALL, "--mappings", "1-1-1-1-2,2-2-1-1-1", "--skin", "0", "--dry-run",
+                "--out", str(tmp_path / "dry"))
+    assert res.returncode == 0, res.stderr
+    runs = [line for line in res.stdout.splitlines() if "--mapping" in line]
+    assert len(runs) == 3 and all("--skin 0.0" in line for line in runs), res.stdout
+    default = bench("sweep", *SMALL, "--mappings", "1-1-1-1-2", "--dry-run", "--out", str(tmp_path / "dry2"))
+    assert default.returncode == 0 and "--skin" not in default.stdout
+    sweep_file = tmp_path / "s.toml"
+    sweep_file.write_text('[sweep]\nmappings = ["1-1-1-1-2"]\nscene = "packed"\nparticles = 200\nsteps = 2\n'
+                          'skin = 0.05\n')
+    res = bench("sweep", "--file", str(sweep_file), "--dry-run", "--out", str(tmp_path / "dry3"))
+    assert res.returncode == 0 and res.stdout.count("--skin 0.05") == 2, res.stdout
+    one_line_error(bench("sweep", *SMALL, "--mappings", "1-1-1-1-2", "--skin", "11", "--out",
+                         str(tmp_path / "bad")), "--skin")
+    sweep_file.write_text('[sweep]\nmappings = "1-1-1-1-2"\nskin = true\n')
+    one_line_error(bench("sweep", "--file", str(sweep_file), "--out", str(tmp_path / "bad2")), "skin")
+
+
 def test_contact_method_reaches_every_point(tmp_path):
     """`bench sweep --contact-method sextic` (the paper's method under every mapping): each point's
     command carries it (dry run), and a bad name is one line, exit 2."""

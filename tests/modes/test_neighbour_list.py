@@ -6,7 +6,7 @@ import pytest
 
 from bench.run.prepare import load_prepared
 from dem.timestep import choose_time_step
-from dem.pairs import DEFAULT_SKIN, PairList, history_from_csr, pair_adjacency
+from dem.pairs import DEFAULT_SKIN, PairList, history_from_csr, history_to_csr, pair_adjacency
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 
@@ -168,6 +168,61 @@ def test_history_carried_by_gid_across_a_permutation(rng, by_gid):
     assert 0 < on_csr.sum() < m
     assert np.array_equal(old.on, on_csr)
     assert np.array_equal(old.hist[on_csr == 1], hist_csr[on_csr == 1])
+
+
+@pytest.mark.parametrize("by_gid", [True, False])
+def test_leavers_rows_and_arrivals_override_the_carry(rng, by_gid):
+    """Migration (MPI) writes rows only for the particles that leave: leaver_history_csr must give,
+    for each marked particle, exactly the rows of the full CSR (history_to_csr: touching pairs,
+    ascending partner gid) and empty rows for the others. At the next build, a pair whose owned
+    end has rows (it arrived with them) takes them, every other pair the carry from the old list."""
+    n = 60
+    gid = rng.permutation(500)[:n].astype(np.int64)
+    pos = np.zeros((n, 3))
+    empty = (np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, 8)))
+    lst = PairList(16)
+    pi, pj = _random_pairs(rng, n, 400, gid)
+    bi, bj = lst.buffers(len(pi))
+    bi[:len(pi)], bj[:len(pi)] = pi, pj
+    lst.set(len(pi), gid, n, *empty, pos, by_gid=by_gid)
+    lst.hist[:] = rng.standard_normal(lst.hist.shape)
+    lst.on[:] = rng.integers(0, 2, lst.m)
+    full = history_to_csr(*pair_adjacency(lst.pi, lst.pj, gid, n), lst.pi, lst.pj, gid, lst.on, lst.hist, n)
+    leaving = (rng.random(n) < 0.3).astype(np.int8)
+    part = lst.history(gid, n, leaving)
+    assert 0 < leaving.sum() < n and len(part[1]) > 0
+    for p in range(n):
+        got = slice(part[0][p], part[0][p + 1])
+        if not leaving[p]:
+            assert part[0][p + 1] == part[0][p]
+            continue
+        ref = slice(full[0][p], full[0][p + 1])
+        assert np.array_equal(part[1][got], full[1][ref]) and np.array_equal(part[2][got], full[2][ref])
+    # rows for the marked particles (arrived) with values of their own: those pairs take them
+    rows_val = part[2] + 1.0
+    old_hist, old_on = lst.hist.copy(), lst.on.copy()
+    order = (lst.pi.copy(), lst.pj.copy())
+    m = lst.m
+    bi, bj = lst.buffers(m)
+    bi[:m], bj[:m] = order
+    lst.set(m, gid, n, part[0], part[1], rows_val, pos, by_gid=by_gid, carry=True, rows=True)
+    own = np.where(lst.pi < n, lst.pi, lst.pj)  # every end is owned here: the i end
+    key = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(*order))}
+    taken = 0
+    for k in range(m):
+        k0 = key[(int(lst.pi[k]), int(lst.pj[k]))]
+        if leaving[own[k]]:
+            p, partner = own[k], gid[lst.pj[k]]
+            r = [r for r in range(part[0][p], part[0][p + 1]) if part[1][r] == partner]
+            assert lst.on[k] == (1 if r else 0)
+            if r:
+                assert np.array_equal(lst.hist[k], rows_val[r[0]])
+                taken += 1
+        else:
+            assert lst.on[k] == old_on[k0]
+            if old_on[k0]:
+                assert np.array_equal(lst.hist[k], old_hist[k0])
+    assert taken > 0
 
 
 ALLOCATION_PROBE = """
