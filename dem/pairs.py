@@ -24,7 +24,7 @@ neigh/history in kind, which packs the history of the atoms exchange() sends.
 import numpy as np
 from numba import njit
 
-from dem.forces import PF_LEN, SUM
+from dem.forces import PF_LEN, SPLIT, SUM
 from dem.state import HIST_LEN
 
 # The default skin, as a fraction F of the largest bounding diameter d. Candidates grow about as
@@ -46,12 +46,25 @@ def pair_adjacency(pi, pj, gid, n_owned):
     = 2 k + 1 where the particle is pair k's j end, 2 k where it is the i end). Rows are filled in
     pair order and then insertion-sorted (rows are short), so the order never depends on how the
     pair list was produced."""
+    return _adjacency(pi, pj, gid, n_owned, np.zeros(0, dtype=np.int8), True)
+
+
+@njit(cache=True)
+def pair_adjacency_of(pi, pj, gid, n_owned, mark):
+    """pair_adjacency's rows for the owned particles with mark[p] != 0 only (mark [n_owned] int8),
+    the others empty: the rows a gather reads when only some particles gather (SPLIT: those whose
+    pairs fall in two threads' ranges)."""
+    return _adjacency(pi, pj, gid, n_owned, mark, False)
+
+
+@njit(inline="always")
+def _adjacency(pi, pj, gid, n_owned, mark, every):
     m = pi.shape[0]
     start = np.zeros(n_owned + 1, dtype=np.int64)
     for k in range(m):
-        if pi[k] < n_owned:
+        if pi[k] < n_owned and (every or mark[pi[k]] != 0):
             start[pi[k] + 1] += 1
-        if pj[k] < n_owned:
+        if pj[k] < n_owned and (every or mark[pj[k]] != 0):
             start[pj[k] + 1] += 1
     for p in range(n_owned):
         start[p + 1] += start[p]
@@ -61,15 +74,17 @@ def pair_adjacency(pi, pj, gid, n_owned):
     for k in range(m):
         i = pi[k]
         j = pj[k]
-        if i < n_owned:
+        if i < n_owned and (every or mark[i] != 0):
             items[fill[i]] = 2 * k
             keys[fill[i]] = gid[j]
             fill[i] += 1
-        if j < n_owned:
+        if j < n_owned and (every or mark[j] != 0):
             items[fill[j]] = 2 * k + 1
             keys[fill[j]] = gid[i]
             fill[j] += 1
     for p in range(n_owned):
+        if start[p + 1] - start[p] < 2:
+            continue
         for u in range(start[p] + 1, start[p + 1]):
             kk = keys[u]
             it = items[u]
@@ -101,10 +116,21 @@ def _counting_sort(key, n, a, b, a_out, b_out):
 @njit(cache=True)
 def sort_by_gid(pi, pj, gid, pi_out, pj_out):
     """The pairs (pi, pj) [m] in ascending (gid[pi], gid[pj]) order, into pi_out, pj_out: two stable
-    counting sorts over the gid ranks of the n local particles, by j then by i, O(m + n log n)."""
+    counting sorts over the gid ranks of the n local particles, by j then by i, O(m + n log n), or
+    O(m + n) when the particles are stored in gid order (owned ones are, after reorder: the ranks
+    are then the indices; the argsort took 0.18 ms of 12k sorted gids)."""
     n = gid.shape[0]
     rank = np.empty(n, dtype=np.int64)
-    rank[np.argsort(gid)] = np.arange(n)
+    ascending = True
+    for p in range(1, n):
+        if gid[p] < gid[p - 1]:
+            ascending = False
+            break
+    if ascending:
+        for p in range(n):
+            rank[p] = p
+    else:
+        rank[np.argsort(gid)] = np.arange(n)
     tmp_i = np.empty_like(pi)
     tmp_j = np.empty_like(pj)
     _counting_sort(rank[pj], n, pi, pj, tmp_i, tmp_j)
@@ -241,9 +267,29 @@ def carry_history_sorted(pi, pj, gid, opi, opj, ogid, oon, ohist, hist, on):
     """History of the new pairs (pi, pj [m], ascending (gid[pi], gid[pj])) from the old list
     (opi, opj [m_old] in the same order over the old ids ogid, on flags oon, rows ohist): one merge
     of the two sorted key sequences, O(m + m_old). A pair new to the list starts without history."""
-    u = 0
+    carry_history_sorted_range(0, pi.shape[0], pi, pj, gid, opi, opj, ogid, oon, ohist, hist, on)
+
+
+@njit(cache=True, _nrt=False)
+def carry_history_sorted_range(k0, k1, pi, pj, gid, opi, opj, ogid, oon, ohist, hist, on):
+    """carry_history_sorted for the new pairs k0..k1-1: the merge starts at the first old pair whose
+    key is not below pair k0's (a binary search), so that threads can carry ranges of the list
+    (modes.parallel.carry_threads)."""
     mo = opi.shape[0]
-    for k in range(pi.shape[0]):
+    u = 0
+    if k0 < k1:
+        a0 = gid[pi[k0]]
+        b0 = gid[pj[k0]]
+        lo, hi = 0, mo
+        while lo < hi:
+            mid = (lo + hi) >> 1
+            ga = ogid[opi[mid]]
+            if ga < a0 or (ga == a0 and ogid[opj[mid]] < b0):
+                lo = mid + 1
+            else:
+                hi = mid
+        u = lo
+    for k in range(k0, k1):
         a = gid[pi[k]]
         b = gid[pj[k]]
         on[k] = 0
@@ -349,9 +395,15 @@ class PairList:
         resolution that delivers its forces by `deliver` (dem.forces STORE, SUM, SPLIT; gat [n_owned]
         int8 the particles that gather under SPLIT, else empty); where every sum is made as the
         pairs are resolved (SUM) nothing gathers, and the adjacency is left unbuilt (empty arrays
-        of its types take its place)."""
-        adj_start, adj_items = (np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64)) if deliver == SUM \
-            else self.adjacency()
+        of its types take its place); where only the particles with gat == 1 gather (SPLIT), only
+        their rows are built (pair_adjacency_of: on 12k packed ellipsoids, 2 threads, it took
+        0.95 ms a rebuild for every row)."""
+        if deliver == SUM:
+            adj_start, adj_items = np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        elif deliver == SPLIT and self._adj is None:
+            adj_start, adj_items = pair_adjacency_of(self.pi, self.pj, self.gid, self.n_owned, gat)
+        else:
+            adj_start, adj_items = self.adjacency()
         return adj_start, adj_items, self.on, self.pf, self.near, gat
 
     def adjacency(self):
@@ -361,7 +413,7 @@ class PairList:
         return self._adj
 
     def set(self, m, gid, n_owned, hist_start, hist_partner, hist_val, pos, by_gid=False, carry=False,
-            rows=False):
+            rows=False, carry_sorted=None):
         """Adopt the m pairs written into buffers(), with their history: carry=True takes it from
         the current list (the same particles, in any memory order: gid identifies them), else from
         the per-particle CSR (hist_start, hist_partner, hist_val: a first build). With carry and
@@ -370,7 +422,8 @@ class PairList:
         the others were in the old list (a pair that can touch has both ends there, one of them
         owned, the other owned or a ghost). by_gid: first sort the pairs by (gid_i, gid_j),
         the order in which one thread can sum each particle's forces as it resolves them; the
-        adjacency is then built only on demand."""
+        adjacency is then built only on demand. carry_sorted: the merge of two gid-sorted lists
+        (carry_history_sorted's arguments; default carry_history_sorted, threads: their own)."""
         old, old_m, old_gid, old_sorted = self._cur, self.m, self.gid, self.sorted
         merge = carry and by_gid and old_sorted
         old_adj = self.adjacency() if carry and not merge else None
@@ -389,7 +442,8 @@ class PairList:
         if not carry:
             history_from_csr(self.pi, self.pj, gid, n_owned, hist_start, hist_partner, hist_val, self.hist, self.on)
         elif merge:
-            carry_history_sorted(self.pi, self.pj, gid, opi, opj, old_gid, oon, ohist, self.hist, self.on)
+            (carry_sorted or carry_history_sorted)(self.pi, self.pj, gid, opi, opj, old_gid, oon, ohist, self.hist,
+                                                   self.on)
         else:
             carry_history_rows(self.pi, self.pj, gid, n_owned, old_adj[0], old_adj[1], opi, opj, old_gid, oon,
                                ohist, self.hist, self.on)

@@ -43,6 +43,7 @@ from numba.extending import intrinsic
 from dem.forces import SPLIT, SPLIT_TAKEN, finish_range, resolve_range
 from dem.integrate import derive_all
 from dem.neighbor import HALF_SHELL, scan_rows
+from dem.pairs import carry_history_sorted_range
 from dem.shapes import SPHERE
 
 SCHEMES = ("partition", "frogleap", "headtail", "static", "dynamic")
@@ -188,6 +189,16 @@ def compact_pairs(threads, pi_t, pj_t, offsets, pi, pj):
         for k in range(offsets[t + 1] - o):
             pi[o + k] = pi_t[t, k]
             pj[o + k] = pj_t[t, k]
+
+
+@njit(cache=True, parallel=True)
+def carry_threads(threads, pi, pj, gid, opi, opj, ogid, oon, ohist, hist, on):
+    """dem.pairs.carry_history_sorted by T threads, each over a contiguous range of the new list
+    (equal pairs: the merge costs the same per pair); the same rows as one thread's merge."""
+    m = pi.shape[0]
+    for t in prange(threads):
+        carry_history_sorted_range(t * m // threads, (t + 1) * m // threads, pi, pj, gid, opi, opj, ogid, oon, ohist,
+                                   hist, on)
 
 
 @njit(cache=True)

@@ -41,6 +41,7 @@ class SerialMode:
     guard_overlap = 0.05  # the stability guard's overlap limit (bench.run.guard sets it)
     deliver = SUM         # one thread sums the pair forces as it resolves them (dem.forces.resolve_range)
     migrates = False      # particles change rank at rebuilds (MPI): history then travels through the state
+    carry_sorted = None   # how a rebuild carries the history of a gid-sorted list (None: dem.pairs' merge)
 
     def setup(self, scene, dt, neighbor="linkcell", skin=None, contact_method="exact", **options):
         if options:
@@ -177,7 +178,8 @@ class SerialMode:
         # the first build takes the state's own (loaded) history; later ones carry the list's own,
         # and where particles migrated (MPI) the pairs of those that came take their rows (state)
         self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos,
-                       by_gid=self.deliver != STORE, carry=bool(self.pairs.rebuilds), rows=self.migrates)
+                       by_gid=self.deliver != STORE, carry=bool(self.pairs.rebuilds), rows=self.migrates,
+                       carry_sorted=self.carry_sorted)
         self.pairs.near = np.zeros(s.n_owned, dtype=np.int8)
         wall_candidates(s.n_owned, s.pos, reach, *self.wall_planes(), s.wall_hist, self.pairs.near)
         self.plist = self.pairs.arrays

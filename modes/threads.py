@@ -127,6 +127,12 @@ class ThreadsMode(SerialMode):
         self.work_imbalance = float(self.tests.max() / max(self.tests.mean(), 1e-300))
         return m
 
+    def carry_sorted(self, *arrays):
+        """The rebuild's history carry (dem.pairs.carry_history_sorted) by the T threads over ranges
+        of the new list (modes.parallel.carry_threads): 0.88 ms a rebuild on one thread for 72k
+        pairs of 12k packed ellipsoids."""
+        par.carry_threads(self.threads, *arrays)
+
     def split(self, cross=None, terms=None):
         """The blocks of the per-particle pass (modes.parallel.finish_cuts) and, under SPLIT, the T
         ranges of the new (gid-sorted) list, the particles that gather, and those each range's

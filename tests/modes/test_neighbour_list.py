@@ -6,7 +6,8 @@ import pytest
 
 from bench.run.prepare import load_prepared
 from dem.timestep import choose_time_step
-from dem.pairs import DEFAULT_SKIN, PairList, history_from_csr, history_to_csr, pair_adjacency
+from dem.pairs import (DEFAULT_SKIN, PairList, history_from_csr, history_to_csr, pair_adjacency,
+                       pair_adjacency_of, sort_by_gid)
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 
@@ -223,6 +224,66 @@ def test_leavers_rows_and_arrivals_override_the_carry(rng, by_gid):
             if old_on[k0]:
                 assert np.array_equal(lst.hist[k], old_hist[k0])
     assert taken > 0
+
+
+def test_carry_by_ranges_equals_one_merge(rng):
+    """Threads carry a rebuild's history over T ranges of the new list, each merge starting at a
+    binary search in the old one (modes.parallel.carry_threads): the rows and flags must equal one
+    thread's merge (dem.pairs.carry_history_sorted) bit for bit, for T = 1..5, including ranges
+    that start on a pair absent from the old list."""
+    from dem.pairs import carry_history_sorted
+    from modes.parallel import carry_threads
+    n = 90
+    gid = rng.permutation(700)[:n].astype(np.int64)
+    def sorted_pairs(m):
+        pi, pj = _random_pairs(rng, n, m, gid)
+        o = np.lexsort((gid[pj], gid[pi]))
+        return pi[o], pj[o]
+    opi, opj = sorted_pairs(700)
+    ohist = rng.standard_normal((len(opi), 8))
+    oon = rng.integers(0, 2, len(opi)).astype(np.int8)
+    keep = rng.random(len(opi)) < 0.7
+    qi, qj = sorted_pairs(200)
+    both = sorted({(int(a), int(b)) for a, b in zip(opi[keep], opj[keep])} | {(int(a), int(b)) for a, b in zip(qi, qj)},
+                  key=lambda q: (gid[q[0]], gid[q[1]]))
+    pi = np.array([q[0] for q in both], dtype=np.int64)
+    pj = np.array([q[1] for q in both], dtype=np.int64)
+    ref_hist, ref_on = np.zeros((len(pi), 8)), np.zeros(len(pi), dtype=np.int8)
+    carry_history_sorted(pi, pj, gid, opi, opj, gid, oon, ohist, ref_hist, ref_on)
+    assert 0 < ref_on.sum() < len(pi)
+    for threads in range(1, 6):
+        hist, on = np.full((len(pi), 8), np.nan), np.full(len(pi), 7, dtype=np.int8)
+        carry_threads(threads, pi, pj, gid, opi, opj, gid, oon, ohist, hist, on)
+        assert np.array_equal(on, ref_on)
+        assert np.array_equal(hist[on == 1], ref_hist[ref_on == 1])
+
+
+def test_marked_adjacency_rows_and_gid_sort(rng):
+    """The gather of SPLIT reads the rows of the particles that gather only: pair_adjacency_of gives
+    each marked particle exactly its pair_adjacency row (its pairs in ascending partner gid) and
+    the others none. sort_by_gid orders the pairs by (gid_i, gid_j) as numpy's lexsort does, with
+    the particles stored in gid order (ranks taken as indices) or not (owned ones sorted, ghosts
+    after them in any order, as under MPI)."""
+    n = 80
+    for stored in ("sorted", "ghost tail"):
+        gid = np.sort(rng.permutation(900)[:n]).astype(np.int64)
+        if stored == "ghost tail":
+            gid[50:] = rng.permutation(gid[50:])
+        pi, pj = _random_pairs(rng, n, 500, gid)
+        order = rng.permutation(len(pi))
+        pi, pj = pi[order], pj[order]
+        si, sj = np.empty_like(pi), np.empty_like(pj)
+        sort_by_gid(pi.copy(), pj.copy(), gid, si, sj)
+        ref = np.lexsort((gid[pj], gid[pi]))
+        assert np.array_equal(si, pi[ref]) and np.array_equal(sj, pj[ref])
+        full = pair_adjacency(si, sj, gid, 60)
+        mark = (rng.random(60) < 0.2).astype(np.int8)
+        part = pair_adjacency_of(si, sj, gid, 60, mark)
+        assert 0 < mark.sum() < 60
+        for p in range(60):
+            got = part[1][part[0][p]:part[0][p + 1]]
+            want = full[1][full[0][p]:full[0][p + 1]] if mark[p] else full[1][:0]
+            assert np.array_equal(got, want)
 
 
 ALLOCATION_PROBE = """
