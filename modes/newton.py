@@ -63,9 +63,9 @@ checked at each rebuild all the same (one message per neighbour), and a mismatch
 never a silent one.
 
 History: the received pairs' contact history lives with the resolver. It travels back at each
-rebuild, and before a checkpoint, ahead of the list's history being written to the per-particle
-rows (sync_history), so that both ends' rows stay identical, as without Newton: migration and
-checkpoints carry them unchanged.
+rebuild, and before a checkpoint, ahead of the list's history being carried to the next list or
+written to the per-particle rows (leaver_history, sync_history), so that both ends hold the same
+history, as without Newton: migration and checkpoints carry it unchanged.
 
 The owner of a ghost is the rank whose block holds its centre: at a rebuild migration has just
 put every particle in the block that holds it, and the ghosts are chosen at those positions.
