@@ -228,19 +228,26 @@ def _take_row(hist, on, k, src, r):
     on[k] = 1
 
 
+@njit(inline="always")
+def _take_from_rows(k, own, partner, hist_start, hist_partner, hist_val, hist, on):
+    """Pair k takes the row of partner gid `partner` among own's rows (ascending partner gid) of
+    the per-particle CSR, or none (on[k] = 0)."""
+    on[k] = 0
+    for r in range(hist_start[own], hist_start[own + 1]):
+        g = hist_partner[r]
+        if g == partner:
+            _take_row(hist, on, k, hist_val, r)
+            break
+        if g > partner:
+            break
+
+
 @njit(cache=True)
 def history_from_csr(pi, pj, gid, n_owned, hist_start, hist_partner, hist_val, hist, on):
     """Give each pair the history row of its owned end (on[k] = 1), or none (on[k] = 0)."""
     for k in range(pi.shape[0]):
         own, partner = _owned_end(pi[k], pj[k], gid, n_owned)
-        on[k] = 0
-        for r in range(hist_start[own], hist_start[own + 1]):
-            g = hist_partner[r]
-            if g == partner:
-                _take_row(hist, on, k, hist_val, r)
-                break
-            if g > partner:
-                break
+        _take_from_rows(k, own, partner, hist_start, hist_partner, hist_val, hist, on)
 
 
 @njit(cache=True, _nrt=False)
@@ -250,16 +257,8 @@ def history_from_rows_where_present(pi, pj, gid, n_owned, hist_start, hist_partn
     had; the pairs of the others keep what the carry gave)."""
     for k in range(pi.shape[0]):
         own, partner = _owned_end(pi[k], pj[k], gid, n_owned)
-        if hist_start[own + 1] == hist_start[own]:
-            continue
-        on[k] = 0
-        for r in range(hist_start[own], hist_start[own + 1]):
-            g = hist_partner[r]
-            if g == partner:
-                _take_row(hist, on, k, hist_val, r)
-                break
-            if g > partner:
-                break
+        if hist_start[own + 1] > hist_start[own]:
+            _take_from_rows(k, own, partner, hist_start, hist_partner, hist_val, hist, on)
 
 
 @njit(cache=True, _nrt=False)
