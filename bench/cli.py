@@ -323,7 +323,9 @@ def _sweep_file(args):
         if want is bool and not isinstance(value, bool):
             raise UsageError(f"{key} in {args.file} must be true or false, got {value!r}")
         default = build_parser()._subparsers._group_actions[0].choices["sweep"].get_default(key)
-        if getattr(args, key, None) in (None, default, False):
+        given = getattr(args, key, None)
+        # `in (None, default, False)` would take a --skin 0 from the command line for unset (0.0 == False)
+        if given is None or given is False or given == default:
             setattr(args, key, value)
 
 

@@ -258,6 +258,9 @@ def test_skin_reaches_every_point(tmp_path):
                           'skin = 0.05\n')
     res = bench("sweep", "--file", str(sweep_file), "--dry-run", "--out", str(tmp_path / "dry3"))
     assert res.returncode == 0 and res.stdout.count("--skin 0.05") == 2, res.stdout
+    # the command line wins over the file, --skin 0 included (0.0 is not "unset")
+    res = bench("sweep", "--file", str(sweep_file), "--skin", "0", "--dry-run", "--out", str(tmp_path / "dry4"))
+    assert res.returncode == 0 and res.stdout.count("--skin 0.0") == 2 and "0.05" not in res.stdout, res.stdout
     one_line_error(bench("sweep", *SMALL, "--mappings", "1-1-1-1-2", "--skin", "11", "--out",
                          str(tmp_path / "bad")), "--skin")
     sweep_file.write_text('[sweep]\nmappings = "1-1-1-1-2"\nskin = true\n')
