@@ -396,17 +396,21 @@ def small_disk(tmp_path):
 
 
 def _fill(disk, leave=0):
-    """Fill the disk but `leave` bytes, with a file of zeros."""
-    with open(disk / "filler", "wb") as fh:
-        try:
-            while True:
-                free = os.statvfs(disk).f_bavail * os.statvfs(disk).f_frsize - leave
-                if free <= 0:
-                    break
-                fh.write(b"\0" * min(free, 1 << 20))
-                fh.flush()
-        except OSError:
-            pass
+    """Fill the disk but `leave` bytes, with a file of zeros. Raw writes (no buffer): the run writes
+    between statvfs and our write, so a write may come up short or fail, and a buffered file would
+    keep the rest and raise ENOSPC again when closed (seen in CI)."""
+    fd = os.open(disk / "filler", os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
+    try:
+        while True:
+            st = os.statvfs(disk)
+            free = st.f_bavail * st.f_frsize - leave
+            if free <= 0:
+                break
+            os.write(fd, b"\0" * min(free, 1 << 20))
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def test_full_disk_during_a_run(small_disk):
