@@ -553,7 +553,9 @@ def test_sweep_interrupted_stops_its_point_and_resumes(tmp_path):
     SIGKILL of a second sweep during the same point: its children die with it, and a --resume
     right after (it waits for the dying processes' lock) finishes with every point once."""
     out = tmp_path / "sw"
-    args = ["sweep", "--scene", "pluviation", "--particles", "200", "--steps", "20000", "--mappings", "2-2-1-1-1",
+    # 100 000 steps: the MPI point must still run when the signal comes (polled every 0.2 s; 20 000
+    # steps of 2 ranks took well under a second in CI)
+    args = ["sweep", "--scene", "pluviation", "--particles", "200", "--steps", "100000", "--mappings", "2-2-1-1-1",
             "--out", str(out)]
     ranks = lambda: list(out.glob("2-2-1-1-1-*/rep0/.ranks/rank1.json"))  # noqa: E731
     proc = _start(args)
@@ -583,7 +585,7 @@ def test_sweep_interrupted_stops_its_point_and_resumes(tmp_path):
     runs = pd.read_csv(out / "runs.csv")
     assert sorted(runs["mapping"]) == ["1-1-1-1-1", "2-2-1-1-1"] and (runs["status"] == "done").all()
     assert next(out.glob("1-1-1-1-1-*/rep0/cmd.txt")).stat().st_mtime_ns == serial  # done: not run again
-    assert len(pd.read_csv(rep / "steps.csv")) == 2 * 20000
+    assert len(pd.read_csv(rep / "steps.csv")) == 2 * 100000
 
 
 def test_second_sweep_into_one_folder_is_refused(tmp_path):
