@@ -118,15 +118,23 @@ def wall_arrays(wall_m, wall_d, materials, wall_hist):
 
 
 @njit(cache=True, inline="always")
-def contact_force(depth, nx, ny, nz, r_e, kratio, r1x, r1y, r1z, r2x, r2y, r2z, vrx, vry, vrz,
+def contact_force(depth, nx, ny, nz, ux, uy, uz, iu2, r_e, kratio, r1x, r1y, r1z, r2x, r2y, r2z, vrx, vry, vrz,
                   mstar, estar, gstar, zeta, mu, ox, oy, oz, a_old, has_hist, dt):
     """Hertz-Mindlin on one resolved contact (all scalars: numba row views cost atomic refcounts).
 
-    n = (nx, ny, nz) unit normal from body 1 to body 2; r1, r2 lever arms from the mass centres
-    to the contact point [m]; vr = relative velocity of body 2 w.r.t. body 1 at the contact point
-    [m/s]; (ox, oy, oz, a_old) the stored spring [N] and contact radius [m] when has_hist.
-    The stored spring is rotated into the new tangent plane by projection and rescaled to its old
-    magnitude (contact-mechanics.md §3.2 step 1).
+    n = (nx, ny, nz) unit normal from body 1 to body 2, u = (ux, uy, uz) the same direction as the
+    caller found it before normalising, n = u/|u|, iu2 = 1/|u|^2 [1/unit^2] (two spheres: the
+    centre line and its inverse squared length; n itself and 1.0 elsewhere); r1, r2 lever arms
+    from the mass centres to the contact point [m]; vr = relative velocity of body 2 w.r.t. body 1
+    at the contact point [m/s]; (ox, oy, oz, a_old) the stored spring [N] and contact radius [m]
+    when has_hist.
+    The stored spring o is rotated into the new tangent plane by projection and rescaled to its
+    old magnitude (contact-mechanics.md §3.2 step 1), in terms of u:
+        F_s = s (o - c u),  c = (o.u) iu2,  s^2 = |o|^2 / (|o|^2 - c (o.u))
+    (|o - (o.n) n|^2 = |o|^2 - (o.n)^2). Written on u rather than n, the rotation does not wait for
+    the root and division that make n: on a sphere bed the law's chain of divisions and roots sets
+    its time (measured: resolution 15 % faster without the rotation's root and division, 5 %
+    faster on u than on n).
     Returns (F [3] on body 2 (body 1 gets -F), torque on 1 [3], torque on 2 [3], spring [3], a).
     """
     vn = vrx * nx + vry * ny + vrz * nz
@@ -137,9 +145,10 @@ def contact_force(depth, nx, ny, nz, r_e, kratio, r1x, r1y, r1z, r2x, r2y, r2z, 
     else:
         old2 = ox * ox + oy * oy + oz * oz
         if old2 > 0.0:
-            dn = ox * nx + oy * ny + oz * nz
-            ftx, fty, ftz = ox - dn * nx, oy - dn * ny, oz - dn * nz
-            new2 = ftx * ftx + fty * fty + ftz * ftz
+            du = ox * ux + oy * uy + oz * uz
+            c = du * iu2
+            ftx, fty, ftz = ox - c * ux, oy - c * uy, oz - c * uz
+            new2 = old2 - c * du  # |o - c u|^2
             if new2 > 0.0:
                 s = math.sqrt(old2 / new2)
                 ftx *= s
@@ -252,13 +261,14 @@ def _take_terms(c, k, i, j, terms, on, sums):
 @njit(cache=True, inline="always")
 def pair_law(k, i, j, geo, bodies, law, plist, dt, sums):
     """contact_force for particles i -> j of pair k, on the resolved geometry geo = (depth [m],
-    normal from i to j [3], contact point [3] [m], R_e [m], kappa ratio, PW lambda); the old
-    history is read from and the new one written to hist[k] (it is valid when on[k] == 1), the
-    forces handed on by _deliver (sums)."""
+    normal from i to j [3], the normal unnormalised u [3] and iu2 = 1/|u|^2 (contact_force),
+    contact point [3] [m], R_e [m], kappa ratio, PW lambda); the old history is read from and the
+    new one written to hist[k] (it is valid when on[k] == 1), the forces handed on by _deliver
+    (sums)."""
     pos, vel, _, _, mass, _, _, _, _, material, _, _, _, omega = bodies
     estar, gstar, mu, zeta = law
     _, _, hist, on, _ = plist
-    depth, nx, ny, nz, xcx, xcy, xcz, r_e, kratio, lam = geo
+    depth, nx, ny, nz, ux, uy, uz, iu2, xcx, xcy, xcz, r_e, kratio, lam = geo
     r1x, r1y, r1z = xcx - pos[i, 0], xcy - pos[i, 1], xcz - pos[i, 2]
     r2x, r2y, r2z = xcx - pos[j, 0], xcy - pos[j, 1], xcz - pos[j, 2]
     vrx = (vel[j, 0] + (omega[j, 1] * r2z - omega[j, 2] * r2y)
@@ -271,7 +281,8 @@ def pair_law(k, i, j, geo, bodies, law, plist, dt, sums):
     mj = mass[j]
     a = material[i]
     b = material[j]
-    f = contact_force(depth, nx, ny, nz, r_e, kratio, r1x, r1y, r1z, r2x, r2y, r2z, vrx, vry, vrz,
+    f = contact_force(depth, nx, ny, nz, ux, uy, uz, iu2, r_e, kratio, r1x, r1y, r1z, r2x, r2y, r2z,
+                      vrx, vry, vrz,
                       mi * mj / (mi + mj), estar[a, b], gstar[a, b], zeta[a, b], mu[a, b],
                       hist[k, H_FT], hist[k, H_FT + 1], hist[k, H_FT + 2], hist[k, H_A], on[k] == 1, dt)
     _store_history(hist, k, f, nx, ny, nz, lam)
@@ -314,7 +325,16 @@ def _sphere_pair(k, i, j, bodies, law, plist, dt, sums):
     if not hit:
         on[k] = 0
         return -1.0
-    pair_law(k, i, j, (depth, nx, ny, nz, xcx, xcy, xcz, r_e, 1.0, 0.0), bodies, law, plist, dt, sums)
+    # the centre line u as sphere_contact found it, n = u/|u|, for the spring's rotation: its
+    # reciprocal square length does not wait for n's root and division
+    ux, uy, uz = pos[j, 0] - pos[i, 0], pos[j, 1] - pos[i, 1], pos[j, 2] - pos[i, 2]
+    u2 = ux * ux + uy * uy + uz * uz
+    if u2 == 0.0:  # coincident centres: sphere_contact's fixed normal
+        ux, uy, uz, iu2 = nx, ny, nz, 1.0
+    else:
+        iu2 = 1.0 / u2
+    pair_law(k, i, j, (depth, nx, ny, nz, ux, uy, uz, iu2, xcx, xcy, xcz, r_e, 1.0, 0.0), bodies, law, plist, dt,
+             sums)
     on[k] = 1
     return depth / min(axes[i, 0], axes[j, 0])
 
@@ -328,7 +348,8 @@ def _solved_pair(hit, k, i, j, out, amin_i, amin_j, bodies, law, plist, dt, sums
         on[k] = 0
         return -1.0
     depth = out[OUT_DEPTH]
-    pair_law(k, i, j, (depth, out[OUT_NX], out[OUT_NY], out[OUT_NZ], out[OUT_XCX], out[OUT_XCY], out[OUT_XCZ],
+    nx, ny, nz = out[OUT_NX], out[OUT_NY], out[OUT_NZ]
+    pair_law(k, i, j, (depth, nx, ny, nz, nx, ny, nz, 1.0, out[OUT_XCX], out[OUT_XCY], out[OUT_XCZ],
                        out[OUT_RE], out[OUT_KRATIO], out[OUT_LAM]), bodies, law, plist, dt, sums)
     on[k] = 1
     return depth / min(amin_i, amin_j)
@@ -530,7 +551,8 @@ def _wall_particle(p, walls, bodies, polys, dt, out, fx, fy, fz, tx, ty, tz):
         vry = -vel[p, 1] - (omega[p, 2] * r1x - omega[p, 0] * r1z)
         vrz = -vel[p, 2] - (omega[p, 0] * r1y - omega[p, 1] * r1x)
         a = material[p]
-        f = contact_force(depth, -mx, -my, -mz, r_e, kratio, r1x, r1y, r1z, 0.0, 0.0, 0.0, vrx, vry, vrz,
+        f = contact_force(depth, -mx, -my, -mz, -mx, -my, -mz, 1.0, r_e, kratio, r1x, r1y, r1z, 0.0, 0.0, 0.0,
+                          vrx, vry, vrz,
                           mass[p], estar_w[a], gstar_w[a], zeta_w[a], mu_w[a],
                           wall_hist[p, w, H_FT], wall_hist[p, w, H_FT + 1], wall_hist[p, w, H_FT + 2],
                           wall_hist[p, w, H_A], wall_hist[p, w, H_A] > 0.0, dt)
