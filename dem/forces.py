@@ -132,9 +132,9 @@ def contact_force(depth, nx, ny, nz, ux, uy, uz, iu2, r_e, kratio, r1x, r1y, r1z
     old magnitude (contact-mechanics.md §3.2 step 1), in terms of u:
         F_s = s (o - c u),  c = (o.u) iu2,  s^2 = |o|^2 / (|o|^2 - c (o.u))
     (|o - (o.n) n|^2 = |o|^2 - (o.n)^2). Written on u rather than n, the rotation does not wait for
-    the root and division that make n: on a sphere bed the law's chain of divisions and roots sets
-    its time (on LAMMPS's bed, bench peer lammps: resolution 15 % faster with the rotation's root
-    and division left out, 9-10 % faster on u than on n).
+    the root and division that make n, a chain that set the time of a sphere contact (the settled
+    bed of `bench peer lammps`, resolution alone: 15 % faster with the rotation's root and
+    division left out, 9-10 % faster on u than on n).
     Returns (F [3] on body 2 (body 1 gets -F), torque on 1 [3], torque on 2 [3], spring [3], a).
     """
     vn = vrx * nx + vry * ny + vrz * nz
