@@ -14,6 +14,7 @@ import socket
 import sys
 import time
 
+from bench.run.binding import establish, recheck
 from bench.run.checkpoint import load_checkpoint, write_checkpoint
 from bench.run.figure import plot_run
 from bench.run.guard import StabilityGuard
@@ -80,6 +81,8 @@ def run(args):
             print(f"bench: warning: {w}", file=sys.stderr)
     if mapping.procs > 1:
         return launch_mpi(args, mapping, scene, out, ts)
+    # bound (--pin) and recorded before the mode allocates (first touch) and before any timing
+    args.affinity = establish(mapping.threads, args.pin)
     mode = mode_cls().setup(scene, dt=ts.dt, **mode_options(mapping, args, scheme))
     return execute(args, scene, mapping, scheme, mode, out, ts)
 
@@ -169,7 +172,8 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
             "procs": mapping.procs, "px": mapping.px, "py": mapping.py, "pz": mapping.pz,
             "threads": mapping.threads, "scheme": scheme,
             "threaded": args.threaded if mapping.threads > 1 else None, "pin": args.pin,
-            "threading": _threading_info(), "mpi_transport": transport_info(),
+            "threading": _threading_info(), "affinity": getattr(args, "affinity", None),
+            "mpi_transport": transport_info(),
             "neighbor": args.neighbor, "contact_method": getattr(args, "contact_method", "exact"),
             "skin": mode.skin_fraction, "skin_m": mode.skin, "skin_requested": args.skin,
             "halo": args.halo if mapping.procs > 1 else None,
@@ -275,6 +279,8 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
         raise
     wall = time.perf_counter() - t_wall
     meter.stop()
+    if hasattr(args, "affinity"):  # did the binding hold through the run (collective)
+        info["affinity"] = recheck(args.affinity, mapping.threads, args.pin, comm)
     mode.release()  # MPI: complete the exchange the last step started, free its requests
     snap = mode.snapshot()
     worst = mode.max_overlap_ratio if comm is None else comm.allreduce(mode.max_overlap_ratio, op=_max_op())

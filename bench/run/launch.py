@@ -11,9 +11,13 @@ or stopped responding (heartbeats), keeps and marks the records, and dies with t
 forwards SIGINT, SIGTERM and SIGHUP to it and waits for it (issue 15). Environment:
 NUMBA_NUM_THREADS = T; more ranks x threads than usable CPUs get a one-line warning and
 OMP_WAIT_POLICY=PASSIVE; mpich's shared-memory cells sized for a step's messages
-(bench.run.transport). --pin binds each rank to T cores: Hydra (MPICH) `-bind-to core:T`; the
-Open MPI equivalent is `--map-by slot:PE=T --bind-to core`, and Slurm's `srun --cpus-per-task=T
---cpu-bind=cores`. `--mpi-starter CMD` replaces `mpiexec -n P` (a Slurm job starts its ranks with
+(bench.run.transport). --pin: each rank binds itself and its threads to the plan of
+bench.run.binding over the CPUs its node's ranks were given, whatever the starter; Hydra (MPICH)
+is asked for `-bind-to core:T` as well (Open MPI's equivalent is `--map-by slot:PE=T --bind-to
+core`, Slurm's `srun --cpus-per-task=T --cpu-bind=cores`). This process runs a parallel warm-up
+before it starts the ranks, which an OMP_PROC_BIND in the environment would pin to one CPU, and
+the ranks would inherit it: its CPU set is restored after the warm-up, and the ranks get the count
+it had (DEM_BENCH_NODE_CPUS), against which they check their own. `--mpi-starter CMD` replaces `mpiexec -n P` (a Slurm job starts its ranks with
 `srun --mpi=pmi2 ...`, bench.sweep.slurm); the starter then places the ranks, possibly over
 several nodes, so the CPUs of this process are not compared with P x T.
 """
@@ -26,6 +30,7 @@ import signal
 import subprocess
 import sys
 
+from bench.run.binding import NODE_CPUS_ENV, plan_binding, read_topology
 from bench.run.lifeline import Interrupted, child_env, inherited_lock
 from bench.run.threads_env import check_size, usable_cpus
 from bench.run.transport import transport_env
@@ -88,10 +93,17 @@ def launch_mpi(args, mapping, scene, out, ts):
             raise ModeError("mapping with P > 1 needs mpiexec (pip install mpich, or a system MPI)")
         cmd = [exe, "-n", str(mapping.procs)]
         if args.pin:
+            plan_binding(read_topology(os.sched_getaffinity(0)), mapping.procs, mapping.threads)  # or one line
             cmd += ["-bind-to", f"core:{mapping.threads}"]
-    warm_cache(scene, mapping, args, ts.dt)
+    mine = os.sched_getaffinity(0)
+    try:
+        warm_cache(scene, mapping, args, ts.dt)
+    finally:
+        os.sched_setaffinity(0, mine)  # what the ranks inherit (module docstring)
     env = transport_env(dict(os.environ, NUMBA_NUM_THREADS=str(mapping.threads)))
     cpus = usable_cpus()
+    if not starter:  # a starter may place the ranks on other nodes
+        env[NODE_CPUS_ENV] = str(len(mine))
     if not starter and mapping.procs * mapping.threads > cpus:
         env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
         print(f"bench: warning: {mapping.procs} ranks x {mapping.threads} threads on {cpus} usable CPUs "

@@ -86,7 +86,7 @@ def add_run_arguments(r):
                                                   "dynamic (default dynamic; mappings with T > 1)")
     r.add_argument("--threaded", choices=["step", "detection"], default="step",
                    help="thread the whole step (default) or only contact detection (the paper's code)")
-    r.add_argument("--pin", action="store_true", help="pin threads to cores (OMP_PROC_BIND/OMP_PLACES)")
+    r.add_argument("--pin", action="store_true", help="give each rank T cores of its own and each thread one of them (bench.run.binding)")
     r.add_argument("--neighbor", choices=NEIGHBOR_CHOICES, default="linkcell")
     r.add_argument("--contact-method", choices=CONTACT_METHOD_CHOICES, default=None,
                    help="ellipsoid contact geometry: exact (PW + Newton, default; a restart: the checkpoint's), "

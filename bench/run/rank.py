@@ -14,6 +14,7 @@ import time
 
 from mpi4py import MPI
 
+from bench.run.binding import BindingError, establish
 from bench.run.checkpoint import load_checkpoint
 from bench.run.driver import execute
 from bench.run.heartbeat import Heartbeat
@@ -36,6 +37,13 @@ def main(argv):
         raise SystemExit(f"bench: error: started with {comm.Get_size()} ranks for mapping {mapping}")
     beat = Heartbeat(args.out, comm.Get_rank())
     cart = comm.Create_cart([mapping.px, mapping.py, mapping.pz], periods=[False] * 3, reorder=False)
+    try:  # bound (--pin) and recorded before the scene is loaded (first touch) and anything timed
+        args.affinity = establish(mapping.threads, args.pin, cart)
+    except BindingError as e:  # the same on every rank: rank 0 says it, all end
+        if cart.Get_rank() == 0:
+            print(f"bench: error: {e}", file=sys.stderr, flush=True)
+        beat.stop()
+        return 1
     if args.restart:  # every rank reads the checkpoint; the mode keeps the particles of its block
         scene, meta = load_checkpoint(args.restart)
         ts = TimeStep.from_dict(meta["time_step"])

@@ -1,7 +1,9 @@
 """Thread environment of a run, set before numba starts (numba reads it at import).
 
-NUMBA_NUM_THREADS = T of the mapping. --pin binds the omp layer's threads to cores
-(OMP_PROC_BIND=close, OMP_PLACES=cores). More threads than the CPUs this process may use get a
+NUMBA_NUM_THREADS = T of the mapping. --pin sets nothing here: the run binds its ranks and threads
+itself (bench.run.binding), because OMP_PROC_BIND in a launching process binds that process's main
+thread to one CPU as soon as it runs a parallel region, and every rank it starts inherits that one
+CPU (a pinned 4-2-2-1-4 ran all four ranks on CPU 0). More threads than the CPUs this process may use get a
 one-line warning and OMP_WAIT_POLICY=PASSIVE: spinning GNU OpenMP threads on shared cores were
 seen to make steps 100x slower.
 """
@@ -62,9 +64,7 @@ def configure_threads(mapping_text, pin=False, procs_per_node=1):
     os.environ["NUMBA_NUM_THREADS"] = str(threads)
     info = {"NUMBA_NUM_THREADS": threads}
     if pin:
-        os.environ.setdefault("OMP_PROC_BIND", "close")
-        os.environ.setdefault("OMP_PLACES", "cores")
-        info.update(OMP_PROC_BIND=os.environ["OMP_PROC_BIND"], OMP_PLACES=os.environ["OMP_PLACES"])
+        info["pin"] = "bench.run.binding"
     cpus = usable_cpus()
     if threads * procs_per_node > cpus:
         os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")

@@ -107,10 +107,8 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
 
 
 def point_env(point):
-    """The thread variables of a point's processes (NUMBA_NUM_THREADS, OMP_NUM_THREADS = T; with
-    --pin OMP_PROC_BIND=close and OMP_PLACES=cores)."""
+    """The thread variables of a point's processes (NUMBA_NUM_THREADS, OMP_NUM_THREADS = T). --pin
+    sets no OMP binding here: `bench run --pin` binds its ranks and threads itself
+    (bench.run.binding)."""
     m = parse_mapping(point.mapping)
-    env = {"NUMBA_NUM_THREADS": str(m.threads), "OMP_NUM_THREADS": str(m.threads)}
-    if point.pin:
-        env.update(OMP_PROC_BIND="close", OMP_PLACES="cores")
-    return env
+    return {"NUMBA_NUM_THREADS": str(m.threads), "OMP_NUM_THREADS": str(m.threads)}

@@ -42,11 +42,11 @@ RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores"
                "particles", "steps", "repeats", "status", "reason", "totalT", "commuT", "migraT", "compuT",
                "syncT", "wireT", "above_wireT", "neighborT", "resolveT", "overhead_pct", "speedup", "efficiency", "edsf", "rss_mb", "err_max",
                "err_rms", "stable", "wall_s", "load_before", "load_after", "contact_method",
-               "skin", "foreign_cores", "foreign_cpu_s", "step_spread", "totalT_spread", "flag"]
+               "skin", "binding", "foreign_cores", "foreign_cpu_s", "step_spread", "totalT_spread", "flag"]
 
 
 TEXT_COLUMNS = ("point", "mapping", "scheme", "neighbor", "scene", "status", "reason", "stable", "contact_method",
-                "flag")
+                "binding", "flag")
 
 LOAD_FLAG_CORES = 0.25      # foreign CPUs busy on average during a repeat's timed steps
 SPREAD_FLAG_REPEATS = 0.10  # (max - min) / median of totalT over the repeats
@@ -185,7 +185,7 @@ def summarise(point, rep_dirs, ref_state, t1, statuses=None):
                cores=m.procs * m.threads, scheme=point.scheme, neighbor=point.neighbor, scene=point.scene,
                contact_method=point.contact_method,
                repeats=len(rep_dirs), status="done", reason="")
-    times, walls, loads, spreads = [], [], [], []
+    times, walls, loads, spreads, bindings = [], [], [], [], []
     state = None
     statuses = statuses or [read_status(d) for d in rep_dirs]
     for status in statuses:
@@ -198,6 +198,7 @@ def summarise(point, rep_dirs, ref_state, t1, statuses=None):
         walls.append(info.get("wall_s", math.nan))
         loads.append(info.get("load") or {})
         spreads.append((info.get("step_time") or {}).get("spread"))
+        bindings.append(binding_word(info.get("affinity")))
         row.update(particles=info["particles"], steps=info["steps"], stable=info["stable"], skin=info.get("skin"))
         state = dict(np.load(os.path.join(d, "state.npz")))
     for k in times[0]:
@@ -205,11 +206,23 @@ def summarise(point, rep_dirs, ref_state, t1, statuses=None):
     if m.procs == 1:  # no MPI, no wire, no allreduce (a serial steps.csv may carry wire_s = 0)
         row["syncT"] = row["wireT"] = row["above_wireT"] = math.nan
     row["wall_s"] = float(np.median(walls))
+    row["binding"] = next((b for b in bindings if b == "lost"), bindings[0] if bindings else "")
     trust(row, [t["totalT"] for t in times], loads, spreads)
     row["overhead_pct"] = 100.0 * (row["commuT"] + row["migraT"]) / row["totalT"] if row["totalT"] > 0 else math.nan
     with_speedup(row, t1)
     row["err_max"], row["err_rms"] = state_error(ref_state, state)
     return row
+
+
+def binding_word(affinity):
+    """runs.csv `binding` of one repeat from run.json `affinity` (bench.run.binding): `pinned` or
+    `unpinned` when the binding held from the first step to the last, `lost` when it did not, ''
+    for records without it."""
+    if not affinity:
+        return ""
+    if not affinity.get("held", False):
+        return "lost"
+    return "pinned" if affinity.get("pinned") else "unpinned"
 
 
 def _num(v):

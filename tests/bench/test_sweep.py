@@ -41,6 +41,7 @@ def test_sweep_records_metrics_figures(tmp_path):
     assert np.allclose(runs["speedup"], t1 / runs["totalT"])
     assert np.allclose(runs["efficiency"], runs["speedup"] / runs["cores"])
     assert (runs["err_max"] == 0).all() and (runs["err_rms"] == 0).all()  # bit-identical modes
+    assert (runs["binding"] == "unpinned").all()  # each run's affinity records held (bench.run.binding)
     assert np.allclose(runs["compuT"], runs["totalT"] - runs["commuT"] - runs["migraT"])
     man = json.loads((out / "manifest.json").read_text())
     for key in ("numpy", "numba", "mpi4py", "mpi_library", "cpu_count", "cpu_model", "git_commit", "load"):

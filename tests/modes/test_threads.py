@@ -338,7 +338,13 @@ def test_run_records_threads(tmp_path):
     info = json.loads((out / "run.json").read_text())
     assert info["threads"] == 2 and info["scheme"] == "headtail" and info["pin"] is True
     assert info["threading_layer"] in ("omp", "tbb", "workqueue")
-    assert info["threading"]["NUMBA_NUM_THREADS"] == 2 and info["threading"]["OMP_PROC_BIND"] == "close"
+    assert info["threading"]["NUMBA_NUM_THREADS"] == 2
+    # --pin binds through bench.run.binding (no OMP_PROC_BIND, which pinned launchers to one CPU):
+    # on the 2-CPU machines of CI thread 0 alone on CPU 0 and thread 1 on CPU 1 (plan_binding)
+    if os.sched_getaffinity(0) == {0, 1}:
+        threads = info["affinity"]["ranks"][0]["threads"]
+        assert [(t["cpus"], t["ran_on"]) for t in threads] == [([0], 0), ([1], 1)]
+    assert info["affinity"]["pinned"] is True and info["affinity"]["held"] is True
     import pandas as pd
     steps = pd.read_csv(out / "steps.csv")
     assert {"imbalance", "work_imbalance", "busy_max", "nsf"} <= set(steps.columns)
