@@ -1,5 +1,5 @@
 """The `bench` command line: run, sweep, plot, collect, contacts, scenes, schemes, perf, shapes,
-accuracy, peer.
+accuracy, peer, node.
 
 Every bad input ends with one line `bench: error: ...` on stderr and exit status 2. Each command
 imports its module when it runs, after it has set the thread variables that numba reads when it
@@ -177,6 +177,20 @@ def build_parser():
     pf.add_argument("--skin", type=skin_fraction, default=0.1, metavar="F",
                     help="Verlet skin for the second set of packed figures (default 0.1)")
     pf.add_argument("--out", default=None, help="write perf.json here")
+
+    nd = sub.add_parser("node", help="the many-core check of this node: unpinned and pinned sweeps, the ceiling, "
+                                     "Table 1, and a verdict against issue 32's targets")
+    nd.add_argument("--cores", type=positive_int, default=None, help="cores to use (default: every usable CPU)")
+    nd.add_argument("--particles", type=positive_int, default=12000, help="packed ellipsoids (default 12000)")
+    nd.add_argument("--steps", type=positive_int, default=100, help="timed steps a run (default 100)")
+    nd.add_argument("--warmup", type=nonneg_int, default=10, help="untimed steps a run (default 10)")
+    nd.add_argument("--repeats", type=positive_int, default=2, help="repeats a point (default 2)")
+    nd.add_argument("--schemes-particles", type=positive_int, default=2500, help="Table 1's scene (default 2500)")
+    nd.add_argument("--schemes-repeats", type=positive_int, default=21, help="Table 1's rounds (default 21)")
+    nd.add_argument("--sweep-time", type=positive_int, default=200, help="seconds for each sweep (default 200)")
+    nd.add_argument("--schemes-time", type=positive_int, default=60, help="seconds for Table 1 (default 60)")
+    nd.add_argument("--point-timeout", type=positive_int, default=200, help="seconds a run (default 200)")
+    nd.add_argument("--out", default="results/node", help="folder for the records and verdict.md")
 
     sh = sub.add_parser("shapes", help="per-contact / per-step cost and NSF of spheres, ellipsoids, poly-ellipsoids")
     sh.add_argument("--particles", type=positive_int, default=2000, help="packed scene size (default 2000)")
@@ -516,6 +530,16 @@ def cmd_shapes(args):
 
 
 @_one_line
+def cmd_node(args):
+    if not args.out.strip():
+        raise UsageError("--out must be a folder, got an empty string")
+    if args.cores and args.cores > len(os.sched_getaffinity(0)):
+        raise UsageError(f"bench node: --cores {args.cores} is more than the {len(os.sched_getaffinity(0))} usable CPUs")
+    from bench.studies.node import node_check
+    return node_check(args)
+
+
+@_one_line
 def cmd_accuracy(args):
     from bench.studies.accuracy import accuracy
     return accuracy(args)
@@ -523,7 +547,7 @@ def cmd_accuracy(args):
 
 COMMANDS = {"accuracy": cmd_accuracy, "run": cmd_run, "contacts": cmd_contacts, "scenes": cmd_scenes, "perf": cmd_perf,
             "schemes": cmd_schemes, "sweep": cmd_sweep, "plot": cmd_plot, "collect": cmd_collect,
-            "shapes": cmd_shapes, "peer": cmd_peer}
+            "shapes": cmd_shapes, "peer": cmd_peer, "node": cmd_node}
 
 
 if __name__ == "__main__":

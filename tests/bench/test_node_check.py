@@ -1,0 +1,88 @@
+"""`bench node` (bench/studies/node.py): the many-core check's mappings, its verdict read from
+records, and its bad input. The check itself runs on a many-core node (README, "Sixteen cores");
+its records are those of `bench sweep` and `bench schemes`, tested in their own files."""
+import pandas as pd
+import pytest
+
+from bench.studies.node import grid, mappings, verdict
+from tests.helpers import bench, one_line_error
+
+
+def test_mappings_at_16_are_issue_32s():
+    """At 16 cores the sweeps the issue ran on the lent machine (issue 32, "Why"): unpinned
+    1-1-1-1-4,1-1-1-1-16,2-2-1-1-8,4-2-2-1-4,8-2-2-2-2,4-2-2-1-1,16-4-2-2-1; pinned with the ceiling
+    1-1-1-1-16, 4-2-2-1-4, 16-4-2-2-1."""
+    unpinned, pinned = mappings(16)
+    assert unpinned == ["1-1-1-1-4", "1-1-1-1-16", "2-2-1-1-8", "4-2-2-1-4", "8-2-2-2-2", "4-2-2-1-1", "16-4-2-2-1"]
+    assert pinned == ["1-1-1-1-16", "4-2-2-1-4", "16-4-2-2-1"]
+
+
+def test_mappings_elsewhere():
+    """2 cores (the rehearsal): 2 threads and 2 ranks; 36 (the paper's Thunder node): 9 threads,
+    36 threads, 2 x 18, 4 x 9, 9 ranks, 36 ranks on a 4x3x3 grid."""
+    assert mappings(2) == (["1-1-1-1-2", "2-2-1-1-1"], ["1-1-1-1-2", "2-2-1-1-1"])
+    unpinned, pinned = mappings(36)
+    assert unpinned == ["1-1-1-1-9", "1-1-1-1-36", "2-2-1-1-18", "4-2-2-1-9", "9-3-3-1-1", "36-4-3-3-1"]
+    assert pinned == ["1-1-1-1-36", "4-2-2-1-9", "36-4-3-3-1"]
+    assert [grid(p) for p in (1, 2, 4, 8, 9, 16, 12)] == [(1, 1, 1), (2, 1, 1), (2, 2, 1), (2, 2, 2), (3, 3, 1),
+                                                         (4, 2, 2), (3, 2, 2)]
+
+
+def _runs(rows):
+    cols = ["mapping", "status", "totalT", "resolveT", "efficiency", "totalT_spread", "binding", "flag", "procs",
+            "threads", "point"]
+    return pd.DataFrame([dict(zip(cols, r)) for r in rows])
+
+
+def test_verdict_reads_the_targets():
+    """Issue 32's 16-core figures as records: 4 threads 6.67 ms against 4 ranks 4.88 ms is 1.367
+    (37 % slower, target <= 1.1); 16 threads 2.15 against 16 ranks 2.06 is 1.044 (met); 16 ranks at
+    efficiency 0.553 over an in-step ceiling 0.635 is 0.871 (target >= 0.9)."""
+    unpinned = _runs([
+        ("1-1-1-1-1", "done", 18.97e-3, 13.5e-3, 1.0, 0.34, "unpinned", "spread", 1, 1, "a"),
+        ("1-1-1-1-4", "done", 6.67e-3, 5.2e-3, 0.71, 0.05, "unpinned", "", 1, 4, "b"),
+        ("4-2-2-1-1", "done", 4.88e-3, 3.65e-3, 0.97, 0.02, "unpinned", "", 4, 1, "c"),
+        ("1-1-1-1-16", "done", 2.15e-3, 1.5e-3, 0.55, 0.02, "unpinned", "", 1, 16, "d"),
+        ("16-4-2-2-1", "done", 2.06e-3, 1.0e-3, 0.58, 0.03, "unpinned", "", 16, 1, "e"),
+        ("4-2-2-1-4", "done", 2.16e-3, 1.2e-3, 0.55, 0.02, "unpinned", "", 4, 4, "f"),
+    ])
+    pinned = _runs([
+        ("1-1-1-1-16", "done", 2.0e-3, 1.4e-3, 0.59, 0.01, "pinned", "", 1, 16, "g"),
+        ("16-4-2-2-1", "done", 2.14e-3, 1.0e-3, 0.553, 0.01, "pinned", "", 16, 1, "h"),
+        ("4-2-2-1-4", "done", 2.3e-3, 1.2e-3, 0.52, 0.01, "pinned", "", 4, 4, "i"),
+    ])
+    ceiling = pd.DataFrame([{"cores": 16, "ceiling_free": 0.957, "ceiling_step": 0.635}])
+    schemes = pd.DataFrame([
+        {"method": "dynamic", "neighbor": "allpairs", "speedup": 5.4, "efficiency_own": 0.34},
+        {"method": "dynamic", "neighbor": "linkcell", "speedup": 3.0, "efficiency_own": 0.2},
+    ])
+    text = "\n".join(verdict(16, unpinned, pinned, ceiling, schemes, steps={"1-1-1-1-4": 1.2}))
+    assert "- 1-1-1-1-4 / 4-2-2-1-1, step time: 1.367 (target <= 1.1: NOT met; repeats' spread up to 5 %)" in text
+    assert "- 1-1-1-1-16 / 16-4-2-2-1, step time: 1.044 (target <= 1.1: met; repeats' spread up to 3 %)" in text
+    assert "- 1-1-1-1-4, slowest thread over the mean: 1.200 (target <= 1.05: NOT met)" in text
+    assert ("- 16-4-2-2-1 (pinned, the ceiling's sweep) efficiency over the in-step ceiling: 0.553 / 0.635 = 0.871 "
+            "(target >= 0.9: NOT met; free ceiling 0.957)") in text
+    # 2.0 / 2.15 = 0.930: pinned faster; 2.3 / 2.16 = 1.065: pinned slower
+    assert "- 1-1-1-1-16 pinned / unpinned, step time (two sweeps): 0.930 (target <= 1: met;" in text
+    assert "- 4-2-2-1-4 pinned / unpinned, step time (two sweeps): 1.065 (target <= 1: NOT met;" in text
+    assert "- binding of the pinned points: pinned, pinned, pinned" in text
+    assert "dynamic all-pairs detection speedup at 16 threads: 5.40x (target >= 11 at 16: NOT met)" in text
+    assert "- Table 1 link-cell dynamic: eff_own 0.20 (target >= 0.7: NOT met)" in text
+
+
+def test_verdict_names_what_is_missing():
+    """A part that ran out of time and a failed point: named, not guessed."""
+    unpinned = _runs([("1-1-1-1-1", "done", 1e-3, 1e-3, 1.0, 0.0, "unpinned", "", 1, 1, "a"),
+                      ("1-1-1-1-2", "failed", float("nan"), float("nan"), float("nan"), 0.0, "", "", 1, 2, "b")])
+    lines = verdict(2, unpinned, None, None, None, missing=["pinned sweep with the ceiling (past 200 s)"])
+    assert "- pinned sweep with the ceiling (past 200 s): did not finish in its time (see log)" in lines
+    assert "- 1-1-1-1-2 / 2-2-1-1-1, step time: not measured (a point missing or failed)" in lines
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--cores", "0"], ["--cores"]),
+    (["--cores", "100000"], ["--cores 100000 is more than the"]),
+    (["--out", " "], ["--out must be a folder"]),
+])
+def test_bad_input(tmp_path, args, words):
+    one_line_error(bench("node", *(["--out", str(tmp_path / "n")] if "--out" not in args else []), *args), *words)
