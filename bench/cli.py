@@ -149,14 +149,15 @@ def build_parser():
                     help="timed steps (default 20; --what skin: steps per round, default 1000)")
     pf.add_argument("--what", default="all",
                     choices=["all", "pairs", "ellipsoids", "spheres", "comm", "overhead", "skin", "contention",
-                             "split"],
+                             "split", "phases"],
                     help="comm: OSU-style ping-pong between neighbour ranks (latency, bandwidth, fitted "
                          "alpha/beta); overhead: the fixed cost of a step (48 particles) and 2 ranks against "
                          "serial with commuT + migraT against the wire; skin: the cost of a step against the "
                          "Verlet skin; contention: the efficiency ceiling of --procs workers that share "
                          "nothing (independent serial copies of the scene at particles/procs each); split: "
-                         "the costs behind the thread schemes' cost model, measured on the mixed crystal "
-                         "(none of these is part of all)")
+                         "the costs behind the thread schemes' cost model, measured on the mixed crystal; "
+                         "phases: every phase of a step at 1 and --threads T, speedup and Karp-Flatt "
+                         "serial fraction (none of these is part of all)")
     pf.add_argument("--repeats", type=positive_int, default=3,
                     help="--what overhead: alternating runs per configuration; --what skin: round-robin "
                          "rounds; --what split: timing rounds; medians (default 3)")
@@ -449,6 +450,12 @@ def cmd_perf(args):
         return _one_line(perf_skin)(args)
     if args.what == "split":
         return _perf_report(args, lambda: _perf_split(args))
+    if args.what == "phases":
+        if args.threads < 2:
+            raise UsageError("bench perf --what phases needs --threads T >= 2")
+        from bench.studies.perf_phases import measure as phases
+        return _one_line(lambda a: _perf_report(a, lambda: phases(a.particles, a.threads, a.steps or 20,
+                                                                  a.repeats, log=print)))(args)
     if args.steps is None:
         args.steps = 20
     from bench.studies.perf import perf

@@ -170,21 +170,32 @@ class SerialMode:
         list, or from the state's rows on a first build and where particles migrate), and
         the wall list (the particles within their bounding radius plus half the skin of a wall)."""
         self.entries = {}  # the kernels' arguments may take other types now (kernel_call)
+        clock = self.clock
+        t0 = clock()
         s = self.state
         self.ensure_derived()
         self.derive(0, s.n)
+        t1 = clock()
         reach = s.rbound + 0.5 * self.skin if self.skin > 0 else s.rbound
         m = self.find_pairs(reach)
+        t2 = clock()
         # the first build takes the state's own (loaded) history; later ones carry the list's own,
         # and where particles migrated (MPI) the pairs of those that came take their rows (state)
         self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos,
                        by_gid=self.deliver != STORE, carry=bool(self.pairs.rebuilds), rows=self.migrates,
                        carry_sorted=self.carry_sorted)
+        t3 = clock()
         self.pairs.near = np.zeros(s.n_owned, dtype=np.int8)
         wall_candidates(s.n_owned, s.pos, reach, *self.wall_planes(), s.wall_hist, self.pairs.near)
         self.plist = self.pairs.arrays
+        t4 = clock()
         self.split()
+        t5 = clock()
         self.adj = self.pairs.gather_arrays(self.deliver, self.gat)
+        t6 = clock()
+        # the rebuild's phases [s] (bench perf --what phases); a few clock reads a rebuild
+        self.build_phases = {"derive": t1 - t0, "find_pairs": t2 - t1, "carry": t3 - t2, "wall_list": t4 - t3,
+                             "cut": t5 - t4, "gather_list": t6 - t5}
 
     def split(self, cross=None, terms=None):
         """Who resolves which pairs of a new list (threads: modes/threads.py): here the one thread
@@ -296,6 +307,7 @@ class SerialMode:
             tb = clock()
             self.reorder()
             tc = clock()
+            self.reorder_s = tc - tb
             self.ghosts(True)
             td = clock()
             self.build_list()
@@ -315,6 +327,7 @@ class SerialMode:
         if wall_worst > worst:
             worst = wall_worst
         t3 = clock()
+        self.finish_s = t3 - t2
         self.rebuild_next = self.decide(disp2, float(n_bad > 0 or worst > self.guard_overlap), ke, wg)
         if not self.rebuild_next:
             self.start_forward()
