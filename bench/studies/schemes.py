@@ -23,6 +23,9 @@ Columns of OUT/schemes.csv:
 - efficiency: speedup / threads, i.e. also relative to serial ALL-PAIRS (a link-cell scheme
   may exceed 1 because of the neighbour method); efficiency_own = T(serial, same neighbour
   method) / (threads x T(configuration)), the parallel efficiency against its own serial;
+- neighbor_eff_own, resolve_eff_own: the same per phase, neighbor_s(serial, same neighbour
+  method) / (threads x neighbor_s) and resolve_s(serial, same neighbour method) / (threads x
+  resolve_s) (1 for the serial rows), so that a scheme's loss is seen where it lies;
 - candidates, tests: candidate pairs found and pair tests made (per detection);
 - work_imbalance: max/mean over threads of the pair tests (mode.tests; deterministic; 1 for
   serial); busy_imbalance: median over rounds of max/mean over threads of the busy cycles of
@@ -63,7 +66,8 @@ PAPER_MAP = {"n-by-n": ("serial", "allpairs"), "link-cell": ("serial", "linkcell
 FAMILY = {"serial": "serial", "partition": "parallel", "frogleap": "parallel", "headtail": "parallel",
           "static": "parallel-for", "dynamic": "parallel-for"}
 COLUMNS = ["family", "method", "neighbor", "threads", "particles", "shape", "repeats", "detect_s", "neighbor_s",
-           "resolve_s", "speedup", "efficiency", "efficiency_own", "candidates", "tests", "work_imbalance",
+           "resolve_s", "speedup", "efficiency", "efficiency_own", "neighbor_eff_own", "resolve_eff_own", "candidates",
+           "tests", "work_imbalance",
            "busy_imbalance", "paper_method", "paper_threads", "paper_speedup", "paper_efficiency"]
 NEIGHBORS = ("allpairs", "linkcell")
 
@@ -151,12 +155,14 @@ def measure(scene, dt, threads, repeats, shape, log=None):
                      "tests": int(tests.sum()) if threaded else _serial_tests(mode),
                      "work_imbalance": _ratio(tests) if threaded else 1.0,
                      "busy_imbalance": float(np.median([s[3] for s in smp]))})
-    base = {nb: next(r["detect_s"] for r in rows if r["method"] == "serial" and r["neighbor"] == nb)
-            for nb in NEIGHBORS}
+    serial = {nb: next(r for r in rows if r["method"] == "serial" and r["neighbor"] == nb) for nb in NEIGHBORS}
     for r in rows:
-        r["speedup"] = base["allpairs"] / r["detect_s"]
+        own = serial[r["neighbor"]]
+        r["speedup"] = serial["allpairs"]["detect_s"] / r["detect_s"]
         r["efficiency"] = r["speedup"] / r["threads"]
-        r["efficiency_own"] = base[r["neighbor"]] / (r["threads"] * r["detect_s"])
+        r["efficiency_own"] = own["detect_s"] / (r["threads"] * r["detect_s"])
+        r["neighbor_eff_own"] = own["neighbor_s"] / (r["threads"] * r["neighbor_s"])
+        r["resolve_eff_own"] = own["resolve_s"] / (r["threads"] * r["resolve_s"])
     return rows
 
 
@@ -186,7 +192,8 @@ def write_csv(path, rows):
 def read_csv(path):
     """schemes.csv rows with numbers parsed (empty -> NaN)."""
     num = {"threads", "particles", "repeats", "detect_s", "neighbor_s", "resolve_s", "speedup", "efficiency",
-           "efficiency_own", "candidates", "tests", "work_imbalance", "busy_imbalance", "paper_threads",
+           "efficiency_own", "neighbor_eff_own", "resolve_eff_own", "candidates", "tests", "work_imbalance",
+           "busy_imbalance", "paper_threads",
            "paper_speedup", "paper_efficiency"}
     with open(path, newline="") as fh:
         return [{k: (float(v) if v not in ("", None) else math.nan) if k in num else v for k, v in r.items()}
@@ -195,7 +202,8 @@ def read_csv(path):
 
 def format_table(rows):
     head = (f"{'method':10s} {'neighbor':8s} {'T':>2s} {'detect ms':>10s} {'nbr ms':>9s} {'res ms':>9s} "
-            f"{'speedup':>8s} {'eff':>6s} {'eff_own':>7s} {'work_imb':>8s} {'busy_imb':>8s} "
+            f"{'speedup':>8s} {'eff':>6s} {'eff_own':>7s} {'nbr_own':>7s} {'res_own':>7s} {'work_imb':>8s} "
+            f"{'busy_imb':>8s} "
             f"{'paper':>6s} {'paper_eff':>9s}")
     lines = [head]
     for r in rows:
@@ -203,7 +211,8 @@ def format_table(rows):
         pe = "" if math.isnan(r["paper_efficiency"]) else f"{r['paper_efficiency']:.3f}"
         lines.append(f"{r['method']:10s} {r['neighbor']:8s} {int(r['threads']):2d} {1e3 * r['detect_s']:10.2f} "
                      f"{1e3 * r['neighbor_s']:9.2f} {1e3 * r['resolve_s']:9.2f} {r['speedup']:8.2f} "
-                     f"{r['efficiency']:6.3f} {r['efficiency_own']:7.3f} {r['work_imbalance']:8.3f} "
+                     f"{r['efficiency']:6.3f} {r['efficiency_own']:7.3f} {r['neighbor_eff_own']:7.3f} "
+                     f"{r['resolve_eff_own']:7.3f} {r['work_imbalance']:8.3f} "
                      f"{r['busy_imbalance']:8.3f} {ps:>6s} {pe:>9s}")
     return lines
 
@@ -271,7 +280,7 @@ def schemes(args):
     print("--- Table 1 in kind")
     print(f"contact detection (neighbour estimate + resolution), {scene.n} packed {args.shape}s, "
           f"median of {args.repeats}; speedup vs serial all-pairs; eff = speedup/T; eff_own vs serial of the "
-          f"same neighbour method; paper: {PAPER_THREADS} threads, n-by-n")
+          f"same neighbour method (nbr_own, res_own: per phase); paper: {PAPER_THREADS} threads, n-by-n")
     for line in format_table(read_csv(csv_path)):
         print(line)
     print(f"wrote {csv_path} and schemes.png")

@@ -30,7 +30,8 @@ def test_schemes_command(tmp_path):
     with open(out / "schemes.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     for col in ("family", "method", "neighbor", "threads", "particles", "detect_s", "neighbor_s", "resolve_s",
-                "speedup", "efficiency", "work_imbalance", "busy_imbalance", "paper_speedup", "paper_efficiency"):
+                "speedup", "efficiency", "efficiency_own", "neighbor_eff_own", "resolve_eff_own", "work_imbalance",
+                "busy_imbalance", "paper_speedup", "paper_efficiency"):
         assert col in rows[0], col
     got = {(r["method"], r["neighbor"]): r for r in rows}
     want = [("serial", nb) for nb in ("allpairs", "linkcell")] + \
@@ -40,6 +41,15 @@ def test_schemes_command(tmp_path):
         assert int(r["threads"]) == (1 if r["method"] == "serial" else T)
         assert float(r["detect_s"]) > 0 and float(r["speedup"]) > 0
     assert float(got[("serial", "allpairs")]["speedup"]) == 1.0
+    # parallel efficiency against the serial row of the same neighbour method, whole and per phase
+    for r in rows:
+        own = got[("serial", r["neighbor"])]
+        for col, t in (("efficiency_own", "detect_s"), ("neighbor_eff_own", "neighbor_s"),
+                       ("resolve_eff_own", "resolve_s")):
+            want_eff = float(own[t]) / (int(r["threads"]) * float(r[t]))
+            assert math.isclose(float(r[col]), want_eff, rel_tol=1e-4), (r["method"], r["neighbor"], col)
+        if r["method"] == "serial":
+            assert float(r["neighbor_eff_own"]) == 1.0 and float(r["resolve_eff_own"]) == 1.0
     assert float(got[("serial", "linkcell")]["work_imbalance"]) == 1.0
 
     # work split (pair tests per thread) of all-pairs, i against j > i over n rows
