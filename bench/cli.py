@@ -11,13 +11,14 @@ import json
 import os
 import sys
 
-from bench.run.options import (BALANCE, CONTACT_METHOD_CHOICES, NEIGHBOR_CHOICES, SHAPE_CHOICES, add_run_arguments,
-                               nonneg_int, positive_int, skin_fraction)
+from bench.run.options import (BALANCE, CONTACT_METHOD_CHOICES, NEIGHBOR_CHOICES, PRESETS, SHAPE_CHOICES,
+                               add_run_arguments, apply_preset, nonneg_int, positive_int, skin_fraction)
 from bench.run.threads_env import configure_threads
 from bench.sweep.slurm_options import FIELDS as SLURM_FIELDS
 from bench.sweep.slurm_options import check_field, check_options
 
 EXIT_USAGE = 2
+PRESET_FALLBACK_SWEEP = {"neighbor": "linkcell", "contact_method": "exact"}
 
 
 class UsageError(Exception):
@@ -51,8 +52,11 @@ def build_parser():
     sw.add_argument("--steps", type=positive_int)
     sw.add_argument("--warmup", type=nonneg_int, default=0, help="untimed steps before the timed ones")
     sw.add_argument("--repeats", type=positive_int, default=1, help="runs per point (medians recorded)")
-    sw.add_argument("--neighbor", choices=NEIGHBOR_CHOICES, default="linkcell")
-    sw.add_argument("--contact-method", choices=CONTACT_METHOD_CHOICES, default="exact",
+    sw.add_argument("--neighbor", choices=NEIGHBOR_CHOICES, default=None, help="linkcell (default) or allpairs")
+    sw.add_argument("--preset", choices=sorted(PRESETS), default=None,
+                    help="a named configuration for every point: paper = --contact-method sextic --skin 0 "
+                         "--neighbor allpairs (options given with it win)")
+    sw.add_argument("--contact-method", choices=CONTACT_METHOD_CHOICES, default=None,
                     help="ellipsoid contact geometry of every point (default exact)")
     sw.add_argument("--halo", choices=["26", "6"], default="26")
     sw.add_argument("--update-grid", type=nonneg_int, default=0, metavar="K",
@@ -278,6 +282,7 @@ def cmd_run(args):
         raise UsageError(too_big)
     if args.out is not None and not args.out.strip():
         raise UsageError("--out must be a folder, got an empty string")
+    apply_preset(args)
     configure_threads(args.mapping, args.pin)  # before numba starts
     from bench.run.driver import run
     return run(args)
@@ -285,7 +290,7 @@ def cmd_run(args):
 
 SWEEP_FIELDS = {"mappings": str, "schemes": str, "scene": str, "particles": int, "shape": str, "steps": int,
                 "warmup": int, "repeats": int, "neighbor": str, "contact_method": str, "halo": str, "update_grid": int,
-                "balance": str, "newton": str, "skin": float, "pin": bool,
+                "balance": str, "newton": str, "skin": float, "pin": bool, "preset": str,
                 "ceiling": bool, "timeout": int,
                 "launcher": str, "out": str, "slurm": dict}
 
@@ -374,6 +379,9 @@ def cmd_sweep(args):
         return show_status(folder) if args.status else cancel_sweep(folder)
     if args.file:
         _sweep_file(args)
+    if getattr(args, "preset", None) is not None and args.preset not in PRESETS:
+        raise UsageError(f"bench sweep: unknown preset {args.preset!r} (presets: {', '.join(sorted(PRESETS))})")
+    apply_preset(args, fallback=dict(PRESET_FALLBACK_SWEEP))
     for need in ("mappings", "scene", "out"):
         if not getattr(args, need) or not str(getattr(args, need)).strip():
             raise UsageError(f"bench sweep: --{need} is required (or set it in the sweep file)")

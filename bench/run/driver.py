@@ -175,6 +175,7 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
             "threading": _threading_info(), "affinity": getattr(args, "affinity", None),
             "mpi_transport": transport_info(),
             "neighbor": args.neighbor, "contact_method": getattr(args, "contact_method", "exact"),
+            "preset": getattr(args, "preset", None), "preset_overrides": getattr(args, "preset_overrides", None) or None,
             "skin": mode.skin_fraction, "skin_m": mode.skin, "skin_requested": args.skin,
             "halo": args.halo if mapping.procs > 1 else None,
             "update_grid": args.update_grid if mapping.procs > 1 else None,

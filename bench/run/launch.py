@@ -145,7 +145,7 @@ def _run_argv(args, out):
              "--balance", args.balance, "--newton", getattr(args, "newton", "auto"),
              "--contact-method", args.contact_method or "exact",
              "--checkpoint-every", str(getattr(args, "checkpoint_every", 0) or 0)]
-    for name in ("particles", "shape", "seed", "steps", "dt", "scheme", "warmup", "skin"):
+    for name in ("particles", "shape", "seed", "steps", "dt", "scheme", "warmup", "skin", "preset"):
         v = getattr(args, name)
         if v is not None:
             argv += [f"--{name}", str(v)]

@@ -65,6 +65,36 @@ def time_step_arg(text):
     return _number_in(text, lambda v: 0.0 < v < 1e30, "a finite time step [s] > 0")
 
 
+# --preset NAME: the options a named configuration sets (explicit options given with it win).
+# paper: Yan & Regueiro (2019)'s own configuration, as ParaEllip3d runs it: the sextic contact
+# method of Yan, Regueiro & Sture (2010) (§2; dem.contact.methods), the neighbour estimate every
+# step (no Verlet list: skin 0), and the n-by-n search within each process's block and thread
+# (its threaded schemes loop n-by-n, §4.2, Table 1; and O(n^2) "outperforms O(n) in large-scale
+# parallel 3D DEM simulations generally", §5.4).
+PRESETS = {"paper": {"contact_method": "sextic", "skin": 0.0, "neighbor": "allpairs"}}
+# what each option is when neither the preset nor the user sets it
+PRESET_FALLBACK = {"neighbor": "linkcell"}
+
+
+def apply_preset(args, fallback=PRESET_FALLBACK):
+    """Fill the options of args.preset (PRESETS) that were not given explicitly (None), then the
+    fallbacks of those still unset. Returns args; args.preset_overrides names the options given
+    against the preset (recorded with the run)."""
+    preset = getattr(args, "preset", None)
+    overrides = []
+    for key, value in (PRESETS.get(preset) or {}).items():
+        given = getattr(args, key, None)
+        if given is None:
+            setattr(args, key, value)
+        elif given != value:
+            overrides.append(key)
+    for key, value in fallback.items():
+        if getattr(args, key, None) is None:
+            setattr(args, key, value)
+    args.preset_overrides = overrides
+    return args
+
+
 def add_run_arguments(r):
     """The `bench run` options on parser r."""
     r.add_argument("--scene", help="built-in scene name or a .toml file (required unless --restart)")
@@ -87,7 +117,11 @@ def add_run_arguments(r):
     r.add_argument("--threaded", choices=["step", "detection"], default="step",
                    help="thread the whole step (default) or only contact detection (the paper's code)")
     r.add_argument("--pin", action="store_true", help="give each rank T cores of its own and each thread one of them (bench.run.binding)")
-    r.add_argument("--neighbor", choices=NEIGHBOR_CHOICES, default="linkcell")
+    r.add_argument("--neighbor", choices=NEIGHBOR_CHOICES, default=None,
+                   help="neighbour estimate: linkcell (default) or allpairs (the n-by-n search)")
+    r.add_argument("--preset", choices=sorted(PRESETS), default=None,
+                   help="a named configuration: paper = --contact-method sextic --skin 0 --neighbor allpairs "
+                        "(Yan & Regueiro's own; options given with it win)")
     r.add_argument("--contact-method", choices=CONTACT_METHOD_CHOICES, default=None,
                    help="ellipsoid contact geometry: exact (PW + Newton, default; a restart: the checkpoint's), "
                         "pw (Perram-Wertheim depth, error O(depth/size)), sextic (the paper's Yan 2010 method, a "

@@ -19,7 +19,7 @@ from bench.run.checkpoint import load_checkpoint
 from bench.run.driver import execute
 from bench.run.heartbeat import Heartbeat
 from bench.run.lifeline import PR_SET_PDEATHSIG, _prctl
-from bench.run.options import add_run_arguments, mode_options
+from bench.run.options import add_run_arguments, apply_preset, mode_options
 from bench.run.prepare import load_prepared
 from dem.timestep import TimeStep, choose_time_step
 from modes.base import mode_for, parse_mapping
@@ -29,7 +29,7 @@ def main(argv):
     clock0 = time.perf_counter()
     parser = add_run_arguments(argparse.ArgumentParser(prog="bench.run.rank"))
     parser.add_argument("--time-step", default=None, help="the launcher's TimeStep as JSON (dem.timestep)")
-    args = parser.parse_args(argv)
+    args = apply_preset(parser.parse_args(argv))
     mapping = parse_mapping(args.mapping)
     comm = MPI.COMM_WORLD
     _prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL))

@@ -53,7 +53,8 @@ def sweep(args):
     points = make_points(mappings, schemes, args.scene, args.particles, args.steps, args.warmup,
                          args.neighbor, args.shape, args.pin, args.halo, getattr(args, "contact_method", "exact"),
                          getattr(args, "update_grid", 0) or 0, getattr(args, "balance", "extent") or "extent",
-                         getattr(args, "newton", "auto") or "auto", getattr(args, "skin", None))
+                         getattr(args, "newton", "auto") or "auto", getattr(args, "skin", None),
+                         getattr(args, "preset", None))
     out = args.out
     ceiling = _ceiling(args, launcher, points) if getattr(args, "ceiling", False) else None
     if args.dry_run:

@@ -31,6 +31,7 @@ class Point:
     balance: str = "extent"
     newton: str = "auto"
     skin: float = None   # the neighbour-list skin fraction of every point (None: bench run's default)
+    preset: str = ""     # bench run --preset of every point ("" none); its options are the fields above
 
     @property
     def key(self):
@@ -46,6 +47,8 @@ class Point:
             del params["newton"]
         if params["skin"] is None:
             del params["skin"]
+        if not params["preset"]:
+            del params["preset"]
         digest = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:8]
         return f"{self.mapping}{'-' + self.scheme if self.scheme else ''}-{digest}"
 
@@ -62,6 +65,8 @@ class Point:
             args += ["--contact-method", self.contact_method]
         if self.skin is not None:
             args += ["--skin", repr(float(self.skin))]
+        if self.preset:
+            args += ["--preset", self.preset]
         if self.mapping.split("-")[0] != "1":
             args += ["--halo", self.halo]
             if self.update_grid:
@@ -80,7 +85,7 @@ def point_from_dict(d):
 
 
 def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, shape, pin, halo,
-                contact_method="exact", update_grid=0, balance="extent", newton="auto", skin=None):
+                contact_method="exact", update_grid=0, balance="extent", newton="auto", skin=None, preset=None):
     """Points of a sweep: the serial reference first, then each mapping (x each scheme when it has
     more than one thread), without duplicates, in the order given; skin (a fraction, or None for
     bench run's default) goes to every point, the serial reference included. newton (auto, on, off) goes to
@@ -99,7 +104,7 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
                       contact_method, update_grid if m.procs > 1 else 0,
                       balance if m.procs > 1 and update_grid else "extent",
                       newton if m.procs > 1 and (m.threads == 1 or s in SPLIT_SCHEMES) else "auto",
-                      None if skin is None else float(skin))
+                      None if skin is None else float(skin), preset or "")
             if p not in points:
                 points.append(p)
     points.sort(key=lambda p: p.mapping != SERIAL)  # the reference runs first

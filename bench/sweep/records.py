@@ -42,11 +42,11 @@ RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores"
                "particles", "steps", "repeats", "status", "reason", "totalT", "commuT", "migraT", "compuT",
                "syncT", "wireT", "above_wireT", "neighborT", "resolveT", "overhead_pct", "speedup", "efficiency", "edsf", "rss_mb", "err_max",
                "err_rms", "stable", "wall_s", "load_before", "load_after", "contact_method",
-               "skin", "binding", "foreign_cores", "foreign_cpu_s", "step_spread", "totalT_spread", "flag"]
+               "skin", "preset", "binding", "foreign_cores", "foreign_cpu_s", "step_spread", "totalT_spread", "flag"]
 
 
 TEXT_COLUMNS = ("point", "mapping", "scheme", "neighbor", "scene", "status", "reason", "stable", "contact_method",
-                "binding", "flag")
+                "preset", "binding", "flag")
 
 LOAD_FLAG_CORES = 0.25      # foreign CPUs busy on average during a repeat's timed steps
 SPREAD_FLAG_REPEATS = 0.10  # (max - min) / median of totalT over the repeats
@@ -199,7 +199,8 @@ def summarise(point, rep_dirs, ref_state, t1, statuses=None):
         loads.append(info.get("load") or {})
         spreads.append((info.get("step_time") or {}).get("spread"))
         bindings.append(binding_word(info.get("affinity")))
-        row.update(particles=info["particles"], steps=info["steps"], stable=info["stable"], skin=info.get("skin"))
+        row.update(particles=info["particles"], steps=info["steps"], stable=info["stable"], skin=info.get("skin"),
+                   preset=info.get("preset") or "")
         state = dict(np.load(os.path.join(d, "state.npz")))
     for k in times[0]:
         row[k] = float(np.median([t[k] for t in times]))
