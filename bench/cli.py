@@ -46,10 +46,11 @@ def build_parser():
     sw.add_argument("--mappings", help="comma-separated P-px-py-pz-T list (1-1-1-1-1 is added when missing)")
     sw.add_argument("--file", help="sweep file (TOML, a [sweep] table with the same fields) instead of options")
     sw.add_argument("--schemes", help="comma-separated thread schemes for mappings with T > 1 (default dynamic)")
-    sw.add_argument("--scene")
-    sw.add_argument("--particles", type=positive_int)
-    sw.add_argument("--shape", choices=SHAPE_CHOICES)
-    sw.add_argument("--steps", type=positive_int)
+    sw.add_argument("--scene", help="built-in scene name (bench scenes) or a .toml file, the same for every point")
+    sw.add_argument("--particles", type=positive_int, help="particles of a generated scene (default the scene's)")
+    sw.add_argument("--shape", choices=SHAPE_CHOICES, help="shape of a generated scene's particles (default the "
+                                                           "scene's)")
+    sw.add_argument("--steps", type=positive_int, help="timed steps of every point (default the scene's)")
     sw.add_argument("--warmup", type=nonneg_int, default=0, help="untimed steps before the timed ones")
     sw.add_argument("--repeats", type=positive_int, default=1, help="runs per point (medians recorded)")
     sw.add_argument("--neighbor", choices=NEIGHBOR_CHOICES, default=None, help="linkcell (default) or allpairs")
@@ -58,7 +59,8 @@ def build_parser():
                          "--neighbor allpairs (options given with it win)")
     sw.add_argument("--contact-method", choices=CONTACT_METHOD_CHOICES, default=None,
                     help="ellipsoid contact geometry of every point (default exact)")
-    sw.add_argument("--halo", choices=["26", "6"], default="26")
+    sw.add_argument("--halo", choices=["26", "6"], default="26",
+                    help="MPI points: ghosts in 26 direct messages (default, the paper's) or 3 sweeps of 6")
     sw.add_argument("--update-grid", type=nonneg_int, default=0, metavar="K",
                     help="MPI points fit their block grid to the particles at the start and every K steps (the "
                          "paper's updateGrid; default 0: blocks divide the box)")
@@ -72,7 +74,9 @@ def build_parser():
     sw.add_argument("--skin", type=skin_fraction, default=None, metavar="F",
                     help="neighbour-list skin of every point, fraction of the largest bounding diameter (default "
                          "bench run's, 0.1; 0: neighbours estimated every step, the paper's way)")
-    sw.add_argument("--pin", action="store_true")
+    sw.add_argument("--pin", action="store_true",
+                    help="every point's ranks get T cores of their own and each thread one of them (bench run "
+                         "--pin; runs.csv binding says whether it held)")
     sw.add_argument("--ceiling", action="store_true",
                     help="also measure the machine's efficiency ceiling at each core count W of the sweep (W "
                          "independent serial copies of the scene at N/W particles, alone, together and meeting "
@@ -84,7 +88,7 @@ def build_parser():
     sw.add_argument("--dry-run", action="store_true", help="print every command and environment, run nothing")
     sw.add_argument("--resume", action="store_true", help="skip the points already done in OUT/runs.csv (slurm: the "
                                                           "repeats done, pending or running)")
-    sw.add_argument("--out")
+    sw.add_argument("--out", help="sweep folder: runs.csv, manifest.json, figures and one folder a point")
     sw.add_argument("--status", metavar="DIR", help="the state of each point of the sweep in DIR (its files, and "
                                                      "Slurm's scontrol/sacct where Slurm runs)")
     sw.add_argument("--cancel", metavar="DIR", help="scancel the jobs of the Slurm sweep in DIR still pending or running")
@@ -102,9 +106,9 @@ def build_parser():
 
     ac = sub.add_parser("accuracy", help="work-precision study: error against run time per contact method and dt")
     ac.add_argument("--scene", required=True, help="built-in scene name or a .toml file")
-    ac.add_argument("--particles", type=positive_int)
-    ac.add_argument("--shape", choices=SHAPE_CHOICES)
-    ac.add_argument("--seed", type=nonneg_int)
+    ac.add_argument("--particles", type=positive_int, help="particles of a generated scene (default the scene's)")
+    ac.add_argument("--shape", choices=SHAPE_CHOICES, help="shape of a generated scene (default the scene's)")
+    ac.add_argument("--seed", type=nonneg_int, help="generator seed of a generated scene (default the scene's)")
     ac.add_argument("--steps", type=positive_int, help="steps at dt_base (sets the simulated time; default the scene's)")
     ac.add_argument("--dt", type=float, help="dt_base [s] (default: the scene's, usually auto)")
     ac.add_argument("--dt-factors", default="1,0.5,0.25", help="comma-separated multiples of dt_base (default 1,0.5,0.25)")
@@ -112,7 +116,7 @@ def build_parser():
                     help="comma-separated contact methods (default all)")
     ac.add_argument("--ref-factor", type=float, default=None,
                     help="dt of the exact reference run as a multiple of dt_base (default half the smallest factor)")
-    ac.add_argument("--out", required=True)
+    ac.add_argument("--out", required=True, help="folder for accuracy.csv, accuracy.json and accuracy.png")
 
     pe = sub.add_parser("peer", help="ours side by side with a peer code on an identical scene")
     pe.add_argument("peer", choices=["lammps", "liggghts"],
@@ -140,15 +144,18 @@ def build_parser():
     co.add_argument("dir")
 
     sc = sub.add_parser("schemes", help="Table 1 in kind: contact-detection speedup of each thread scheme")
-    sc.add_argument("--particles", type=positive_int, default=2500)
-    sc.add_argument("--threads", type=positive_int, default=2)
-    sc.add_argument("--shape", choices=["sphere", "ellipsoid"], default="ellipsoid")
+    sc.add_argument("--particles", type=positive_int, default=2500,
+                    help="rested packed particles (default 2500, the paper's Table 1)")
+    sc.add_argument("--threads", type=positive_int, default=2, help="threads of every scheme (default 2; the paper: 12)")
+    sc.add_argument("--shape", choices=["sphere", "ellipsoid"], default="ellipsoid",
+                    help="particle shape (default ellipsoid, the paper's)")
     sc.add_argument("--repeats", type=positive_int, default=41,
                     help="timed repetitions, median reported (default 41: single runs are noisy on shared machines)")
     sc.add_argument("--out", default="results/schemes", help="folder for schemes.csv and schemes.png")
 
     pf = sub.add_parser("perf", help="speed figures (per pair, per particle-step; --what comm: MPI ping-pong)")
-    pf.add_argument("--particles", type=positive_int, default=10000)
+    pf.add_argument("--particles", type=positive_int, default=10000,
+                    help="particles of the scene measured (default 10000)")
     pf.add_argument("--steps", type=positive_int, default=None,
                     help="timed steps (default 20; --what skin: steps per round, default 1000)")
     pf.add_argument("--what", default="all",

@@ -156,7 +156,7 @@ def add_run_arguments(r):
                    help="P > 1: the command that starts the P ranks instead of `mpiexec -n P`, the rank program "
                         "appended (inside a Slurm allocation: 'srun --mpi=pmi2 --ntasks=P --cpus-per-task=T "
                         "--cpu-bind=cores'; `bench sweep --launcher slurm` writes it)")
-    r.add_argument("--quiet", action="store_true")
+    r.add_argument("--quiet", action="store_true", help="no summary line at the end (warnings and errors still)")
 
     return r
 

@@ -137,3 +137,17 @@ def test_unwritable_output(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("x")
     one_line_error(bench("run", "--scene", write(tmp_path, GOOD), "--out", str(blocker / "sub")), "not writable")
+
+
+def test_every_option_has_help():
+    """`bench CMD --help` describes every option of every command (issue 34: `bench sweep --help` had
+    none for --scene, --particles, --shape, --steps, --neighbor, --halo, --pin)."""
+    from bench.cli import build_parser
+    missing = []
+    for name, sub in build_parser()._subparsers._group_actions[0].choices.items():
+        for action in sub._actions:
+            if action.option_strings and not action.help and "--help" not in action.option_strings:
+                missing.append(f"{name} {action.option_strings[0]}")
+    assert missing == []
+    res = bench("sweep", "--help")
+    assert res.returncode == 0 and "--pin" in res.stdout and "binding" in res.stdout
