@@ -42,6 +42,8 @@ read_particle_file returns a ParticleBlock of arrays; it never loops over partic
 so a million particles load in seconds (pandas' C reader for text).
 """
 import os
+import zipfile
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,6 +78,25 @@ class ParticleBlock:
     @property
     def n(self):
         return len(self.shape)
+
+
+# what reading a damaged or truncated .npz raises, at its opening or at an array's first read
+NPZ_ERRORS = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error)
+
+
+def read_npz(path):
+    """{name: array} of every array of the .npz at path, read now (np.load reads lazily, so a
+    truncated file fails at the array it cannot read). Raises ValueError with one line: not a zip
+    of .npy arrays, or damaged."""
+    with open(path, "rb") as fh:
+        magic = fh.read(4)
+    if magic != b"PK\x03\x04":
+        raise ValueError("is not an .npz file (a zip of .npy arrays)")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {name: z[name] for name in z.files}
+    except NPZ_ERRORS as e:
+        raise ValueError(f"is damaged or truncated ({type(e).__name__}: {e})") from None
 
 
 def _err(path, msg):
@@ -328,56 +349,57 @@ def _id(ids, k):
 
 def _from_npz(path, material):
     try:
-        z = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as e:
-        raise _err(path, f"is not a readable .npz ({e})") from None
-    with z:
-        files = set(z.files)
-        if "meta" in files and "angmom" in files:
-            raise _err(path, "is a checkpoint: continue it with `bench run --restart FILE`")
-        if "pos" not in files:
-            raise _err(path, f"has no 'pos' array (arrays: {', '.join(sorted(files))})")
-        pos = np.asarray(z["pos"], dtype=np.float64)
-        if pos.ndim != 2 or pos.shape[1] != 3:
-            raise _err(path, f"pos must be [n, 3], got {list(pos.shape)}")
-        n = len(pos)
+        z = read_npz(path)
+    except OSError as e:
+        raise _err(path, f"cannot be read ({e.strerror})") from None
+    except ValueError as e:
+        raise _err(path, str(e)) from None
+    files = set(z)
+    if "meta" in files and "angmom" in files:
+        raise _err(path, "is a checkpoint: continue it with `bench run --restart FILE`")
+    if "pos" not in files:
+        raise _err(path, f"has no 'pos' array (arrays: {', '.join(sorted(files))})")
+    pos = np.asarray(z["pos"], dtype=np.float64)
+    if pos.ndim != 2 or pos.shape[1] != 3:
+        raise _err(path, f"pos must be [n, 3], got {list(pos.shape)}")
+    n = len(pos)
 
-        def get(name, width):
-            if name not in files:
-                return None
-            a = np.asarray(z[name], dtype=np.float64)
-            if a.shape != (n, width):
-                raise _err(path, f"{name} must be [{n}, {width}], got {list(a.shape)}")
-            return a
-        axes = np.zeros((n, 6))
-        if "axes" in files:
-            ax = np.asarray(z["axes"], dtype=np.float64)
-            if ax.ndim != 2 or ax.shape[0] != n or ax.shape[1] not in (1, 3, 6):
-                raise _err(path, f"axes must be [{n}, 3] or [{n}, 6], got {list(ax.shape)}")
-            if ax.shape[1] == 1:
-                ax = np.repeat(ax, 3, axis=1)
-            axes[:, :ax.shape[1]] = ax
-            default = np.full(n, POLY if ax.shape[1] == 6 else ELLIPSOID, dtype=np.int8)
-        elif "radius" in files:
-            r = np.asarray(z["radius"], dtype=np.float64).reshape(-1)
-            if len(r) != n:
-                raise _err(path, f"radius must be [{n}], got {len(r)} values")
-            axes[:, 0] = axes[:, 1] = axes[:, 2] = r
-            default = np.full(n, SPHERE, dtype=np.int8)
-        else:
-            raise _err(path, "has neither 'axes' nor 'radius'")
-        code = np.asarray(z["shape"]).astype(np.int8) if "shape" in files else default
-        if code.shape != (n,) or np.any((code < SPHERE) | (code > POLY)):
-            raise _err(path, "shape must hold n codes 0 (sphere), 1 (ellipsoid) or 2 (poly-ellipsoid)")
-        if "axes" in files and z["axes"].shape[1] == 6:
-            # a run's state.npz of a poly scene repeats each semi-axis of its ellipsoids and spheres
-            nonpoly = code != POLY
-            axes[nonpoly, :3] = axes[nonpoly][:, 0::2]
-            axes[nonpoly, 3:] = 0.0
-        elif np.any(code == POLY):
-            raise _err(path, "poly-ellipsoids (shape 2) need axes [n, 6]")
-        mat = np.full(n, material, dtype=np.int32)
-        if "material" in files:
-            mat = np.asarray(z["material"]).astype(np.int32).reshape(-1)
-        ids = np.asarray(z["id"]).astype(np.int64) if "id" in files else None
-        return _finish(path, code, axes, pos, get("quat", 4), get("vel", 3), get("omega", 3), mat, ids, None)
+    def get(name, width):
+        if name not in files:
+            return None
+        a = np.asarray(z[name], dtype=np.float64)
+        if a.shape != (n, width):
+            raise _err(path, f"{name} must be [{n}, {width}], got {list(a.shape)}")
+        return a
+    axes = np.zeros((n, 6))
+    if "axes" in files:
+        ax = np.asarray(z["axes"], dtype=np.float64)
+        if ax.ndim != 2 or ax.shape[0] != n or ax.shape[1] not in (1, 3, 6):
+            raise _err(path, f"axes must be [{n}, 3] or [{n}, 6], got {list(ax.shape)}")
+        if ax.shape[1] == 1:
+            ax = np.repeat(ax, 3, axis=1)
+        axes[:, :ax.shape[1]] = ax
+        default = np.full(n, POLY if ax.shape[1] == 6 else ELLIPSOID, dtype=np.int8)
+    elif "radius" in files:
+        r = np.asarray(z["radius"], dtype=np.float64).reshape(-1)
+        if len(r) != n:
+            raise _err(path, f"radius must be [{n}], got {len(r)} values")
+        axes[:, 0] = axes[:, 1] = axes[:, 2] = r
+        default = np.full(n, SPHERE, dtype=np.int8)
+    else:
+        raise _err(path, "has neither 'axes' nor 'radius'")
+    code = np.asarray(z["shape"]).astype(np.int8) if "shape" in files else default
+    if code.shape != (n,) or np.any((code < SPHERE) | (code > POLY)):
+        raise _err(path, "shape must hold n codes 0 (sphere), 1 (ellipsoid) or 2 (poly-ellipsoid)")
+    if "axes" in files and z["axes"].shape[1] == 6:
+        # a run's state.npz of a poly scene repeats each semi-axis of its ellipsoids and spheres
+        nonpoly = code != POLY
+        axes[nonpoly, :3] = axes[nonpoly][:, 0::2]
+        axes[nonpoly, 3:] = 0.0
+    elif np.any(code == POLY):
+        raise _err(path, "poly-ellipsoids (shape 2) need axes [n, 6]")
+    mat = np.full(n, material, dtype=np.int32)
+    if "material" in files:
+        mat = np.asarray(z["material"]).astype(np.int32).reshape(-1)
+    ids = np.asarray(z["id"]).astype(np.int64) if "id" in files else None
+    return _finish(path, code, axes, pos, get("quat", 4), get("vel", 3), get("omega", 3), mat, ids, None)

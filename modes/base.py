@@ -93,7 +93,7 @@ class Mapping:
 
 def parse_mapping(text):
     """Parse 'P-px-py-pz-T'; raise ModeError with one line naming the problem."""
-    if not isinstance(text, str) or not re.fullmatch(r"\s*\d+(-\d+){4}\s*", text):
+    if not isinstance(text, str) or not re.fullmatch(r"\s*\d+(-\d+){4}\s*", text, re.ASCII):
         raise ModeError(f"malformed mapping {text!r}: expected P-px-py-pz-T, e.g. 9-3-3-1-4")
     p, px, py, pz, t = (int(x) for x in text.strip().split("-"))
     for name, v in (("P", p), ("px", px), ("py", py), ("pz", pz), ("T", t)):

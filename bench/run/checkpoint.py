@@ -35,6 +35,7 @@ import os
 import numpy as np
 
 from dem.materials import Material, MaterialTable
+from dem.particle_files import read_npz
 from dem.scene import Scene, SceneError, wall_planes
 from dem.state import HIST_LEN, State
 
@@ -120,17 +121,20 @@ def _jsonable(o):
 
 def read_meta(path):
     """The checkpoint's meta dict (SceneError, one line, when the file is not a checkpoint)."""
-    with _open(path) as z:
-        return _meta(z, path)
+    return _meta(_open(path), path)
 
 
 def _open(path):
+    """{name: array} of the checkpoint at path, every array read (a truncated file, half written by
+    a run that died without the atomic rename, fails here); SceneError with one line."""
     if not os.path.isfile(path):
         raise SceneError(f"checkpoint {path!r} not found")
     try:
-        return np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as e:
-        raise SceneError(f"checkpoint {path!r} is not a readable .npz file ({e})") from None
+        return read_npz(path)
+    except OSError as e:
+        raise SceneError(f"checkpoint {path!r} cannot be read ({e.strerror})") from None
+    except ValueError as e:
+        raise SceneError(f"checkpoint {path!r} {e}") from None
 
 
 def _meta(z, path):
@@ -164,12 +168,12 @@ def load_checkpoint(path):
     """(Scene, meta) of a checkpoint: the scene with its state as written (no build stage, no
     load-time checks: it is the continuation of a run that passed them). Bad files end as
     SceneError with one line."""
-    with _open(path) as z:
-        meta = _meta(z, path)
-        missing = [f for f in ARRAYS if f not in z.files]
-        if missing:
-            raise SceneError(f"checkpoint {path!r} lacks {', '.join(missing)}")
-        a = {f: z[f] for f in ARRAYS}
+    z = _open(path)
+    meta = _meta(z, path)
+    missing = [f for f in ARRAYS if f not in z]
+    if missing:
+        raise SceneError(f"checkpoint {path!r} lacks {', '.join(missing)}")
+    a = {f: z[f] for f in ARRAYS}
     sc = meta.get("scene") or {}
     try:
         gid = a["gid"].astype(np.int64)

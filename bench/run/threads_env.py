@@ -25,7 +25,7 @@ def size_limit():
 def check_size(mapping_text, local_ranks=True):
     """None, or the one-line reason a mapping 'P-px-py-pz-T' asks for more threads (T, and P x T when
     the ranks start here) than size_limit(); a malformed mapping passes (the run refuses it)."""
-    m = re.fullmatch(r"\s*(\d+)-(\d+)-(\d+)-(\d+)-(\d+)\s*", mapping_text or "")
+    m = re.fullmatch(r"\s*(\d+)-(\d+)-(\d+)-(\d+)-(\d+)\s*", mapping_text or "", re.ASCII)
     if not m:
         return None
     procs, px, py, pz, threads = (int(g) for g in m.groups())
@@ -51,7 +51,7 @@ def usable_cpus():
 def configure_threads(mapping_text, pin=False, procs_per_node=1):
     """Set the thread variables for mapping 'P-px-py-pz-T' (ignored if malformed: the run
     reports that). Returns a dict of what was set, for run.json."""
-    m = re.fullmatch(r"\s*(\d+)-(\d+)-(\d+)-(\d+)-(\d+)\s*", mapping_text or "")
+    m = re.fullmatch(r"\s*(\d+)-(\d+)-(\d+)-(\d+)-(\d+)\s*", mapping_text or "", re.ASCII)
     if not m:
         return {}
     procs, px, py, pz, threads = (int(g) for g in m.groups())

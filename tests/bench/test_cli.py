@@ -119,6 +119,9 @@ def test_bad_scene_one_line_exit_2(tmp_path, text, words):
     (["run", "--scene", "patch162", "--frobnicate"], "unrecognized arguments: --frobnicate"),
     (["run", "--scene", "patch162", "--mapping", "9-3-3-2-4"], "px*py*pz"),
     (["run", "--scene", "patch162", "--mapping", "two"], "malformed mapping"),
+    # a full-width digit (U+FF12) is a digit to Python's \d and int(), not to a mapping (issue 34)
+    (["run", "--scene", "patch162", "--mapping", "\uff12-2-1-1-1"], "malformed mapping"),
+    (["sweep", "--scene", "patch162", "--mappings", "\uff12-2-1-1-1", "--out", "x"], "malformed mapping"),
     (["run", "--scene", "patch162", "--mapping", "1-1-1-1-0"], "T must be >= 1"),
     (["run", "--scene", "patch162", "--mapping", "18-18-1-1-1"], "use fewer blocks along x"),
     (["run", "--scene", "patch162", "--steps", "x"], "--steps"),

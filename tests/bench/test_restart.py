@@ -137,16 +137,24 @@ def test_checkpoint_written_atomically(tmp_path, monkeypatch):
     assert meta["step"] == 0 and np.array_equal(scene.state.pos, [[0.0, 0.0, 0.0]])
 
 
-@pytest.mark.parametrize("case", ["missing", "not-npz", "state-npz", "with-scene", "with-dt"])
+@pytest.mark.parametrize("case", ["missing", "not-npz", "state-npz", "with-scene", "with-dt", "half",
+                                  "tail-cut"])
 def test_bad_restart_one_line(tmp_path, case):
-    """A checkpoint that is not there, not an npz, another npz (a run's state.npz), or options that
-    would change the checkpoint's scene or time step: one line, exit 2, nothing written."""
+    """A checkpoint that is not there, not an npz, another npz (a run's state.npz), half a checkpoint
+    or one with its last 200 bytes cut (a copy that stopped; issue 34 saw a BadZipFile traceback),
+    or options that would change the checkpoint's scene or time step: one line, exit 2, nothing
+    written."""
     scene = write(tmp_path, GOOD)
     run(tmp_path / "a", "--scene", scene, "--steps", "2", "--checkpoint-every", "2")
     ckpt = str(tmp_path / "a" / "checkpoint.npz")
     (tmp_path / "junk.npz").write_text("not a zip")
+    whole = open(ckpt, "rb").read()
+    (tmp_path / "half.npz").write_bytes(whole[:len(whole) // 2])
+    (tmp_path / "cut.npz").write_bytes(whole[:-200])
     args, words = {"missing": (["--restart", str(tmp_path / "nope.npz")], ["not found"]),
-                   "not-npz": (["--restart", str(tmp_path / "junk.npz")], ["not a readable"]),
+                   "not-npz": (["--restart", str(tmp_path / "junk.npz")], ["is not an .npz file"]),
+                   "half": (["--restart", str(tmp_path / "half.npz")], ["is damaged or truncated"]),
+                   "tail-cut": (["--restart", str(tmp_path / "cut.npz")], ["is damaged or truncated"]),
                    "state-npz": (["--restart", str(tmp_path / "a" / "state.npz")], ["not a checkpoint"]),
                    "with-scene": (["--restart", ckpt, "--scene", "gas"], ["--scene cannot be given"]),
                    "with-dt": (["--restart", ckpt, "--dt", "1e-6"], ["--dt cannot be given"])}[case]

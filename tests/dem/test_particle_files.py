@@ -169,6 +169,8 @@ BAD = {
     "no-size": ('path = "{tmp}/nosize.csv"', "no size columns"),
     "unknown-key": ('path = "{tmp}/plain.txt"\nscale = 2', "unknown key 'scale'"),
     "checkpoint": ('path = "{tmp}/ck.npz"', "is a checkpoint"),
+    "not-a-zip": ('path = "{tmp}/text.npz"', "is not an .npz file"),
+    "truncated-npz": ('path = "{tmp}/half.npz"', "is damaged or truncated"),
 }
 
 
@@ -180,6 +182,10 @@ def test_bad_particle_file_one_line(tmp_path, case):
     (tmp_path / "dup.txt").write_text("# id x y z radius\n7 0.01 0.01 0.01 0.001\n7 0.02 0.01 0.01 0.001\n")
     (tmp_path / "nosize.csv").write_text("x,y,z\n0.01,0.01,0.01\n")
     np.savez(tmp_path / "ck.npz", meta=np.array("{}"), angmom=np.zeros((1, 3)), pos=np.zeros((1, 3)))
+    (tmp_path / "text.npz").write_text("not a zip")
+    np.savez(tmp_path / "whole.npz", pos=np.full((400, 3), 0.01), axes=np.full((400, 3), 1e-3))
+    whole = (tmp_path / "whole.npz").read_bytes()
+    (tmp_path / "half.npz").write_bytes(whole[:len(whole) // 2])  # issue 34: a BadZipFile traceback
     block, words = BAD[case]
     scene = scene_file(tmp_path, block.format(tmp=tmp_path))
     one_line_error(bench("run", "--scene", scene, "--steps", "1", "--out", str(tmp_path / "o")), "bench: error:",
