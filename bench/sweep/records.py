@@ -88,6 +88,7 @@ def read_runs_rows(path):
 
 
 NUMERIC_COLUMNS = [c for c in RUN_COLUMNS if c not in TEXT_COLUMNS]
+INTEGER_COLUMNS = ("procs", "px", "py", "pz", "threads", "cores", "particles", "steps", "repeats")
 
 
 def read_runs(directory):
@@ -299,6 +300,10 @@ def write_runs(path, rows):
     import pandas as pd
     from bench.run.records import atomic_write
     frame = pd.DataFrame(rows, columns=RUN_COLUMNS)
+    for c in INTEGER_COLUMNS:  # whole numbers stay whole beside a row's NaN or a carried row's text
+        values = pd.to_numeric(frame[c], errors="coerce")
+        if (values.dropna() % 1 == 0).all():
+            frame[c] = values.astype("Int64")
     atomic_write(path, lambda fh: frame.to_csv(fh, index=False))
 
 

@@ -278,3 +278,22 @@ def test_contact_method_reaches_every_point(tmp_path):
     assert len(runs) == 3 and all("--contact-method sextic" in line for line in runs), res.stdout
     one_line_error(bench("sweep", *SMALL, "--mappings", "1-1-1-1-2", "--contact-method", "cubic", "--out",
                          str(tmp_path / "bad")), "contact-method")
+
+
+def test_runs_csv_keeps_whole_numbers_whole(tmp_path):
+    """A row carried from an earlier runs.csv (its fields read back as text) beside a failed point
+    (no particle count: NaN) once turned procs 1 into 1.0 and particles 300 into 300.0 (issue 34);
+    counts are written as integers, and an unknown count stays empty."""
+    from bench.sweep.records import RUN_COLUMNS, write_runs
+    carried = {c: "" for c in RUN_COLUMNS}
+    carried.update(point="1-1-1-1-1-aaaa", mapping="1-1-1-1-1", procs="1", px="1", py="1", pz="1", threads="1",
+                   cores="1", particles="300", steps="15", repeats="1", status="done", totalT="0.001")
+    failed = {c: float("nan") for c in RUN_COLUMNS}
+    failed.update(point="2-2-1-1-1-bbbb", mapping="2-2-1-1-1", procs=2, px=2, py=1, pz=1, threads=1, cores=2,
+                  repeats=1, status="failed", reason="bench: error: x")
+    write_runs(tmp_path / "runs.csv", [carried, failed])
+    import csv
+    rows = list(csv.DictReader(open(tmp_path / "runs.csv")))
+    assert [(r["procs"], r["particles"], r["steps"], r["cores"]) for r in rows] == [("1", "300", "15", "1"),
+                                                                                  ("2", "", "", "2")]
+    assert rows[0]["totalT"] == "0.001"
