@@ -4,8 +4,9 @@ what the scheduler says (`bench sweep --status`, `bench collect`).
 States: `done`; `failed` (with the run's own last error line, or what Slurm says); `unstable`
 (the stability guard stopped it); `timeout` (past `--timeout`, or killed at Slurm's time limit);
 `cancelled` (scancel, `bench sweep --cancel`); `pending` (queued, with Slurm's reason);
-`running`; `unsubmitted` (written but never submitted); `unknown` (submitted, no result yet, and
-no Slurm here to ask). The first five are final.
+`running`; `unsubmitted` (written but never submitted); `not_started` (a local sweep's repeat whose
+folder the sweep never made: it was interrupted before; `--resume` runs it); `unknown` (submitted,
+no result yet, and no Slurm here to ask). The first five are final.
 
 A repeat folder holds `status.json` (written by the local launcher, and in a Slurm job by
 bench.sweep.job: `running` when it starts, its outcome when it ends) and, for a Slurm sweep,
@@ -20,7 +21,8 @@ import os
 FINAL = ("done", "failed", "unstable", "timeout", "cancelled")
 ACTIVE = ("pending", "running")
 # the state a point takes from its repeats: the first of these that any repeat has
-PRIORITY = ("failed", "unstable", "timeout", "cancelled", "unknown", "unsubmitted", "running", "pending", "done")
+PRIORITY = ("failed", "unstable", "timeout", "cancelled", "unknown", "unsubmitted", "not_started", "running",
+            "pending", "done")
 
 
 def read_json(path):
@@ -127,7 +129,9 @@ def rep_outcome(rep_dir, scheduler, batch):
         return dict(out, status="failed", reason=f"job {jid} left no result and Slurm no longer knows it")
     if batch:
         return dict(out, status="unsubmitted", reason="not submitted (run DIR/submit.sh)")
-    return dict(out, status="failed", reason="no result (not run, interrupted or crashed)")
+    if not os.path.isdir(rep_dir) or not os.listdir(rep_dir):
+        return dict(out, status="not_started", reason="never started: the sweep ended before it (--resume runs it)")
+    return dict(out, status="failed", reason="no result (interrupted or crashed)")
 
 
 def point_outcome(outcomes):

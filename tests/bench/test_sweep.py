@@ -297,3 +297,28 @@ def test_runs_csv_keeps_whole_numbers_whole(tmp_path):
     assert [(r["procs"], r["particles"], r["steps"], r["cores"]) for r in rows] == [("1", "300", "15", "1"),
                                                                                   ("2", "", "", "2")]
     assert rows[0]["totalT"] == "0.001"
+
+
+def test_status_of_an_interrupted_local_sweep(tmp_path):
+    """A local sweep stopped during its first repeat: the repeat that started reads failed (no
+    result), those whose folders were never made read not_started, not failed (issue 34 saw
+    "1 done, 5 failed" where one repeat had started)."""
+    from bench.sweep.status import point_outcome, sweep_outcomes
+    out = tmp_path / "i"
+    points = [{"key": "1-1-1-1-1-aaaa", "mapping": "1-1-1-1-1"}, {"key": "2-2-1-1-1-bbbb", "mapping": "2-2-1-1-1"}]
+    out.mkdir()
+    (out / "manifest.json").write_text(json.dumps({"launcher": "local", "repeats": 3, "points": points}))
+    done = out / "1-1-1-1-1-aaaa" / "rep0"
+    done.mkdir(parents=True)
+    (done / "status.json").write_text(json.dumps({"status": "done", "reason": ""}))
+    started = out / "2-2-1-1-1-bbbb" / "rep0"
+    started.mkdir(parents=True)
+    (started / "cmd.txt").write_text("bench run ...")
+    _, rows = sweep_outcomes(str(out))
+    states = {(p["key"], o["rep"]): o["status"] for p, outs in rows for o in outs}
+    assert states == {("1-1-1-1-1-aaaa", "rep0"): "done", ("1-1-1-1-1-aaaa", "rep1"): "not_started",
+                      ("1-1-1-1-1-aaaa", "rep2"): "not_started", ("2-2-1-1-1-bbbb", "rep0"): "failed",
+                      ("2-2-1-1-1-bbbb", "rep1"): "not_started", ("2-2-1-1-1-bbbb", "rep2"): "not_started"}
+    assert point_outcome(rows[0][1])["status"] == "not_started"
+    res = bench("sweep", "--status", str(out))
+    assert "not_started" in res.stdout, res.stdout + res.stderr
