@@ -302,6 +302,22 @@ def merge_step_files(out, size):
     return counts
 
 
+def steps_done(out, size, info):
+    """The last step whose row every rank wrote, from OUT/steps.csv (the step before the run's first
+    when none; None when the file cannot be read)."""
+    first = int(info.get("step_first") or 1)
+    try:
+        rows = read_step_rows(os.path.join(out, "steps.csv"))
+    except (OSError, ValueError):
+        return first - 1 if not os.path.exists(os.path.join(out, "steps.csv")) else None
+    if not len(rows) or "rank" not in rows or "step" not in rows:
+        return first - 1
+    last = rows.groupby("rank")["step"].max()
+    if len(last) < size:
+        return first - 1
+    return int(last.min())
+
+
 def read_json_file(path):
     try:
         with open(path) as fh:
@@ -329,6 +345,8 @@ def finalize_run(out, size, status, reason):
     if info.get("status") in FINAL:
         return info
     info.update(status=status, stable=info.get("stable"), reason=reason, ended=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+    if info.get("steps_done") is None:
+        info["steps_done"] = steps_done(out, size, info)
     if counts:
         info["rank_step_rows"] = {str(r): n for r, n in counts.items()}
     if notes:

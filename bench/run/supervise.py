@@ -162,6 +162,7 @@ def main(argv):
     p.add_argument("cmd", nargs=argparse.REMAINDER)
     args = p.parse_args(argv)
     cmd = args.cmd[1:] if args.cmd and args.cmd[0] == "--" else args.cmd
+    launcher = os.getppid()  # bench run: when it dies, the SIGTERM below is its death signal
     die_with_parent(signal.SIGTERM)
     become_subreaper()
     got = []
@@ -190,6 +191,8 @@ def main(argv):
         beats = read_beats(args.out)
         if got:
             name = signal.Signals(got[0]).name
+            if got[0] == signal.SIGTERM and os.getppid() != launcher:
+                name = f"the end of its launcher (bench run, pid {launcher}, killed)"
             step = max((rec.get("step", 0) for _, rec in beats.values()), default=0)
             verdict = ("interrupted", f"interrupted by {name} near step {step}: stopped the {args.procs} ranks; "
                                       f"the records written are kept in {args.out}", 128 + got[0])

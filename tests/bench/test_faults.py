@@ -482,16 +482,19 @@ def _check_ended(out, proc, code, *words, within=30.0, t0=None):
 def test_mpi_run_parent_killed_leaves_no_orphan(tmp_path):
     """SIGKILL of `bench run` (the parent of mpiexec): its supervisor is told (PR_SET_PDEATHSIG),
     stops the ranks and marks the records: no process left within seconds, run.json
-    `interrupted`, the ranks' rows merged into steps.csv."""
+    `interrupted` by the end of its launcher (issue 34: it read "interrupted by SIGTERM", the
+    death signal the supervisor gets), the ranks' rows merged into steps.csv and steps_done the
+    last step both ranks wrote (it was null)."""
     out = tmp_path / "m"
     proc = _mpi_run(out)
     proc.kill()
     proc.communicate(timeout=60)
     _wait_for(lambda: _ours(out) == [], timeout=30, what="no process left")
     run = json.loads((out / "run.json").read_text())
-    assert run["status"] == "interrupted" and "SIGTERM" in run["reason"]
+    assert run["status"] == "interrupted" and "the end of its launcher (bench run, pid" in run["reason"]
     steps = pd.read_csv(out / "steps.csv")
     assert set(steps["rank"]) == {0, 1} and len(steps) > 100
+    assert run["steps_done"] == steps.groupby("rank")["step"].max().min()
 
 
 @pytest.mark.parametrize("sig,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGHUP, 129)])
@@ -504,6 +507,7 @@ def test_mpi_run_signal_reaches_the_ranks(tmp_path, sig, code):
     proc.send_signal(sig)
     run, steps, line = _check_ended(out, proc, code, "interrupted by " + signal.Signals(sig).name, t0=t0)
     assert run["status"] == "interrupted" and len(steps) > 100
+    assert run["steps_done"] == steps.groupby("rank")["step"].max().min()  # null before issue 34
 
 
 def test_mpi_rank_killed_is_named(tmp_path):
