@@ -617,8 +617,15 @@ def wall_candidates(n_owned, pos, reach, wall_m, wall_d, wall_hist, near):
     """The wall list of a neighbour rebuild: near[p] = 1 for the owned particles within reach[p] (the
     bounding radius plus half the skin [m]) of some wall plane, 0 for the others, whose wall
     history ends here: they cannot touch a wall before the next rebuild. Returns their count."""
+    return wall_candidates_range(0, n_owned, pos, reach, wall_m, wall_d, wall_hist, near)
+
+
+@njit(cache=True)
+def wall_candidates_range(p0, p1, pos, reach, wall_m, wall_d, wall_hist, near):
+    """wall_candidates for the owned particles p0..p1-1 (threads take blocks of them:
+    modes.parallel.wall_threads); returns their count on the list."""
     count = 0
-    for p in range(n_owned):
+    for p in range(p0, p1):
         near[p] = 0
         for w in range(wall_m.shape[0]):
             if wall_m[w, 0] * pos[p, 0] + wall_m[w, 1] * pos[p, 1] + wall_m[w, 2] * pos[p, 2] - wall_d[w] < reach[p]:

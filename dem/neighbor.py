@@ -22,6 +22,38 @@ HALF_SHELL = np.array([(dx, dy, dz) for dz in (-1, 0, 1) for dy in (-1, 0, 1) fo
 
 
 @njit(cache=True)
+def grid_shape(n, lo, hi, cutoff):
+    """Cells over the bounding box lo, hi [3] of n particles: (dims [3] int64, size [3]), edges
+    >= cutoff (one cell per axis when cutoff is inf: all-pairs)."""
+    dims = np.ones(3, dtype=np.int64)
+    size = np.empty(3)
+    for k in range(3):
+        ext = hi[k] - lo[k] if n > 0 else 0.0
+        m = int(ext / cutoff) if 0 < cutoff < np.inf else 1
+        dims[k] = max(1, m)
+    # a particle far from the rest must not blow the grid up: keep <= 8 cells per particle
+    while dims[0] * dims[1] * dims[2] > 8 * n + 64:
+        k = np.argmax(dims)
+        dims[k] = max(1, dims[k] // 2)
+    for k in range(3):
+        ext = hi[k] - lo[k] if n > 0 else 0.0
+        size[k] = max(ext / dims[k], cutoff) if cutoff < np.inf else max(ext, 1.0)
+    return dims, size
+
+
+@njit(cache=True, inline="always")
+def cell_of_point(pos, p, lo, size, dims):
+    """The cell (x fastest) of particle p."""
+    c = 0
+    for k in (2, 1, 0):
+        ck = int((pos[p, k] - lo[k]) / size[k])
+        if ck >= dims[k]:
+            ck = dims[k] - 1
+        c = c * dims[k] + ck
+    return c
+
+
+@njit(cache=True)
 def bin_particles(pos, cutoff):
     """Counting sort of particles into cubic cells of edge >= cutoff over their bounding box.
 
@@ -38,29 +70,12 @@ def bin_particles(pos, cutoff):
         for k in range(3):
             lo[k] = min(lo[k], pos[p, k])
             hi[k] = max(hi[k], pos[p, k])
-    dims = np.ones(3, dtype=np.int64)
-    size = np.empty(3)
-    for k in range(3):
-        ext = hi[k] - lo[k] if n > 0 else 0.0
-        m = int(ext / cutoff) if 0 < cutoff < np.inf else 1
-        dims[k] = max(1, m)
-    # a particle far from the rest must not blow the grid up: keep <= 8 cells per particle
-    while dims[0] * dims[1] * dims[2] > 8 * n + 64:
-        k = np.argmax(dims)
-        dims[k] = max(1, dims[k] // 2)
-    for k in range(3):
-        ext = hi[k] - lo[k] if n > 0 else 0.0
-        size[k] = max(ext / dims[k], cutoff) if cutoff < np.inf else max(ext, 1.0)
+    dims, size = grid_shape(n, lo, hi, cutoff)
     ncell = dims[0] * dims[1] * dims[2]
     cell_of = np.empty(n, dtype=np.int64)
     cell_start = np.zeros(ncell + 1, dtype=np.int64)
     for p in range(n):
-        c = 0
-        for k in (2, 1, 0):
-            ck = int((pos[p, k] - lo[k]) / size[k])
-            if ck >= dims[k]:
-                ck = dims[k] - 1
-            c = c * dims[k] + ck
+        c = cell_of_point(pos, p, lo, size, dims)
         cell_of[p] = c
         cell_start[c + 1] += 1
     for c in range(ncell):
@@ -169,6 +184,16 @@ class PairBuffer:
         return True
 
 
+def grid_cutoff(method, rbound):
+    """The smallest cell edge of the neighbour method over bounding radii rbound [n]: inf for
+    all-pairs (one cell), the largest bounding diameter for link-cell."""
+    if method == "allpairs":
+        return np.inf
+    if method == "linkcell":
+        return 2.0 * float(rbound.max()) if rbound.shape[0] else 1.0
+    raise ValueError(f"unknown neighbour method {method!r} (allpairs, linkcell)")
+
+
 class CellGrid:
     """Particles binned for the neighbour loop: dims [3], cell_start [ncell+1], cell_items [n]
     (scan row -> local index) and the scan-ordered copies spos, srb, sgid, scell (sorted_copies).
@@ -176,13 +201,7 @@ class CellGrid:
     largest bounding diameter over the particles' bounding box."""
 
     def __init__(self, method, pos, rbound, gid):
-        n = pos.shape[0]
-        if method == "allpairs":
-            cutoff = np.inf
-        elif method == "linkcell":
-            cutoff = 2.0 * float(rbound.max()) if n else 1.0
-        else:
-            raise ValueError(f"unknown neighbour method {method!r} (allpairs, linkcell)")
+        cutoff = grid_cutoff(method, rbound)
         self.dims, _, _, self.cell_start, self.cell_items, cell_of = bin_particles(pos, cutoff)
         self.spos, self.srb, self.sgid, self.scell = sorted_copies(self.cell_items, cell_of, pos, rbound, gid)
 

@@ -312,7 +312,17 @@ def carry_history_rows(pi, pj, gid, n_owned, oadj_start, oadj_items, opi, opj, o
     where = np.full(top + 1, -1, dtype=np.int64)
     for p in range(oadj_start.shape[0] - 1):
         where[ogid[p]] = p
-    for k in range(pi.shape[0]):
+    carry_history_rows_range(0, pi.shape[0], where, pi, pj, gid, n_owned, oadj_start, oadj_items, opi, opj, ogid,
+                             oon, ohist, hist, on)
+
+
+@njit(cache=True)
+def carry_history_rows_range(k0, k1, where, pi, pj, gid, n_owned, oadj_start, oadj_items, opi, opj, ogid, oon,
+                             ohist, hist, on):
+    """carry_history_rows for the new pairs k0..k1-1, given where [max gid + 1] (each old owned
+    particle's old index by gid, -1 elsewhere), so that threads can carry ranges of the list
+    (modes.parallel.carry_rows_threads)."""
+    for k in range(k0, k1):
         own, partner = _owned_end(pi[k], pj[k], gid, n_owned)
         on[k] = 0
         o = where[gid[own]]
@@ -340,7 +350,14 @@ class PairList:
     (built on demand where nothing gathers: sorted lists sum as they resolve); near [n_owned] int8
     the wall list (dem.forces.wall_candidates); ref [n_owned, 3] the owned positions at the
     rebuild [m]; gid the local particles' global ids at the rebuild [n]; offsets [T+1] the pairs
-    each thread found (thread schemes resolve their own pairs); rebuilds counts the builds."""
+    each thread found (thread schemes resolve their own pairs); rebuilds counts the builds.
+    build_adjacency, build_adjacency_of and carry_rows are the list's loops (pair_adjacency,
+    pair_adjacency_of, carry_history_rows, same arguments); a thread mode sets its own on the
+    instance (modes.threads: modes.parallel's, with identical results)."""
+
+    build_adjacency = staticmethod(pair_adjacency)
+    build_adjacency_of = staticmethod(pair_adjacency_of)
+    carry_rows = staticmethod(carry_history_rows)
 
     def __init__(self, capacity=1024):
         self._cur = self._alloc(capacity)
@@ -400,7 +417,7 @@ class PairList:
         if deliver == SUM:
             adj_start, adj_items = np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64)
         elif deliver == SPLIT and self._adj is None:
-            adj_start, adj_items = pair_adjacency_of(self.pi, self.pj, self.gid, self.n_owned, gat)
+            adj_start, adj_items = self.build_adjacency_of(self.pi, self.pj, self.gid, self.n_owned, gat)
         else:
             adj_start, adj_items = self.adjacency()
         return adj_start, adj_items, self.on, self.pf, self.near, gat
@@ -408,7 +425,7 @@ class PairList:
     def adjacency(self):
         """(adj_start [n_owned+1], adj_items): each owned particle's pairs in ascending partner gid."""
         if self._adj is None:
-            self._adj = pair_adjacency(self.pi, self.pj, self.gid, self.n_owned)
+            self._adj = self.build_adjacency(self.pi, self.pj, self.gid, self.n_owned)
         return self._adj
 
     def set(self, m, gid, n_owned, hist_start, hist_partner, hist_val, pos, by_gid=False, carry=False,
@@ -436,7 +453,7 @@ class PairList:
         self.gid = gid.copy()
         self.n_owned = n_owned
         self.sorted = by_gid
-        self._adj = None if by_gid else pair_adjacency(self.pi, self.pj, gid, n_owned)
+        self._adj = None if by_gid else self.build_adjacency(self.pi, self.pj, gid, n_owned)
         opi, opj, ohist, oon = (a[:old_m] for a in old)
         if not carry:
             history_from_csr(self.pi, self.pj, gid, n_owned, hist_start, hist_partner, hist_val, self.hist, self.on)
@@ -444,8 +461,8 @@ class PairList:
             (carry_sorted or carry_history_sorted)(self.pi, self.pj, gid, opi, opj, old_gid, oon, ohist, self.hist,
                                                    self.on)
         else:
-            carry_history_rows(self.pi, self.pj, gid, n_owned, old_adj[0], old_adj[1], opi, opj, old_gid, oon,
-                               ohist, self.hist, self.on)
+            self.carry_rows(self.pi, self.pj, gid, n_owned, old_adj[0], old_adj[1], opi, opj, old_gid, oon,
+                            ohist, self.hist, self.on)
         if carry and rows and len(hist_partner):
             history_from_rows_where_present(self.pi, self.pj, gid, n_owned, hist_start, hist_partner, hist_val,
                                             self.hist, self.on)

@@ -40,10 +40,10 @@ from numba import get_thread_id, njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from dem.forces import SPLIT, SPLIT_TAKEN, finish_range, resolve_range
+from dem.forces import SPLIT, SPLIT_TAKEN, finish_range, resolve_range, wall_candidates_range
 from dem.integrate import derive_all
-from dem.neighbor import HALF_SHELL, scan_rows
-from dem.pairs import carry_history_sorted_range
+from dem.neighbor import HALF_SHELL, cell_of_point, grid_shape, scan_rows
+from dem.pairs import carry_history_rows_range, carry_history_sorted_range
 from dem.shapes import SPHERE
 
 SCHEMES = ("partition", "frogleap", "headtail", "static", "dynamic")
@@ -56,6 +56,7 @@ DYNAMIC = 4
 STATIC_BLOCK = 64     # rows or pairs per prange iteration of the static scheme
 DYNAMIC_ROWS = 16     # rows per dynamic hand-out
 DYNAMIC_PAIRS = 64    # candidate pairs per dynamic hand-out (the dynamic scheme with split=False)
+WEIGHT_BLOCK = 1024   # pairs per prange iteration of the range cut's per-pair loops (pair_weights)
 # Dynamic split: the cost of resolving a candidate pair, in units of one whose bounding spheres are
 # apart (`bench perf --what split` measures these on the machine at hand; 2 cores:
 # apart 0.0066-0.0117 us; overlapping sphere pair 0.063 us; overlapping ellipsoid pair 0.27 us on
@@ -140,6 +141,70 @@ def scheme_rows(scheme, n, threads):
 
 
 @njit(parallel=True, cache=True)
+def grid_threads(threads, pos, rbound, gid, cutoff):
+    """dem.neighbor.bin_particles and sorted_copies by T threads, each over a contiguous range of
+    the particles: the bounding box from per-thread minima and maxima; a per-thread counting sort,
+    each thread counting its range per cell, the write offsets a prefix sum over (cell, thread),
+    so that items within a cell keep ascending local index as one thread's sort gives; each thread
+    then writes its particles and their scan-ordered copies. Returns (dims, cell_start,
+    cell_items, spos, srb, sgid, scell) of dem.neighbor.CellGrid, identical to one thread's."""
+    n = pos.shape[0]
+    box = np.empty((threads, 6))
+    for t in prange(threads):
+        for k in range(3):
+            box[t, k] = np.inf
+            box[t, 3 + k] = -np.inf
+        for p in range(t * n // threads, (t + 1) * n // threads):
+            for k in range(3):
+                box[t, k] = min(box[t, k], pos[p, k])
+                box[t, 3 + k] = max(box[t, 3 + k], pos[p, k])
+    lo = np.empty(3)
+    hi = np.empty(3)
+    for k in range(3):
+        lo[k] = np.inf
+        hi[k] = -np.inf
+        for t in range(threads):
+            lo[k] = min(lo[k], box[t, k])
+            hi[k] = max(hi[k], box[t, 3 + k])
+    dims, size = grid_shape(n, lo, hi, cutoff)
+    ncell = dims[0] * dims[1] * dims[2]
+    cell_of = np.empty(n, dtype=np.int64)
+    fill = np.zeros((threads, ncell), dtype=np.int64)
+    for t in prange(threads):
+        for p in range(t * n // threads, (t + 1) * n // threads):
+            c = cell_of_point(pos, p, lo, size, dims)
+            cell_of[p] = c
+            fill[t, c] += 1
+    cell_start = np.empty(ncell + 1, dtype=np.int64)
+    acc = 0
+    for c in range(ncell):
+        cell_start[c] = acc
+        for t in range(threads):
+            k = fill[t, c]
+            fill[t, c] = acc
+            acc += k
+    cell_start[ncell] = acc
+    cell_items = np.empty(n, dtype=np.int64)
+    spos = np.empty((n, 3))
+    srb = np.empty(n)
+    sgid = np.empty(n, dtype=np.int64)
+    scell = np.empty(n, dtype=np.int64)
+    for t in prange(threads):
+        for p in range(t * n // threads, (t + 1) * n // threads):
+            c = cell_of[p]
+            u = fill[t, c]
+            fill[t, c] = u + 1
+            cell_items[u] = p
+            spos[u, 0] = pos[p, 0]
+            spos[u, 1] = pos[p, 1]
+            spos[u, 2] = pos[p, 2]
+            srb[u] = rbound[p]
+            sgid[u] = gid[p]
+            scell[u] = c
+    return dims, cell_start, cell_items, spos, srb, sgid, scell
+
+
+@njit(parallel=True, cache=True)
 def scan_threads(code, threads, row_start, rows, grid, n_owned, pi_t, pj_t, counts, tests, busy):
     """Neighbour scan (dem.neighbor.scan_rows over the grid group) under a scheme into per-thread
     buffers pi_t, pj_t [T, cap]; counts [T], tests [T] (pair tests made) and busy [T] (cycles) per
@@ -181,6 +246,32 @@ def scan_threads(code, threads, row_start, rows, grid, n_owned, pi_t, pj_t, coun
             busy[t] = cycle_counter() - c0
 
 
+@njit(cache=True)
+def find_pairs_threads(code, threads, cutoff, pos, rbound, gid, n_owned, row_start, rows, pi_t, pj_t, counts, tests,
+                       busy, offsets, pi, pj):
+    """The neighbour estimate by T threads in one call: the grid (grid_threads, cells of edge >=
+    cutoff), the scan under the scheme into pi_t, pj_t [T, cap] (scan_threads), offsets [T+1] of
+    the threads' pairs and, where pi, pj hold them, their compaction (compact_pairs). Returns
+    (m, the largest thread count): m = -1 when a thread's buffer was too small (grow cap to the
+    count and call again); m > len(pi): compact into larger buffers."""
+    grid = grid_threads(threads, pos, rbound, gid, cutoff)
+    dims, cell_start, cell_items, spos, srb, sgid, scell = grid
+    scan_threads(code, threads, row_start, rows, (scell, dims, cell_start, cell_items, spos, srb, sgid), n_owned,
+                 pi_t, pj_t, counts, tests, busy)
+    top = 0
+    for t in range(threads):
+        top = max(top, counts[t])
+    if top > pi_t.shape[1]:
+        return -1, top
+    offsets[0] = 0
+    for t in range(threads):
+        offsets[t + 1] = offsets[t] + counts[t]
+    m = offsets[threads]
+    if m <= pi.shape[0]:
+        compact_pairs(threads, pi_t, pj_t, offsets, pi, pj)
+    return m, top
+
+
 @njit(parallel=True, cache=True)
 def compact_pairs(threads, pi_t, pj_t, offsets, pi, pj):
     """Concatenate the per-thread pair buffers in thread order into pi, pj [sum counts]."""
@@ -199,6 +290,117 @@ def carry_threads(threads, pi, pj, gid, opi, opj, ogid, oon, ohist, hist, on):
     for t in prange(threads):
         carry_history_sorted_range(t * m // threads, (t + 1) * m // threads, pi, pj, gid, opi, opj, ogid, oon, ohist,
                                    hist, on)
+
+
+@njit(cache=True, parallel=True)
+def wall_threads(threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near):
+    """dem.forces.wall_candidates by T threads over contiguous blocks of the owned particles (each
+    particle's entry is its own); returns the count."""
+    count = np.zeros(threads, dtype=np.int64)
+    for t in prange(threads):
+        count[t] = wall_candidates_range(t * n_owned // threads, (t + 1) * n_owned // threads, pos, reach, wall_m,
+                                         wall_d, wall_hist, near)
+    return count.sum()
+
+
+@njit(cache=True, parallel=True)
+def carry_rows_threads(threads, pi, pj, gid, n_owned, oadj_start, oadj_items, opi, opj, ogid, oon, ohist, hist, on):
+    """dem.pairs.carry_history_rows by T threads: the old owned particles' index by gid built over
+    T blocks of them, then each thread carries a contiguous range of the new list (each pair reads
+    only the old list); the same rows as one thread's."""
+    top_t = np.zeros(threads, dtype=np.int64)
+    no = ogid.shape[0]
+    n = gid.shape[0]
+    for t in prange(threads):
+        top = 0
+        for p in range(t * no // threads, (t + 1) * no // threads):
+            top = max(top, ogid[p])
+        for p in range(t * n // threads, (t + 1) * n // threads):
+            top = max(top, gid[p])
+        top_t[t] = top
+    where = np.empty(top_t.max() + 1, dtype=np.int64)
+    nw = where.shape[0]
+    nr = oadj_start.shape[0] - 1
+    for t in prange(threads):
+        for g in range(t * nw // threads, (t + 1) * nw // threads):
+            where[g] = -1
+    for t in prange(threads):
+        for p in range(t * nr // threads, (t + 1) * nr // threads):
+            where[ogid[p]] = p
+    m = pi.shape[0]
+    for t in prange(threads):
+        carry_history_rows_range(t * m // threads, (t + 1) * m // threads, where, pi, pj, gid, n_owned, oadj_start,
+                                 oadj_items, opi, opj, ogid, oon, ohist, hist, on)
+
+
+@njit(cache=True, inline="always")
+def _insertion_sort_row(keys, items, u0, u1):
+    """Sort items[u0:u1] by keys[u0:u1] (distinct keys: the result is the one order)."""
+    for u in range(u0 + 1, u1):
+        kk = keys[u]
+        it = items[u]
+        v = u - 1
+        while v >= u0 and keys[v] > kk:
+            keys[v + 1] = keys[v]
+            items[v + 1] = items[v]
+            v -= 1
+        keys[v + 1] = kk
+        items[v + 1] = it
+
+
+@njit(cache=True)
+def _offsets_by_row(count, nrow, start):
+    """Counts count [T, nrow] of each thread per row -> start [nrow+1] (row-major prefix sum) and,
+    in count, each thread's first write position in each row (thread t after threads < t)."""
+    threads = count.shape[0]
+    acc = 0
+    for r in range(nrow):
+        start[r] = acc
+        for t in range(threads):
+            c = count[t, r]
+            count[t, r] = acc
+            acc += c
+    start[nrow] = acc
+
+
+@njit(cache=True, parallel=True)
+def adjacency_threads(threads, pi, pj, gid, n_owned, mark, every):
+    """dem.pairs.pair_adjacency (every) or pair_adjacency_of (mark) by T threads: each counts the
+    ends of a contiguous range of the pairs per particle, a prefix over (particle, thread) gives
+    its write offsets, so rows fill in pair order as on one thread; then the rows are sorted by
+    partner gid over T blocks of particles (partners are distinct: the one order)."""
+    m = pi.shape[0]
+    count = np.zeros((threads, n_owned), dtype=np.int64)
+    for t in prange(threads):
+        for k in range(t * m // threads, (t + 1) * m // threads):
+            i = pi[k]
+            j = pj[k]
+            if i < n_owned and (every or mark[i] != 0):
+                count[t, i] += 1
+            if j < n_owned and (every or mark[j] != 0):
+                count[t, j] += 1
+    start = np.empty(n_owned + 1, dtype=np.int64)
+    _offsets_by_row(count, n_owned, start)
+    items = np.empty(start[n_owned], dtype=np.int64)
+    keys = np.empty(start[n_owned], dtype=np.int64)
+    for t in prange(threads):
+        for k in range(t * m // threads, (t + 1) * m // threads):
+            i = pi[k]
+            j = pj[k]
+            if i < n_owned and (every or mark[i] != 0):
+                u = count[t, i]
+                items[u] = 2 * k
+                keys[u] = gid[j]
+                count[t, i] = u + 1
+            if j < n_owned and (every or mark[j] != 0):
+                u = count[t, j]
+                items[u] = 2 * k + 1
+                keys[u] = gid[i]
+                count[t, j] = u + 1
+    for t in prange(threads):
+        for p in range(t * n_owned // threads, (t + 1) * n_owned // threads):
+            _insertion_sort_row(keys, items, start[p], start[p + 1])
+    return start, items
 
 
 @njit(cache=True)
@@ -238,67 +440,96 @@ def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, shape, taken, bound
     return w
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def pair_weights(code, pi, pj, n_owned, pos, rbound, shape, taken):
-    """The estimated cost w [m] of each pair of the list under the scheme `code` (split_pairs)."""
+    """The estimated cost w [m] of each pair of the list under the scheme `code` (split_pairs), by
+    the threads over blocks of the list (each pair's weight is its own)."""
     m = pi.shape[0]
     w = np.empty(m)
-    for k in range(m):
-        if code == PARTITION:
-            w[k] = 1.0 if k == 0 or pi[k] != pi[k - 1] else 0.0
-        elif code == DYNAMIC:
-            i = pi[k]
-            j = pj[k]
-            if taken and (i >= n_owned or j >= n_owned):
-                w[k] = 1.0
-                continue
-            d2 = (pos[j, 0] - pos[i, 0]) ** 2 + (pos[j, 1] - pos[i, 1]) ** 2 + (pos[j, 2] - pos[i, 2]) ** 2
-            if d2 >= (rbound[i] + rbound[j]) ** 2:
-                w[k] = 1.0
-            elif shape[i] == SPHERE and shape[j] == SPHERE:
-                w[k] = SPHERE_PAIR_WEIGHT
-            else:
-                w[k] = SOLVER_WEIGHT
-        else:
-            w[k] = 1.0
+    nb = (m + WEIGHT_BLOCK - 1) // WEIGHT_BLOCK
+    for b in prange(nb):
+        for k in range(b * WEIGHT_BLOCK, min(m, (b + 1) * WEIGHT_BLOCK)):
+            w[k] = _pair_weight(code, k, pi, pj, n_owned, pos, rbound, shape, taken)
     return w
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
+def _pair_weight(code, k, pi, pj, n_owned, pos, rbound, shape, taken):
+    if code == PARTITION:
+        return 1.0 if k == 0 or pi[k] != pi[k - 1] else 0.0
+    if code != DYNAMIC:
+        return 1.0
+    i = pi[k]
+    j = pj[k]
+    if taken and (i >= n_owned or j >= n_owned):
+        return 1.0
+    d2 = (pos[j, 0] - pos[i, 0]) ** 2 + (pos[j, 1] - pos[i, 1]) ** 2 + (pos[j, 2] - pos[i, 2]) ** 2
+    if d2 >= (rbound[i] + rbound[j]) ** 2:
+        return 1.0
+    if shape[i] == SPHERE and shape[j] == SPHERE:
+        return SPHERE_PAIR_WEIGHT
+    return SOLVER_WEIGHT
+
+
+@njit(cache=True, parallel=True)
 def cut_ranges(w, threads, pi, pj, n_owned, bounds, gat, home_start, home_items):
     """Cut the gid-sorted list (pi, pj [m]) into T ranges of whole rows and about equal weight w [m],
     bounds [T+1]. Then gat [n_owned] int8 = 1 for the owned particles with pairs in two ranges
     (they gather), and each range's other particles, those it alone sums (plus, in range 0, the
     particles without pairs): home_items [n_owned - gathered] grouped by range, home_start [T+1];
     their force and torque are zeroed by the thread of their range before it resolves
-    (dem.forces.resolve_range, SPLIT). Returns the number of particles the ranges sum themselves."""
+    (dem.forces.resolve_range, SPLIT). Returns the number of particles the ranges sum themselves.
+    The cut itself is one pass (cut_at_equal_weight); the rest runs on the threads: each range
+    marks its particles (seen [T, n_owned]), a particle's home is the first range that saw it, and
+    home_items is written by a counting sort over T blocks of particles, in ascending index within
+    each range, as one thread's loop gives."""
     m = pi.shape[0]
     row_start = np.empty(m, dtype=np.bool_)
-    for k in range(m):
-        row_start[k] = k == 0 or pi[k] != pi[k - 1]
+    nb = (m + WEIGHT_BLOCK - 1) // WEIGHT_BLOCK
+    for b in prange(nb):
+        for k in range(b * WEIGHT_BLOCK, min(m, (b + 1) * WEIGHT_BLOCK)):
+            row_start[k] = k == 0 or pi[k] != pi[k - 1]
     cut_at_equal_weight(w, row_start, threads, bounds)
-    home = np.full(n_owned, -1, dtype=np.int64)
-    gat[:] = 0
-    for t in range(threads):
+    seen = np.zeros((threads, n_owned), dtype=np.int8)
+    for t in prange(threads):
         for k in range(bounds[t], bounds[t + 1]):
-            for e in (pi[k], pj[k]):
-                if e < n_owned:
-                    if home[e] < 0:
-                        home[e] = t
-                    elif home[e] != t:
-                        gat[e] = 1
-    home_start[:] = 0
-    for p in range(n_owned):
-        if gat[p] == 0:
-            home_start[max(home[p], 0) + 1] += 1
+            i = pi[k]
+            j = pj[k]
+            if i < n_owned:
+                seen[t, i] = 1
+            if j < n_owned:
+                seen[t, j] = 1
+    count = np.zeros((threads, threads), dtype=np.int64)   # [particle block, range]
+    home = np.empty(n_owned, dtype=np.int64)
+    for b in prange(threads):
+        for p in range(b * n_owned // threads, (b + 1) * n_owned // threads):
+            h = -1
+            g = 0
+            for t in range(threads):
+                if seen[t, p]:
+                    if h < 0:
+                        h = t
+                    else:
+                        g = 1
+            gat[p] = g
+            home[p] = max(h, 0)
+            if g == 0:
+                count[b, home[p]] += 1
+    # write offsets: range-major, then particle block (ascending index within a range)
+    acc = 0
     for t in range(threads):
-        home_start[t + 1] += home_start[t]
-    fill = home_start[:threads].copy()
-    for p in range(n_owned):
-        if gat[p] == 0:
-            t = max(home[p], 0)
-            home_items[fill[t]] = p
-            fill[t] += 1
+        home_start[t] = acc
+        for b in range(threads):
+            c = count[b, t]
+            count[b, t] = acc
+            acc += c
+    home_start[threads] = acc
+    for b in prange(threads):
+        for p in range(b * n_owned // threads, (b + 1) * n_owned // threads):
+            if gat[p] == 0:
+                t = home[p]
+                home_items[count[b, t]] = p
+                count[b, t] += 1
     return home_start[threads]
 
 

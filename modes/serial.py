@@ -42,6 +42,7 @@ class SerialMode:
     deliver = SUM         # one thread sums the pair forces as it resolves them (dem.forces.resolve_range)
     migrates = False      # particles change rank at rebuilds (MPI): history then travels through the state
     carry_sorted = None   # how a rebuild carries the history of a gid-sorted list (None: dem.pairs' merge)
+    wall_list = staticmethod(wall_candidates)   # the rebuild's wall list (threads: their own loop)
 
     def setup(self, scene, dt, neighbor="linkcell", skin=None, contact_method="exact", **options):
         if options:
@@ -186,7 +187,7 @@ class SerialMode:
                        carry_sorted=self.carry_sorted)
         t3 = clock()
         self.pairs.near = np.zeros(s.n_owned, dtype=np.int8)
-        wall_candidates(s.n_owned, s.pos, reach, *self.wall_planes(), s.wall_hist, self.pairs.near)
+        self.wall_list(s.n_owned, s.pos, reach, *self.wall_planes(), s.wall_hist, self.pairs.near)
         self.plist = self.pairs.arrays
         t4 = clock()
         self.split()

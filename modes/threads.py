@@ -5,8 +5,11 @@ contact detection (neighbour scan on rebuilds, contact resolution every step) un
 scheme (resolution over ranges of the gid-sorted list that sum as they go, unless split=False or
 the scheme is frogleap or headtail: modes/parallel.py), and, unless `threaded = "detection"` (the
 paper's situation, for the Amdahl ceiling it reports), the per-particle pass (gather, walls,
-integration, derived quantities) in T contiguous blocks. The pair adjacency (a counting sort,
-once per rebuild) stays serial.
+integration, derived quantities) in T contiguous blocks. A rebuild's own loops run on the T
+threads too (modes/parallel.py): the grid (bounding box, counting sort into cells, scan-ordered
+copies) with the scan and the compaction of the threads' lists in one call, the pair adjacency,
+the history carry, the wall list and the range cut, each with the one result the serial loop
+gives; the list's sort by gid (two counting sorts) stays on one thread (see _fresh).
 """
 import numpy as np
 import numba
@@ -14,7 +17,7 @@ import numba
 from dem.contact.ellipsoid import OUT_LEN
 from dem.forces import SPLIT, SPLIT_TAKEN, STORE
 from dem.shapes import POLY, SPHERE
-from dem.neighbor import CellGrid
+from dem.neighbor import grid_cutoff
 from modes.base import ModeError, register
 from modes import parallel as par
 from modes.serial import SerialMode
@@ -46,6 +49,7 @@ class ThreadsMode(SerialMode):
     forces stored and gathered (False))."""
 
     deliver = STORE   # how the resolution hands on the pair forces (dem.forces; set by setup)
+    no_mark = np.zeros(0, dtype=np.int8)
 
     def setup(self, scene, dt, threads=2, scheme="dynamic", threaded="step", split=True, **kw):
         if scheme not in par.SCHEMES:
@@ -70,12 +74,23 @@ class ThreadsMode(SerialMode):
         self.tests = np.zeros(self.threads, dtype=np.int64)
         self.counts = np.zeros(self.threads, dtype=np.int64)
         self.work_imbalance = 1.0
+        self.row_plan = None       # (n, row_start, rows) of the scheme (scheme_rows), kept while n holds
+        self.pair_t = None     # the threads' pair buffers pi_t, pj_t [T, >= cap], kept between rebuilds
         super().setup(scene, dt, **kw)
         return self
 
     def _fresh(self):
         super()._fresh()
         t = self.threads
+        # the pair list's own loops (adjacency, history carry by rows) by the T threads; its sort by
+        # gid stays on one thread: two counting sorts by T threads took 85 us on 2 threads where
+        # one thread's took 54 us (11k pairs of 2500 packed ellipsoids)
+        p = self.pairs
+        p.build_adjacency = lambda pi, pj, gid, n_owned: par.adjacency_threads(t, pi, pj, gid, n_owned,
+                                                                                 self.no_mark, True)
+        p.build_adjacency_of = lambda pi, pj, gid, n_owned, mark: par.adjacency_threads(t, pi, pj, gid, n_owned,
+                                                                                         mark, False)
+        p.carry_rows = lambda *a: par.carry_rows_threads(t, *a)
         # per-thread scratch and results, each row PAD doubles apart: rows closer than a cache line
         # would be written by two threads at once (false sharing on every pair: measured 14 %)
         self.outs = np.zeros((t, max(OUT_LEN, PAD)))
@@ -103,29 +118,39 @@ class ThreadsMode(SerialMode):
 
     # --- contact detection under the scheme ----------------------------------------------------
     def find_pairs(self, radii):
+        """The neighbour estimate by the T threads in one call (modes.parallel.find_pairs_threads):
+        the grid (binning and scan-ordered copies), the scan under the scheme, the compaction of
+        the threads' lists in thread order."""
         s = self.state
-        grid = CellGrid(self.neighbor, s.pos, radii, s.gid)
         n = s.n
-        row_start, rows = par.scheme_rows(self.scheme, n, self.threads)
+        if self.row_plan is None or self.row_plan[0] != n:
+            self.row_plan = (n,) + par.scheme_rows(self.scheme, n, self.threads)
+        _, row_start, rows = self.row_plan
         # rows are scan-order positions; explicit schemes index them, static/dynamic use identity
-        self.scan_busy[:] = 0
+        cutoff = grid_cutoff(self.neighbor, radii)
+        offsets = np.empty(self.threads + 1, dtype=np.int64)
+        pi, pj = self.pairs.buffers(0)
         while True:
-            pi_t = np.empty((self.threads, self.cap), dtype=np.int64)
-            pj_t = np.empty((self.threads, self.cap), dtype=np.int64)
-            par.scan_threads(self.code, self.threads, row_start, rows, grid.arrays, s.n_owned, pi_t, pj_t,
-                             self.counts, self.tests, self.scan_busy)
-            if self.counts.max() <= self.cap:
+            if self.pair_t is None or self.pair_t[0].shape[1] < self.cap:
+                self.pair_t = (np.empty((self.threads, self.cap), dtype=np.int64),
+                               np.empty((self.threads, self.cap), dtype=np.int64))
+            pi_t, pj_t = self.pair_t
+            m, top = par.find_pairs_threads(self.code, self.threads, cutoff, s.pos, radii, s.gid, s.n_owned, row_start,
+                                            rows, pi_t, pj_t, self.counts, self.tests, self.scan_busy, offsets, pi, pj)
+            if m >= 0:
                 break
-            self.cap = int(self.counts.max() * 1.25) + 64
-        offsets = np.zeros(self.threads + 1, dtype=np.int64)
-        offsets[1:] = np.cumsum(self.counts)
-        m = int(offsets[-1])
-        pi, pj = self.pairs.buffers(m)
-        par.compact_pairs(self.threads, pi_t, pj_t, offsets, pi, pj)
+            self.cap = int(top * 1.25) + 64
+        if m > pi.shape[0]:
+            pi, pj = self.pairs.buffers(m)
+            par.compact_pairs(self.threads, pi_t, pj_t, offsets, pi, pj)
         self.pairs.offsets = offsets
-        self.cap = max(1024, int(self.counts.max() * 1.25) + 64)
+        self.cap = max(self.cap, int(top * 1.25) + 64)
         self.work_imbalance = float(self.tests.max() / max(self.tests.mean(), 1e-300))
         return m
+
+    def wall_list(self, n_owned, pos, reach, wall_m, wall_d, wall_hist, near):
+        """The rebuild's wall list (dem.forces.wall_candidates) by the T threads."""
+        return par.wall_threads(self.threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near)
 
     def carry_sorted(self, *arrays):
         """The rebuild's history carry (dem.pairs.carry_history_sorted) by the T threads over ranges
