@@ -8,6 +8,7 @@ heartbeat (bench.run.heartbeat) for its supervisor, which keeps and marks the re
 whose ranks it had to stop (issue 15)."""
 import argparse
 import json
+import os
 import signal
 import sys
 import time
@@ -17,12 +18,25 @@ from mpi4py import MPI
 from bench.run.binding import BindingError, establish
 from bench.run.checkpoint import load_checkpoint
 from bench.run.driver import execute
-from bench.run.heartbeat import Heartbeat
+from bench.run.heartbeat import Heartbeat, ranks_dir
 from bench.run.lifeline import PR_SET_PDEATHSIG, _prctl
 from bench.run.options import add_run_arguments, apply_preset, mode_options
 from bench.run.prepare import load_prepared
+from bench.run.records import RecordError
 from dem.timestep import TimeStep, choose_time_step
 from modes.base import mode_for, parse_mapping
+
+
+def _first_to_say(out):
+    """True for the first rank of the run to call it (an empty marker file created exclusively; on a
+    disk too full for even that, every rank is first)."""
+    try:
+        os.close(os.open(os.path.join(ranks_dir(out), "said"), os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        return True
+    except FileExistsError:
+        return False
+    except OSError:
+        return True
 
 
 def main(argv):
@@ -57,7 +71,13 @@ def main(argv):
     scheme = args.scheme or ("dynamic" if mapping.threads > 1 else None)
     mode = mode_for(mapping)().setup(scene, dt=ts.dt, cart=cart, **mode_options(mapping, args, scheme))
     beat.phase = "running"
-    execute(args, scene, mapping, scheme, mode, args.out, ts, comm=cart, beat=beat)
+    try:
+        execute(args, scene, mapping, scheme, mode, args.out, ts, comm=cart, beat=beat)
+    except RecordError as e:  # a full disk: the first rank to fail says it, in one line (the others
+        if _first_to_say(args.out):  # are stopped when this one ends); its supervisor keeps the rows
+            print(f"bench: error: rank {cart.Get_rank()}: {e}", file=sys.stderr, flush=True)
+        beat.stop()
+        return 1
     # an unstable run has written its records and its one line (rank 0): end normally, since a
     # non-zero exit makes `python -m mpi4py` abort every rank; the launcher reads run.json
     return 0

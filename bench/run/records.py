@@ -260,7 +260,7 @@ def prepare_output(out, need=0):
 
 def read_step_rows(path):
     """The whole rows of a steps.csv being written or cut short (a last line without its newline, or
-    with fewer fields, is left out): a DataFrame, empty when the file has none."""
+    with fewer fields, is left out), in (step, rank) order: a DataFrame, empty when the file has none."""
     import io
     import pandas as pd
     try:
@@ -276,9 +276,12 @@ def read_step_rows(path):
     width = lines[0].count(",")
     body = [l for l in lines[1:] if l.count(",") == width]
     try:
-        return pd.read_csv(io.StringIO(lines[0] + "".join(body)))
+        rows = pd.read_csv(io.StringIO(lines[0] + "".join(body)))
     except Exception:  # noqa: BLE001  (a damaged header: no rows to keep)
         return pd.DataFrame(columns=STEP_COLUMNS)
+    if {"step", "rank"} <= set(rows.columns):  # a merge in place on a full disk leaves them out of order
+        rows = rows.sort_values(["step", "rank"], kind="stable", ignore_index=True)
+    return rows
 
 
 def merge_step_files(out, size):
@@ -296,10 +299,45 @@ def merge_step_files(out, size):
     if not parts:
         return counts
     merged = pd.concat(parts).sort_values(["step", "rank"], kind="stable")
-    atomic_write(os.path.join(out, "steps.csv"), lambda fh: merged.to_csv(fh, index=False))
+    try:
+        atomic_write(os.path.join(out, "steps.csv"), lambda fh: merged.to_csv(fh, index=False))
+    except RecordError:  # a full disk has no room for a second copy: merge in place, rank by rank
+        _merge_in_place(out, sorted(counts))
+        return counts
     for r in counts:
         os.remove(os.path.join(out, f"steps.rank{r}.csv"))
     return counts
+
+
+def _merge_in_place(out, ranks, chunk=16384):
+    """steps.csv from the ranks' files on a disk without room for a copy: the first rank's file
+    renamed to it; each other rank's rows moved over from the end of its file, a chunk of whole rows
+    at a time (appended, then cut off the rank's file), so the disk needs room for one chunk only.
+    The rows are then not in (step, rank) order: readers group by step (read_step_rows sorts)."""
+    target = os.path.join(out, "steps.csv")
+    os.replace(os.path.join(out, f"steps.rank{ranks[0]}.csv"), target)
+    with open(target, "rb") as fh:
+        whole = fh.read().rfind(b"\n") + 1
+    os.truncate(target, whole)  # a row cut short at the end goes (it frees room, needs none)
+    for r in ranks[1:]:
+        path = os.path.join(out, f"steps.rank{r}.csv")
+        with open(path, "rb") as fh:
+            data = fh.read()
+        head = data.find(b"\n") + 1            # the header stays behind
+        end = data.rfind(b"\n") + 1            # whole rows only
+        while end > head:
+            start = max(head, data.rfind(b"\n", head, max(head, end - chunk)) + 1)
+            if start >= end:                     # a row longer than a chunk: take it whole
+                start = data.rfind(b"\n", head, end - 1) + 1
+                start = max(start, head)
+            try:
+                with open(target, "ab") as fh:
+                    fh.write(data[start:end])
+            except OSError as e:
+                raise RecordError(f"cannot merge {path} into {target}: {e.strerror or e}") from None
+            os.truncate(path, start)
+            end = start
+        os.remove(path)
 
 
 def steps_done(out, size, info):

@@ -435,6 +435,37 @@ def test_full_disk_during_a_run(small_disk):
     assert run["status"] == "failed" and "No space left on device" in run["reason"]
 
 
+def test_full_disk_during_an_mpi_run(small_disk):
+    """The disk fills while 2 ranks write their step rows (issue 34: both ranks printed RecordError
+    tracebacks, the run said the ranks "ended without a word", the rows stayed in steps.rank0/1.csv):
+    one line naming the rank and 'No space left on device', a non-zero exit, no process left, the
+    ranks' whole rows merged into steps.csv (in place: there is no room for a copy), run.json
+    `failed` with that reason and steps_done the last step both ranks wrote."""
+    out = small_disk / "run"
+    # 25 000 steps: records estimated within the 32 MiB disk (about 1 KiB a step), and long
+    # enough at 3000 particles that the run is still going when the disk fills
+    proc = _start(["run", "--scene", "pluviation", "--particles", "3000", "--steps", "25000", "--out", str(out),
+                   "--mapping", "2-2-1-1-1", "--quiet"])
+    _wait_for(lambda: all(_lines(out / f"steps.rank{r}.csv") > 300 for r in (0, 1)), what="300 rows a rank")
+    _fill(small_disk, leave=8192)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode != 0, err
+    lines = [l for l in err.splitlines() if l.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert lines[0].startswith("bench: error: rank ") and "No space left on device" in lines[0], err
+    time.sleep(1.0)
+    assert _ours(out) == [], "orphan processes"
+    assert not list(out.glob("steps.rank*.csv"))
+    steps = pd.read_csv(out / "steps.csv")
+    assert set(steps["rank"]) == {0, 1} and (steps.groupby("rank")["step"].max() >= 300).all()
+    for r in (0, 1):  # whole rows, every step once per rank (merged in place: not in step order)
+        mine = sorted(steps.loc[steps["rank"] == r, "step"].tolist())
+        assert mine == list(range(1, len(mine) + 1))
+    run = json.loads((out / "run.json").read_text())
+    assert run["status"] == "failed" and "No space left on device" in run["reason"]
+    assert run["steps_done"] == steps.groupby("rank")["step"].max().min()
+
+
 def test_full_disk_refused_before_the_run(small_disk):
     """An output folder on a full disk: refused in one line, exit 2 (the write probe writes 64 KiB;
     an empty probe passed on a full disk); one with room for less than the run's estimated records
