@@ -133,6 +133,13 @@ def _check_keys(d, allowed, what):
             raise SceneError(f"unknown key {k!r} in {what} (allowed: {', '.join(sorted(allowed))})")
 
 
+# the fewest particles a compress build (bench/run/prepare.py compress) rests: 1-3 packed ellipsoids
+# were pressed into the walls (overlap 0.08-1.69 of the smallest semi-axis at the first step, the
+# coordination target out of reach), 4-64 rested with a largest overlap of 0.8-1.8 % (measured with
+# `bench run --scene packed --particles N --steps 2`, ellipsoids and spheres)
+COMPRESS_MIN = 4
+
+
 def load_scene(spec, particles=None, shape=None, seed=None, overlap_limit=None):
     """Build a Scene from a built-in name or a TOML path.
 
@@ -278,6 +285,9 @@ def build_scene(doc, name="scene", source="", particles=None, shape=None, seed=N
     wall_m, wall_d = wall_planes(walls, box)
     gravity = _vec(dom.get("gravity", [0.0, 0.0, 0.0]), 3, "domain.gravity")
     state = _assemble(blocks, table, len(walls))
+    if build.get("method") == "compress" and state.n < COMPRESS_MIN:
+        raise SceneError(f"a compress build needs at least {COMPRESS_MIN} particles, got {state.n}: fewer never reach "
+                         f"the coordination it compresses to, and its walls press into them")
     limit = DEFAULT_OVERLAP_LIMIT if overlap_limit is None else float(overlap_limit)
     labels = _Labels(blocks)
     _validate_positions(state, box, wall_m, wall_d, walls, limit, labels)

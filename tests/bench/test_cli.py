@@ -119,6 +119,8 @@ def test_bad_scene_one_line_exit_2(tmp_path, text, words):
     (["run", "--scene", "patch162", "--frobnicate"], "unrecognized arguments: --frobnicate"),
     (["run", "--scene", "patch162", "--mapping", "9-3-3-2-4"], "px*py*pz"),
     (["run", "--scene", "patch162", "--mapping", "two"], "malformed mapping"),
+    # a packed build of 1 particle pressed it into the walls, then told the user to move it (issue 34)
+    (["run", "--scene", "packed", "--particles", "1"], "a compress build needs at least 4 particles, got 1"),
     # a full-width digit (U+FF12) is a digit to Python's \d and int(), not to a mapping (issue 34)
     (["run", "--scene", "patch162", "--mapping", "\uff12-2-1-1-1"], "malformed mapping"),
     (["sweep", "--scene", "patch162", "--mappings", "\uff12-2-1-1-1", "--out", "x"], "malformed mapping"),
