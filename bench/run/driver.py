@@ -23,6 +23,7 @@ from bench.run.lifeline import Interrupted, die_with_parent, raise_on_signals, s
 from bench.run.load import LoadMeter, step_spread
 from bench.run.options import mode_options
 from bench.run.prepare import prepare
+from bench.run.progress import Progress, build_log
 from bench.run.records import (RecordError, Reserve, StepWriter, environment, merge_step_files, prepare_output,
                                read_step_rows, write_json, write_state)
 from bench.run.snapshots import write_snapshot
@@ -55,8 +56,8 @@ def run(args):
     if scheme is not None:
         if scheme not in SCHEMES:
             raise ModeError(f"unknown scheme {scheme!r} (schemes: {', '.join(SCHEMES)})")
-    # progress of a scene build only on a terminal: logs and tests see one line per outcome
-    log = None if args.quiet or not sys.stderr.isatty() else (lambda msg: print(msg, file=sys.stderr, flush=True))
+    # progress of a scene build: each of its lines on a terminal, one every 10 s elsewhere (a log)
+    log = None if args.quiet else build_log()
     if args.restart:
         scene, ts = load_restart(args)
     else:
@@ -190,6 +191,7 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
             "restart": ({"from": resume["path"], "step": step0, "time": time0, "written_by": resume.get("mapping")}
                         if resume else None),
             "checkpoint_every": every or None, "step_first": step0 + 1, "step_last": step0 + steps,
+            "snapshot_format": (getattr(args, "snapshot_format", None) or "vtu") if args.snapshot_every else None,
             "time_start": time0 + warm * dt}
     if comm is not None:
         from mpi4py import MPI  # here, not at the top: importing it starts MPI
@@ -213,6 +215,7 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
     step_file = os.path.join(out, "steps.csv" if comm is None else f"steps.rank{rank}.csv")
     writer = StepWriter(step_file)
     snap_dir = os.path.join(out, "snapshots")
+    snapshot_format = getattr(args, "snapshot_format", None) or "vtu"
     if args.snapshot_every and rank == 0:
         os.makedirs(snap_dir, exist_ok=True)
     ckpt_path = os.path.join(out, "checkpoint.npz")
@@ -239,9 +242,12 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
              "warmup_steps_s": t_warm_steps}
     stable = reason is None
     k = 0
+    # between the timed steps: a bar on a terminal, a line every 10 s elsewhere (rank 0, not --quiet)
+    progress = Progress(steps, f"{scene.name} {mapping}", enabled=rank == 0 and not args.quiet)
     try:
         for k in (range(1, steps + 1) if stable else ()):
             row = mode.step()
+            progress.update(k)
             writer.write(step0 + k, rank, row)
             if beat is not None:
                 beat.step = step0 + k
@@ -255,12 +261,13 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
                 stable = False
                 break
             if args.snapshot_every and (step0 + k) % args.snapshot_every == 0:
-                write_snapshot(mode, snap_dir, step0 + k, dt, rank)
+                write_snapshot(mode, snap_dir, step0 + k, time0 + (warm + k) * dt, rank, snapshot_format)
             if every and ((step0 + k) % every == 0 or k == steps):
                 checkpoint(k)
         writer.close()
     except (KeyboardInterrupt, Interrupted, RecordError) as e:
         # one process (a rank's own SIGTERM ends it at once: its supervisor keeps the records)
+        progress.close()
         try:
             writer.close()
         except RecordError:
@@ -279,6 +286,7 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
             pass
         raise
     wall = time.perf_counter() - t_wall
+    progress.close()
     meter.stop()
     if hasattr(args, "affinity"):  # did the binding hold through the run (collective)
         info["affinity"] = recheck(args.affinity, mapping.threads, args.pin, comm)

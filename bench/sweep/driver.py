@@ -190,6 +190,7 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
             if os.path.exists(os.path.join(e["dirs"][0], "state.npz")):
                 ref_state[key] = dict(np.load(os.path.join(e["dirs"][0], "state.npz")))
     stopped = current = None
+    clock = SweepClock(n_runs)
     try:
         for r in range(repeats):
             for k, p in enumerate(points, 1):
@@ -198,7 +199,11 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
                 rep = everything[p.key]["dirs"][r]
                 load0 = os.getloadavg()[0]
                 current = p
-                st = launcher.run_point(p, rep, env, lock_fd)
+                name = f"point {k}/{len(points)} {p.mapping}{' ' + p.scheme if p.scheme else ''}" + \
+                    (f" rep {r + 1}/{repeats}" if repeats > 1 else "")
+                clock.begin(name, rep)
+                st = launcher.run_point(p, rep, env, lock_fd, tick=clock.tick)
+                clock.end(rep)
                 current = None
                 ran += 1
                 load = info["load"].setdefault(p.key, {})
@@ -210,8 +215,7 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
                 last = st["status"] != "done" or r == max(todo[p.key])
                 row = record(p) if last else None
                 el = time.perf_counter() - start
-                eta = el / ran * (n_runs - ran) if ran else 0.0
-                print(_progress(k, len(points), p, r, repeats, st, row, rep, el, eta), flush=True)
+                print(_progress(k, len(points), p, r, repeats, st, row, rep, el, clock.left()), flush=True)
             if ceiling is not None and ceiling.cores:  # the control's round after the points' round
                 try:
                     ceiling.round()
@@ -224,9 +228,11 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
                           f"sharing nothing, {c['ceiling_step']:.3f} meeting every step", flush=True)
     except (KeyboardInterrupt, Interrupted) as e:
         stopped = e
+        clock.close()
         if current is not None:  # the point that was running: its repeat is recorded (interrupted)
             failed[current.key] = True
             record(current)
+    clock.close()
     # speedups against each group's T(1) (this sweep's serial point, or the row carried over)
     for key, row in rows.items():
         ref = rows.get(reference_key(everything[key]["point"]))
@@ -265,6 +271,100 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
     return 0 if not failed_rows else 4
 
 
+def current_step(rep_dir):
+    """(step, steps) of the run in rep_dir: the last whole row of its steps.csv (or rank 0's
+    steps.rank0.csv under MPI) and run.json's step count; None where not known yet."""
+    run = read_json_file(os.path.join(rep_dir, "run.json")) or {}
+    total = run.get("steps")
+    for name in ("steps.csv", "steps.rank0.csv"):
+        try:
+            with open(os.path.join(rep_dir, name), "rb") as fh:
+                fh.seek(0, os.SEEK_END)
+                size = fh.tell()
+                fh.seek(max(0, size - 4096))
+                tail = fh.read().rsplit(b"\n", 2)
+        except OSError:
+            continue
+        line = tail[-2] if len(tail) >= 2 else b""
+        try:
+            return int(line.split(b",", 1)[0]) - int(run.get("step_first") or 1) + 1, total
+        except ValueError:
+            return 0, total
+    return None, total
+
+
+class SweepClock:
+    """The sweep's progress between its progress lines: while a repeat runs, a bar on a terminal
+    (tqdm: repeats done, the point and its step) or a line every PERIOD_S seconds elsewhere; and the
+    estimate of the time left: the running repeat's own rate over its remaining steps, plus the
+    repeats still to run at the median time of those done, each without its scene build (a build
+    is cached: it happens once)."""
+
+    def __init__(self, runs):
+        from bench.run.progress import PERIOD_S, on_terminal
+        self.runs = runs
+        self.done = []        # seconds of each repeat done, its scene build left out
+        self.period = PERIOD_S
+        self.name = self.rep = None
+        self.t0 = self.last = time.monotonic()
+        self.bar = None
+        if on_terminal() and runs > 0:
+            from tqdm import tqdm
+            self.bar = tqdm(total=runs, desc="sweep", unit="run", leave=False, dynamic_ncols=True, file=sys.stderr)
+
+    def begin(self, name, rep):
+        self.name, self.rep, self.t0 = name, rep, time.monotonic()
+
+    def end(self, rep):
+        took = time.monotonic() - self.t0
+        run = read_json_file(os.path.join(rep, "run.json")) or {}
+        build = run.get("build") or {}
+        if not build.get("from_cache", True):
+            took -= float(build.get("build_s") or build.get("seconds") or 0.0)
+        self.done.append(max(0.0, took))
+        if self.bar is not None:
+            self.bar.update(1)
+        self.name = None
+
+    def left(self, now=None):
+        """Seconds left (None before the first repeat is done and without a running rate)."""
+        now = time.monotonic() if now is None else now
+        per = float(np.median(self.done)) if self.done else None
+        after = self.runs - len(self.done) - (1 if self.name else 0)
+        current = 0.0
+        if self.name:
+            step, total = current_step(self.rep)
+            el = now - self.t0
+            if step and total and (step >= 0.1 * total or per is None):  # its own rate, once it has one
+                current = el / step * (total - step)
+            elif per is not None:
+                current = max(0.0, per - el)
+            else:
+                return None
+        if per is None:
+            return current if after == 0 else None
+        return current + after * per
+
+    def tick(self):
+        now = time.monotonic()
+        if self.name is None:
+            return
+        step, total = current_step(self.rep)
+        where = f"step {step}/{total}" if step is not None and total else "starting"
+        left = self.left(now)
+        eta = f"estimate {left:.0f} s left" if left is not None else "estimate after the first run"
+        if self.bar is not None:
+            self.bar.set_postfix_str(f"{self.name}: {where}, {eta}", refresh=True)
+        elif now - self.last >= self.period:
+            print(f"  {self.name}: {where}, {now - self.t0:.0f} s in this run, {eta}", flush=True)
+            self.last = now
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+
+
 def _progress(k, n, p, r, repeats, st, row, rep, elapsed, eta):
     """The progress line of one repeat: the point, its outcome, its time and what makes it doubtful."""
     name = f"point {k}/{n} {p.mapping}{' ' + p.scheme if p.scheme else ''}"
@@ -281,4 +381,4 @@ def _progress(k, n, p, r, repeats, st, row, rep, elapsed, eta):
             text += f", foreign load {fc:.2f} CPUs"
         if row is not None and row.get("flag"):
             text += f" [FLAG {row['flag']}]"
-    return text + f", elapsed {elapsed:.0f} s, estimate {eta:.0f} s left"
+    return text + f", elapsed {elapsed:.0f} s" + (f", estimate {eta:.0f} s left" if eta is not None else "")

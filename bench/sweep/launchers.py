@@ -20,6 +20,7 @@ import shlex
 import signal
 import subprocess
 import sys
+import time
 
 from bench.run.lifeline import Interrupted, child_env
 from bench.run.records import finalize_run, read_json_file, write_json
@@ -27,6 +28,7 @@ from bench.sweep.points import point_env
 from bench.sweep.status import judge
 
 LAUNCHERS = {}
+TICK_S = 1.0  # seconds between progress ticks while a point runs
 
 
 def launcher(name):
@@ -60,7 +62,7 @@ class Local:
                 print(f"{env} {shlex.join(self.command(p, os.path.join(out, p.key, f'rep{r}')))}")
         return 0
 
-    def run_point(self, point, rep_dir, env, lock_fd=None):
+    def run_point(self, point, rep_dir, env, lock_fd=None, tick=None):
         """Run one repeat of a point in rep_dir; write cmd.txt, stdout.txt, stderr.txt, status.json;
         returns the status {"status", "reason"}.
 
@@ -68,7 +70,8 @@ class Local:
         sweep alone, which forwards it once), dies with the sweep (bench.run.lifeline) and holds
         the sweep's lock (lock_fd) while it lives. Interrupted here (SIGINT, SIGTERM, SIGHUP), the
         signal goes to the child, whose end is waited for and recorded before it is raised again.
-        A child that ended without a final run.json status (killed) gets one (finalize_run)."""
+        A child that ended without a final run.json status (killed) gets one (finalize_run).
+        tick(): called about every TICK_S seconds while the child runs (the sweep's progress)."""
         os.makedirs(rep_dir, exist_ok=True)
         cmd = self.command(point, rep_dir)
         timeout = self.timeout
@@ -86,10 +89,15 @@ class Local:
             # bench run stops its own MPI ranks at `timeout`; this outer limit catches a stuck start
             limit = timeout + min(120, timeout)
             rc = None
+            deadline = time.monotonic() + limit
             while rc is None:
                 try:
-                    rc = proc.wait(timeout=limit)
+                    rc = proc.wait(timeout=min(TICK_S, max(0.0, deadline - time.monotonic())))
                 except subprocess.TimeoutExpired:
+                    if time.monotonic() < deadline:
+                        if tick is not None:
+                            tick()
+                        continue
                     _end(proc, signal.SIGTERM)
                     rc = None
                     break
