@@ -130,7 +130,10 @@ def add_run_arguments(r):
                    help="neighbour-list skin, fraction of the largest bounding diameter (default 0.1; "
                         "0: estimate neighbours every step, the paper's way)")
     r.add_argument("--snapshot-every", type=nonneg_int, default=0, metavar="K",
-                   help="write VTK + npz snapshots every K steps")
+                   help="write DIR/snapshots/step<8-digit step>.vtu (or .vtk) + .npz every K steps")
+    r.add_argument("--snapshot-format", choices=["vtu", "vtk"], default="vtu",
+                   help="snapshot format: vtu (default: binary VTK XML, a snapshots.pvd time series for "
+                        "ParaView, read by meshio) or vtk (legacy ASCII polydata)")
     r.add_argument("--plot", action="store_true", help="draw DIR/run.png (timings, contacts, energy)")
     r.add_argument("--out", default=None, help="output folder (default results/run-<scene>)")
     r.add_argument("--guard-overlap", type=overlap_fraction, default=0.05, metavar="F",

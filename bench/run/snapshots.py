@@ -1,20 +1,42 @@
-"""Snapshots readable by ParaView: legacy-VTK polydata.
+"""Snapshots for ParaView and meshio: binary VTU (default) or legacy ASCII VTK, with an npz beside.
 
-`write_vtk` writes points with per-particle fields: id, shape, axes (semi-axes, 3 components),
-quat (w, x, y, z), orientation given also as the three body axes in world coordinates (axis_x,
-axis_y, axis_z: vectors, scaled by the semi-axes, ready for ParaView's Tensor Glyph or Glyph
-filters), vel, omega. In a scene with poly-ellipsoids (snapshot axes [n, 6]) the points are the
-octant origins, quat the octant frames, `axes` the plus half-axes (a+, b+, c+), a field array
-`axes6` [a+, a-, b+, b-, c+, c-], and a second file (`*_surface.vtk`) holds every particle's
-surface as triangles, since no glyph draws a poly-ellipsoid.
+`write_vtu` (`bench run --snapshot-format vtu`, the default) writes a VTK XML UnstructuredGrid with
+one VTK_VERTEX cell per particle, its arrays in appended raw binary (little-endian, UInt64 block
+headers), numpy only, atomically (temporary file + os.replace). Point data, all Float64 but the
+integer id and shape (their own dtypes), particles sorted by id as in the npz:
+  id, shape, axes (semi-axes, 3), quat (w, x, y, z; 4), vel, omega, axis_x/axis_y/axis_z (the body
+  axes in world coordinates scaled by the semi-axes: R[:, k] axes[k]), and `ellipsoid`, the
+  symmetric tensor R diag(a, b, c) R^T (9 components, row-major; the active Tensors): its
+  eigenvalues are the semi-axes and its eigenvectors the body axes, so ParaView's Tensor Glyph
+  (Glyph Type Sphere, Extract Eigenvalues on, Scale Factor 2: the sphere source has radius 0.5)
+  draws each particle as its ellipsoid.
+Field data TimeValue [s] and STEP. A poly-ellipsoid scene (snapshot axes [n, 6]) adds `axes6`
+[a+, a-, b+, b-, c+, c-] as point data; its points are the octant origins, quat the octant
+frames, `axes`, axis_* and `ellipsoid` use the plus half-axes (a glyph can only approximate a
+poly-ellipsoid), and `*_surface.vtu` holds every particle's exact surface as triangles.
+`snapshots.pvd` (and `snapshots_surface.pvd`) list every snapshot with its simulated time, rewritten
+atomically after each, so that ParaView opens the run as one time series.
 
-write_snapshot(mode, folder, k, dt, rank) writes step<k>.vtk and step<k>.npz of a run's state.
+`write_vtk` (`--snapshot-format vtk`) is the earlier legacy ASCII POLYDATA writer, unchanged: the
+same point fields (axes6 as a field array), `*_surface.vtk`, no series file.
+
+write_snapshot(mode, folder, k, time, rank, fmt) writes step<k:08d>.vtu|.vtk and step<k:08d>.npz
+of a run's state.
 """
 import os
+import xml.etree.ElementTree as ET
 
 import numpy as np
 
+from bench.run.records import atomic_write
 from dem.quaternion import quat_to_matrices
+
+SNAPSHOT_FORMATS = ("vtu", "vtk")
+SERIES = "snapshots.pvd"                  # the particles' time series
+SURFACE_SERIES = "snapshots_surface.pvd"  # the poly-ellipsoid surfaces' time series
+VTK_VERTEX, VTK_TRIANGLE = 1, 5
+_VTK_TYPES = {"i1": "Int8", "u1": "UInt8", "i2": "Int16", "u2": "UInt16", "i4": "Int32", "u4": "UInt32",
+              "i8": "Int64", "u8": "UInt64", "f4": "Float32", "f8": "Float64"}
 
 
 def write_vtk(path, snap, step=0, time=0.0):
@@ -76,18 +98,24 @@ def _unit_sphere(nlat=8, nlon=12):
     return np.array(verts), np.array(tris)
 
 
-def write_surfaces(path, snap, step=0, time=0.0):
-    """Every particle's surface as triangles: unit-sphere points u map to o + R (alpha o u), alpha the
-    semi-axes of u's octant (a+ or a- by the sign of each component; Peters et al. 2009), so each
-    octant is an exact ellipsoid piece. Cell data: id."""
+def _surface_points(snap):
+    """Surface vertices [n, v, 3] of every particle and the triangles [t, 3] of one (write_surfaces)."""
     u, tris = _unit_sphere()
-    n = len(snap["id"])
     rot = quat_to_matrices(snap["quat"])
     a6 = snap["axes"] if snap["axes"].shape[1] == 6 else np.repeat(snap["axes"], 2, axis=1)
     plus, minus = a6[:, 0::2], a6[:, 1::2]
     alpha = np.where(u[None, :, :] >= 0, plus[:, None, :], minus[:, None, :])          # [n, v, 3]
     pts = snap["pos"][:, None, :] + np.einsum("nab,nvb->nva", rot, alpha * u[None, :, :])
-    nv, nt = len(u), len(tris)
+    return pts, tris
+
+
+def write_surfaces(path, snap, step=0, time=0.0):
+    """Every particle's surface as triangles: unit-sphere points u map to o + R (alpha o u), alpha the
+    semi-axes of u's octant (a+ or a- by the sign of each component; Peters et al. 2009), so each
+    octant is an exact ellipsoid piece. Cell data: id."""
+    pts, tris = _surface_points(snap)
+    n = len(snap["id"])
+    nv, nt = pts.shape[1], len(tris)
     lines = ["# vtk DataFile Version 3.0", f"DEM particle surfaces step {step} time {time:.9g}", "ASCII",
              "DATASET POLYDATA", f"POINTS {n * nv} double"]
     lines += [f"{p[0]:.9g} {p[1]:.9g} {p[2]:.9g}" for p in pts.reshape(-1, 3)]
@@ -101,11 +129,161 @@ def write_surfaces(path, snap, step=0, time=0.0):
         fh.write("\n".join(lines) + "\n")
 
 
-def write_snapshot(mode, folder, k, dt, rank=0):
-    """Snapshot of step k (time k dt [s]) as folder/step<k>.vtk and .npz; collective in MPI modes:
-    every rank calls it, rank 0 gets the data and writes."""
+def _vtk_array(arr):
+    """Little-endian contiguous copy of arr and its VTK type name."""
+    arr = np.ascontiguousarray(arr)
+    le = arr.dtype.newbyteorder("<")
+    return arr.astype(le, copy=False), _VTK_TYPES[le.str[1:]]
+
+
+def _array_tag(name, arr, offset, indent, tuples=False):
+    """A DataArray element for arr ([n] or [n, c]) at offset of the appended data."""
+    arr, vtk_type = _vtk_array(arr)
+    label = f' Name="{name}"' if name else ""
+    comps = f' NumberOfComponents="{arr.shape[1]}"' if arr.ndim == 2 else ""
+    count = f' NumberOfTuples="{len(arr)}"' if tuples else ""
+    return f'{indent}<DataArray type="{vtk_type}"{label}{comps}{count} format="appended" offset="{offset}"/>'
+
+
+def vtu_bytes(points, cells, offsets, types, point_data=(), cell_data=(), field_data=(), active=None):
+    """One VTK XML UnstructuredGrid piece, every array appended as raw little-endian binary, each
+    block a UInt64 byte count then the bytes. points [n, 3]; cells the connectivity, offsets the end
+    of each cell in it, types the VTK cell types; *_data: (name, array) pairs; active: attributes of
+    <PointData> (e.g. {"Tensors": "ellipsoid"})."""
+    blocks, tags, offset = [], [], 0
+
+    def add(name, arr, indent, tuples=False):
+        nonlocal offset
+        data, _ = _vtk_array(arr)
+        raw = data.tobytes()
+        tags.append(_array_tag(name, arr, offset, indent, tuples))
+        blocks.append(np.uint64(len(raw)).astype("<u8").tobytes() + raw)
+        offset += 8 + len(raw)
+
+    n_points, n_cells = len(points), len(types)
+    tags.append("  <UnstructuredGrid>")
+    if field_data:
+        tags.append("    <FieldData>")
+        for name, arr in field_data:
+            add(name, np.atleast_1d(arr), "      ", tuples=True)
+        tags.append("    </FieldData>")
+    tags.append(f'    <Piece NumberOfPoints="{n_points}" NumberOfCells="{n_cells}">')
+    attrs = "".join(f' {k}="{v}"' for k, v in (active or {}).items())
+    tags.append(f"      <PointData{attrs}>")
+    for name, arr in point_data:
+        add(name, arr, "        ")
+    tags.append("      </PointData>")
+    tags.append("      <CellData>")
+    for name, arr in cell_data:
+        add(name, arr, "        ")
+    tags.append("      </CellData>")
+    tags.append("      <Points>")
+    add(None, points, "        ")
+    tags.append("      </Points>")
+    tags.append("      <Cells>")
+    add("connectivity", cells, "        ")
+    add("offsets", offsets, "        ")
+    add("types", types, "        ")
+    tags.append("      </Cells>")
+    tags.append("    </Piece>")
+    tags.append("  </UnstructuredGrid>")
+    head = ('<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="1.0" byte_order="LittleEndian" '
+            'header_type="UInt64">\n' + "\n".join(tags) + '\n  <AppendedData encoding="raw">\n   _')
+    return [head.encode("ascii"), *blocks, b"\n  </AppendedData>\n</VTKFile>\n"]
+
+
+def ellipsoid_tensor(rot, axes3):
+    """R diag(a, b, c) R^T [n, 3, 3]: symmetric, eigenvalues the semi-axes, eigenvectors the body
+    axes (the columns of R); the surface is x^T T^-2 x = 1."""
+    return np.einsum("nik,nk,njk->nij", rot, axes3, rot)
+
+
+def _write_parts(path, parts):
+    def fill(fh):
+        for p in parts:
+            fh.write(p)
+    atomic_write(path, fill, mode="wb")
+
+
+def write_vtu(path, snap, step=0, time=0.0):
+    """Write snapshot dict (id, pos, quat, vel, omega, axes, shape) as binary VTU (module doc);
+    returns the files written (with a poly-ellipsoid scene's `*_surface.vtu`)."""
+    n = len(snap["id"])
+    rot = quat_to_matrices(snap["quat"]).reshape(n, 3, 3)
+    six = snap["axes"].shape[1] == 6
+    axes3 = snap["axes"][:, 0::2] if six else snap["axes"]
+    point_data = [("id", snap["id"]), ("shape", snap["shape"]), ("axes", axes3), ("quat", snap["quat"])]
+    if six:
+        point_data.append(("axes6", snap["axes"]))
+    point_data += [(name, rot[:, :, k] * axes3[:, k:k + 1]) for k, name in enumerate(("axis_x", "axis_y", "axis_z"))]
+    point_data += [("vel", snap["vel"]), ("omega", snap["omega"]),
+                   ("ellipsoid", ellipsoid_tensor(rot, axes3).reshape(n, 9))]
+    fields = [("TimeValue", np.float64(time)), ("STEP", np.int64(step))]
+    ids = np.arange(n, dtype=np.int64)
+    _write_parts(path, vtu_bytes(snap["pos"], ids, ids + 1, np.full(n, VTK_VERTEX, np.uint8), point_data,
+                                 field_data=fields, active={"Scalars": "id", "Vectors": "vel", "Tensors": "ellipsoid"}))
+    written = [path]
+    if six:
+        surface = path[:-4] + "_surface.vtu" if path.endswith(".vtu") else path + "_surface.vtu"
+        write_surfaces_vtu(surface, snap, step, time)
+        written.append(surface)
+    return written
+
+
+def write_surfaces_vtu(path, snap, step=0, time=0.0):
+    """write_surfaces as binary VTU: every particle's surface as triangles (vertices Float64), cell
+    data id."""
+    pts, tris = _surface_points(snap)
+    n, nv = pts.shape[:2]
+    nt = len(tris)
+    conn = (tris[None, :, :].astype(np.int64) + (nv * np.arange(n, dtype=np.int64))[:, None, None]).reshape(-1)
+    fields = [("TimeValue", np.float64(time)), ("STEP", np.int64(step))]
+    _write_parts(path, vtu_bytes(pts.reshape(-1, 3), conn, 3 * np.arange(1, n * nt + 1, dtype=np.int64),
+                                 np.full(n * nt, VTK_TRIANGLE, np.uint8), cell_data=[("id", np.repeat(snap["id"], nt))],
+                                 field_data=fields))
+
+
+def read_series(path):
+    """The (time, file) entries of a .pvd series file; [] when there is none or it cannot be read."""
+    try:
+        root = ET.parse(path).getroot()
+    except (OSError, ET.ParseError):
+        return []
+    return [(float(d.get("timestep")), d.get("file")) for d in root.iter("DataSet")
+            if d.get("timestep") is not None and d.get("file")]
+
+
+def update_series(folder, name, time, file):
+    """Add (or replace) file at time in folder/name, a ParaView .pvd collection, and rewrite it
+    atomically. Entries are kept by file name, so a restart into the same folder continues (or
+    rewrites) the series; entries whose file is gone are dropped. Sorted by time."""
+    path = os.path.join(folder, name)
+    entries = {f: t for t, f in read_series(path) if os.path.exists(os.path.join(folder, f))}
+    entries[file] = time
+    lines = ['<?xml version="1.0"?>',
+             '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">', "  <Collection>"]
+    lines += [f'    <DataSet timestep="{t!r}" group="" part="0" file="{f}"/>'
+              for f, t in sorted(entries.items(), key=lambda e: (e[1], e[0]))]
+    lines += ["  </Collection>", "</VTKFile>", ""]
+    atomic_write(path, lambda fh: fh.write("\n".join(lines)))
+
+
+def write_snapshot(mode, folder, k, time, rank=0, fmt="vtu"):
+    """Snapshot of step k at simulated time `time` [s] as folder/step<k:08d>.vtu (fmt vtu; the
+    series files updated) or .vtk (fmt vtk), and step<k:08d>.npz; collective in MPI modes: every
+    rank calls it, rank 0 gets the data and writes. Returns the files written (rank 0)."""
     snap = mode.snapshot()
     if rank != 0:
-        return
-    write_vtk(os.path.join(folder, f"step{k:08d}.vtk"), snap, step=k, time=k * dt)
-    np.savez(os.path.join(folder, f"step{k:08d}.npz"), **snap)
+        return []
+    base = os.path.join(folder, f"step{k:08d}")
+    if fmt == "vtk":
+        written = write_vtk(base + ".vtk", snap, step=k, time=time)
+    elif fmt == "vtu":
+        written = write_vtu(base + ".vtu", snap, step=k, time=time)
+        update_series(folder, SERIES, float(time), os.path.basename(written[0]))
+        if len(written) > 1:
+            update_series(folder, SURFACE_SERIES, float(time), os.path.basename(written[1]))
+    else:
+        raise ValueError(f"unknown snapshot format {fmt!r} (formats: {', '.join(SNAPSHOT_FORMATS)})")
+    atomic_write(base + ".npz", lambda fh: np.savez(fh, **snap), mode="wb")
+    return written + [base + ".npz"]
