@@ -251,3 +251,244 @@ def poly_roots(p):
     balanc(comp)
     ok = hqr(comp, wr, wi)
     return wr, wi, ok
+
+
+# ================================================================ real roots of a sextic
+# Work-array layout of real_roots6_into (float64, REAL6_WORK entries): the coefficients of
+# p^(k), the k-th derivative of p (degree 6 - k, ascending powers), at REAL6_LEVEL[6 - k]; two
+# root buffers of 6 entries each (ping-pong between levels); the real roots of p end up at
+# REAL6_ROOTS.
+REAL6_LEVEL = (27, 25, 22, 18, 13, 7, 0)    # offset of the degree-d polynomial, d = 0..6
+REAL6_BUF = (28, 34)                        # root buffers: degree d writes to REAL6_BUF[d % 2]
+REAL6_ROOTS = 28                            # = REAL6_BUF[0]: the roots of the sextic (d = 6)
+REAL6_WORK = 40
+REAL6_MAXIT = 128                           # iterations per root (bisection alone halves a
+#                                             bracket of 2 B to 1e-15 |x| in < 100)
+REAL6_TOL_ROOT = 1e-6                       # last Halley step |dx| / |x| of the sextic's roots
+#                                             and critical points: error ~ dx^3, rounding level
+REAL6_TOL_CRIT = 1e-3                       # ... of the lower derivatives' roots (interval ends
+#                                             only): error ~ 1e-9
+UNIT_ROUNDOFF = 2.0 ** -53
+
+
+@njit(cache=True, _nrt=False)
+def _horner2(w, o, d, x):
+    """p(x), p'(x), p''(x) of the degree-d polynomial w[o .. o + d] (ascending powers), one Horner
+    pass (three independent recurrences: the latency of one)."""
+    f = w[o + d]
+    df = 0.0
+    d2 = 0.0
+    for j in range(d - 1, -1, -1):
+        d2 = d2 * x + df
+        df = df * x + f
+        f = f * x + w[o + j]
+    return f, df, 2.0 * d2
+
+
+@njit(cache=True, _nrt=False)
+def _horner_bound(w, o, d, x):
+    """p(x), p''(x) and the bound e = sum_j |a_j| |x|^j of Horner's rounding error (Higham (2002),
+    Accuracy and Stability of Numerical Algorithms, 2nd ed., §5.1: |fl(p(x)) - p(x)| <= gamma_2d e,
+    gamma_2d = 2 d u / (1 - 2 d u))."""
+    f = w[o + d]
+    e = abs(f)
+    ax = abs(x)
+    df = 0.0
+    d2 = 0.0
+    for j in range(d - 1, -1, -1):
+        d2 = d2 * x + df
+        df = df * x + f
+        f = f * x + w[o + j]
+        e = e * ax + abs(w[o + j])
+    return f, 2.0 * d2, e
+
+
+@njit(cache=True, _nrt=False)
+def _root_in(w, o, d, xl, xh, x, tol):
+    """The root of the degree-d polynomial w[o .. o + d] in the bracket with p(xl) < 0 < p(xh)
+    (either order), on which p is monotonic, from the start x inside it: Halley's method
+    x <- x - 2 p p' / (2 p'^2 - p p'') (cubic convergence; p'' comes from the same Horner pass)
+    safeguarded by bisection as NR §9.4 rtsafe: a step that would leave the bracket, or that is
+    not below half the step before last, is replaced by bisection; each evaluation shrinks the
+    bracket.  Returns after a Halley step |dx| <= tol |x| (the error after it is then
+    ~ K dx^3, K = (p''/2p')^2 - p'''/6p' ~ 1/(distance to the next root)^2: tol = 1e-6 leaves
+    ~ 1e-18 |x| for a root apart from the others by > 3 % of |x|), when p(x) == 0, when x no
+    longer moves, or after REAL6_MAXIT steps."""
+    lo = min(xl, xh)
+    hi = max(xl, xh)
+    if not (lo < x < hi):
+        x = 0.5 * (xl + xh)
+    dxold = abs(xh - xl)
+    dx = dxold
+    for _ in range(REAL6_MAXIT):
+        f, df, d2 = _horner2(w, o, d, x)
+        if f == 0.0:
+            return x
+        if f < 0.0:
+            xl = x
+        else:
+            xh = x
+        den = 2.0 * df * df - f * d2
+        step = 2.0 * f * df / den if den != 0.0 else np.inf
+        xn = x - step
+        ax = abs(x)
+        if (not (min(xl, xh) < xn < max(xl, xh))
+                or (abs(2.0 * step) > abs(dxold) and abs(step) > 2.0 * UNIT_ROUNDOFF * ax)):
+            dxold = dx                      # bisection
+            dx = 0.5 * (xh - xl)
+            x = xl + dx
+            if x == xl or x == xh:
+                return x
+        else:
+            dxold = dx                      # Halley
+            dx = step
+            x = xn
+            if abs(dx) <= tol * ax:
+                return x
+    return x
+
+
+@njit(cache=True, _nrt=False)
+def _level_roots(w, d, co, m, oo, bound, tol):
+    """Real roots of the degree-d polynomial p_d = w[REAL6_LEVEL[d] ..] (d >= 3), ascending into
+    w[oo ..], given the m real roots crit = w[co .. co + m] (ascending) of its derivative and the
+    root bound; returns their number.  Between consecutive points of
+    -bound < crit_0 < ... < crit_m-1 < bound, p_d is monotonic, so each interval whose ends have
+    opposite signs holds exactly one root (_root_in) and no other does.  Starts: on the two
+    unbounded sides, Laguerre's step from the critical point c (p'(c) = 0),
+    h = sqrt(d / (d - 1) |p(c) / p''(c)|) (exact when the other d - 1 roots coincide); between two
+    critical points, the root of the cubic Hermite model with zero end slopes (the smoothstep
+    3 t^2 - 2 t^3, inverted in closed form).  A critical point where |p_d| is within Horner's
+    rounding bound gamma_2d sum |a_j||x|^j counts as a (double) root itself, and its sign as zero
+    (no root on either side of it then): near-double roots, whose computed eigenvalues the
+    companion-matrix route gives as real or as a pair with Im ~ sqrt(u), are kept as real."""
+    o = REAL6_LEVEL[d]
+    lead = w[o + d]
+    gam = 2.0 * d * UNIT_ROUNDOFF / (1.0 - 2.0 * d * UNIT_ROUNDOFF)
+    lag = d / (d - 1.0)
+    sr = 1.0 if lead > 0.0 else -1.0        # sign of p_d at +bound
+    sl = sr if d % 2 == 0 else -sr          # ... at -bound
+    n = 0
+    px = -bound
+    ps = sl
+    pf = 0.0
+    pg = 0.0
+    for i in range(m + 1):
+        if i < m:
+            x = w[co + i]
+            f, g, e = _horner_bound(w, o, d, x)
+            s = 0.0
+            if f > gam * e:
+                s = 1.0
+            elif f < -gam * e:
+                s = -1.0
+        else:
+            x = bound
+            s = sr
+            f = 0.0
+            g = 0.0
+        if ps * s < 0.0:                    # one root in (px, x)
+            if m == 0:
+                x0 = 0.0
+            elif i == 0:                    # (-bound, crit_0): Laguerre from crit_0
+                x0 = x - np.sqrt(lag * abs(f / g)) if g != 0.0 else 0.5 * (px + x)
+            elif i == m:                    # (crit_m-1, bound): Laguerre from crit_m-1
+                x0 = px + np.sqrt(lag * abs(pf / pg)) if pg != 0.0 else 0.5 * (px + x)
+            else:                           # smoothstep model: 3 t^2 - 2 t^3 = pf / (pf - f)
+                r = pf / (pf - f)
+                t = 0.5 - np.sin(np.arcsin(1.0 - 2.0 * r) / 3.0)
+                x0 = px + t * (x - px)
+            if ps < 0.0:
+                w[oo + n] = _root_in(w, o, d, px, x, x0, tol)
+            else:
+                w[oo + n] = _root_in(w, o, d, x, px, x0, tol)
+            n += 1
+        if s == 0.0:
+            w[oo + n] = x
+            n += 1
+        px = x
+        ps = s
+        pf = f
+        pg = g
+    return n
+
+
+@njit(cache=True, _nrt=False)
+def real_roots6_into(w):
+    """All real roots of the sextic p(x) = sum_k w[k] x^k (w[6] != 0, all finite: the caller
+    checks), ascending, at w[REAL6_ROOTS .. REAL6_ROOTS + m]; returns m (0..6).  w [REAL6_WORK]
+    is the whole work space (no allocation).
+
+    Method (isolation by the derivative chain; Collins & Loos (1976) "Polynomial real root
+    isolation by differentiation", as in C. Yuksel (2022), "High-performance polynomial root
+    finding for graphics", Proc. ACM Comput. Graph. Interact. Tech. 5(3)): the derivatives
+    p^(k) (degree 6 - k, exact integer multiples of the coefficients up to one rounding) are
+    solved from the quadratic one upward (its roots in closed form, the stable formula); the real
+    roots of p^(k+1) split the real line into intervals on which p^(k) is monotonic
+    (_level_roots), each sign change holds one root, found by bisection-safeguarded Halley
+    iteration (_root_in).  All roots lie within the Fujiwara (1916) bound
+    B = 2 max_k |a_6-k / a_6|^(1/k) (a_0 / 2 for k = 6), which by the Gauss-Lucas theorem also
+    bounds the roots of every derivative, so the two unbounded intervals are closed at -B, B.
+
+    Accuracy: the roots of p'' and below (interval ends only) to ~1e-9 relative (last Halley step
+    <= REAL6_TOL_CRIT = 1e-3, cubic convergence); those of p' (the sextic's critical points, which
+    decide near-double roots) and of p to the rounding level (last step <= REAL6_TOL_ROOT = 1e-6):
+    |x - x*| <~ u |x*| cond(x*), cond = sum|a_j||x*|^j / |x* p'(x*)| the condition number with
+    respect to the coefficients; |p(x)| <~ 16 u sum|a_j||x|^j (tests/dem/test_roots.py).  As good
+    as or better than the companion-matrix eigenvalues (backward stable for the balanced matrix,
+    not the coefficients; on the packed scene's sextics the two agree to 1e-13 relative).  An end
+    off by delta changes p at it by ~ p'' delta^2, far below the rounding bound used to sign it.
+    A near-double root (a close real pair, or a complex pair with Im below ~ sqrt(u)) comes back
+    as the critical point between them (or as the pair), to ~ sqrt(u), the inherent limit, the
+    same as the eigenvalue route's.  A root of multiplicity >= 3 (spheres give a quadruple root
+    at det M = 0, which the contact's selection rejects) may come back as several points within
+    ~ u^(1/4) of it, as the eigenvalues do.
+    No failure mode: every bracket converges (bisection) within REAL6_MAXIT steps.
+    """
+    a6 = w[6]
+    B = abs(w[5] / a6)
+    B = max(B, np.sqrt(abs(w[4] / a6)))
+    B = max(B, np.cbrt(abs(w[3] / a6)))
+    B = max(B, np.sqrt(np.sqrt(abs(w[2] / a6))))
+    B = max(B, abs(w[1] / a6) ** 0.2)
+    B = max(B, np.sqrt(np.cbrt(abs(0.5 * w[0] / a6))))
+    B = 2.0 * B * (1.0 + 1e-6) + 1e-300
+    # derivative chain: p^(k) at REAL6_LEVEL[6 - k], down to the quadratic
+    for d in range(5, 1, -1):
+        o = REAL6_LEVEL[d]
+        oh = REAL6_LEVEL[d + 1]
+        for j in range(d + 1):
+            w[o + j] = (j + 1) * w[oh + j + 1]
+    # quadratic level c0 + c1 x + c2 x^2: stable closed form (a double root, disc == 0, once)
+    o2 = REAL6_LEVEL[2]
+    c0 = w[o2]
+    c1 = w[o2 + 1]
+    c2 = w[o2 + 2]
+    b = REAL6_BUF[0]
+    disc = c1 * c1 - 4.0 * c2 * c0
+    m = 0
+    if disc > 0.0:
+        q = -0.5 * (c1 + (np.sqrt(disc) if c1 >= 0.0 else -np.sqrt(disc)))
+        r0 = q / c2
+        r1 = c0 / q if q != 0.0 else r0
+        w[b] = min(r0, r1)
+        w[b + 1] = max(r0, r1)
+        m = 2
+    elif disc == 0.0:
+        w[b] = -0.5 * c1 / c2
+        m = 1
+    for d in range(3, 7):
+        m = _level_roots(w, d, REAL6_BUF[(d + 1) % 2], m, REAL6_BUF[d % 2], B,
+                         REAL6_TOL_ROOT if d >= 5 else REAL6_TOL_CRIT)
+    return m
+
+
+@njit(cache=True)
+def real_roots6(p):
+    """Real roots of the sextic sum_k p[k] x^k (p [7], p[6] != 0, finite), ascending: a new array
+    (real_roots6_into on a fresh work array; for tests and callers outside the kernels)."""
+    w = np.zeros(REAL6_WORK)
+    for k in range(7):
+        w[k] = p[k]
+    m = real_roots6_into(w)
+    return w[REAL6_ROOTS:REAL6_ROOTS + m].copy()

@@ -169,3 +169,135 @@ def test_sextic_minoverlap_drops_small_overlaps():
         hit, out = run(sextic_contact, p, minoverlap=0.0)
         assert hit == 1
         assert np.isfinite(out).all() and out[OUT_RE] > 0.0
+
+
+# ---------------------------------------------------------------- the sextic's algebra (issue 33)
+def _poly_sextic(qa, qb, bound=False):
+    """The sextic by polynomial arithmetic (np.convolve), the former kernel's route (_pmul/_padd): M = A + lam B
+    (linear polynomials), adj M by cyclic cofactors, det M = sum_j M_0j adj_j0, N = -1/2 adj M v,
+    v = b_a + lam b_b, p = cb det^2 + (b_b . N) det + N^T B N (ascending, length 7).
+    bound=True: the same sums with every number replaced by its absolute value and every
+    difference by a sum, S_k >= the sum of |terms| of p_k: the scale of p_k's rounding error (a few
+    tens of u S_k for either evaluation order; Higham (2002) §3.1), p_k itself may cancel far below."""
+    if bound:
+        qa, qb = np.abs(qa), np.abs(qb)
+
+    def sym(q):
+        return np.array([[q[0], q[1], q[2]], [q[1], q[3], q[4]], [q[2], q[4], q[5]]])
+
+    A, B = sym(qa), sym(qb)
+    M = [[np.array([A[i, j], B[i, j]]) for j in range(3)] for i in range(3)]
+    adj = [[None] * 3 for _ in range(3)]
+    for i in range(3):
+        for j in range(3):
+            r0, r1, s0, s1 = (j + 1) % 3, (j + 2) % 3, (i + 1) % 3, (i + 2) % 3
+            t = np.convolve(M[r0][s1], M[r1][s0])
+            adj[i][j] = np.convolve(M[r0][s0], M[r1][s1]) - (-t if bound else t)
+    det = sum(np.convolve(M[0][j], adj[j][0]) for j in range(3))
+    v = [np.array([qa[6 + i], qb[6 + i]]) for i in range(3)]
+    N = [(0.5 if bound else -0.5) * sum(np.convolve(adj[i][j], v[j]) for j in range(3)) for i in range(3)]
+    p = qb[9] * np.convolve(det, det) + np.convolve(sum(qb[6 + i] * N[i] for i in range(3)), det)
+    for i in range(3):
+        for j in range(3):
+            p = p + B[i, j] * np.convolve(N[i], N[j])
+    return p
+
+
+def _companion_deepest(qa, qb):
+    """The former selection on np.roots (companion matrix, LAPACK geev): roots with |Im| < EPS_IM,
+    det M != 0, |f_b(x)| < EPS_F, the most negative f_a.  (ok, x [3], f_a)."""
+    from dem.contact.methods import SEXTIC_EPS_DET, SEXTIC_EPS_F, SEXTIC_EPS_IM
+
+    def quad(q, x):
+        A = np.array([[q[0], q[1], q[2]], [q[1], q[3], q[4]], [q[2], q[4], q[5]]])
+        return x @ A @ x + np.array(q[6:9]) @ x + q[9], A, np.array(q[6:9])
+
+    _, Aa, ba = quad(qa, np.zeros(3))
+    _, Ab, bb = quad(qb, np.zeros(3))
+    best = (0, None, np.inf)
+    for z in np.roots(_poly_sextic(qa, qb)[::-1]):
+        if not abs(z.imag) < SEXTIC_EPS_IM:
+            continue
+        M = Aa + z.real * Ab
+        if not abs(np.linalg.det(M)) > SEXTIC_EPS_DET * abs(np.linalg.det(Aa)):
+            continue
+        x = -0.5 * np.linalg.solve(M, ba + z.real * bb)
+        if not abs(quad(qb, x)[0]) < SEXTIC_EPS_F:
+            continue
+        fa = quad(qa, x)[0]
+        if fa < best[2]:
+            best = (1, x, fa)
+    return best
+
+
+def _sextic_pairs():
+    """Constructed pairs (§1.6) of every SEXTIC_CASES shape, spheres and mixed 1:0.8:0.6 / 20:1:1 at
+    delta = 0.3, 1e-2, 1e-4 a_min and a gap of 1e-2 a_min (seed 13), as the kernel scales them:
+    quadrics in x' = (x - o) / L."""
+    from dem.contact.methods import _quadric
+    rng = np.random.default_rng(13)
+    shapes = list(SEXTIC_CASES) + [((1.0, 1.0, 1.0), (0.7, 0.7, 0.7)), ((1.0, 0.8, 0.6), (20.0, 1.0, 1.0))]
+    for sh in shapes:
+        s1, s2 = (sh, sh) if np.ndim(sh[0]) == 0 else sh
+        for rel in (0.3, 1e-2, 1e-4, -1e-2):
+            for _ in range(15):
+                (c1, r1, a1, c2, r2, a2), _, _ = construct(s1, s2, rel, rng)
+                o = 0.5 * (c1 + c2)
+                L = max(a1.max(), a2.max())
+                yield _quadric(c1, r1, a1, *o, L), _quadric(c2, r2, a2, *o, L)
+
+
+def test_sextic_coefficients_and_roots_match_polynomial_arithmetic():
+    """The scalar coefficient formula (_sextic_coeffs) and the real-root finder (real_roots6) against
+    the former route, polynomial arithmetic on numpy + np.roots, on 300 quadric pairs x 2 directions
+    (_sextic_pairs; the physics: p(lam) = det M^2 f_b(x(lam)), whose real roots are the stationary
+    points of f_a on the surface f_b = 0).  Coefficients: |p_k - p_k,ref| <= 1e-12 S_k, S_k the sum of
+    the |terms| of p_k (_poly_sextic bound=True): both are the same sums of products in another
+    order, each within a few tens of u S_k of the exact p_k (measured: <= 3e-16 S_k); relative to
+    p_k itself the test would measure cancellation (p_k ~ 1e-3 S_k for needles), not the code.  Roots: every np.roots root with |Im| < EPS_IM (the former candidates)
+    is found to 1e-9 relative to max(1, |r|) (the np.roots tolerance of tests/dem/test_roots.py),
+    and every root found is within 1e-7 of an np.roots root with |Im| <= 1e-6 (a near-double root,
+    Im up to ~sqrt(u), may be found where the companion matrix gave a complex pair)."""
+    from dem.contact.methods import SEXTIC_EPS_IM, _sextic_coeffs
+    from dem.contact.roots import real_roots6
+    n = 0
+    for q1, q2 in _sextic_pairs():
+        for qa, qb in ((q1, q2), (q2, q1)):
+            p = _sextic_coeffs(qa, qb)
+            ref = _poly_sextic(qa, qb)
+            assert np.all(np.abs(p - ref) <= 1e-12 * _poly_sextic(qa, qb, bound=True))
+            r = real_roots6(p)
+            z = np.roots(ref[::-1])
+            for e in z[np.abs(z.imag) < SEXTIC_EPS_IM]:
+                gap = np.sort(np.abs(z - e))[1]         # to the nearest other root
+                tol = 1e-9 * max(1.0, abs(e)) if gap > 1e-3 * max(1.0, abs(e)) else 2.0 * gap + 1e-7
+                assert np.min(np.abs(r - e.real)) <= tol, (e, r, z)
+            for x in r:
+                k = np.argmin(np.abs(z - x))
+                gap = np.sort(np.abs(z - z[k]))[1]
+                tol = 1e-7 * max(1.0, abs(x)) if gap > 1e-3 * max(1.0, abs(x)) else 2.0 * gap + 1e-7
+                assert abs(z[k] - x) <= tol, (x, z)
+            n += 1
+    assert n == 600
+
+
+def test_sextic_deepest_point_matches_companion_route():
+    """The deepest point of body b in body a (kernel _deepest: scalar coefficients, real_roots6,
+    root6 selection) against the former route on numpy (_companion_deepest: np.roots, |Im| < EPS_IM,
+    the same filters) on the 600 directed pairs of _sextic_pairs: the same verdict (found or not)
+    and, when found, x equal to 1e-9 (dimensionless, x' = (x - o)/L: 1e-9 of the largest
+    semi-axis; roots agree to 1e-9, x(lam) is smooth away from det M = 0) and f_a(x) to 1e-9."""
+    from dem.contact.methods import _deepest
+    from dem.contact.roots import REAL6_WORK
+    w = np.empty(REAL6_WORK)
+    found = 0
+    for q1, q2 in _sextic_pairs():
+        for qa, qb in ((q1, q2), (q2, q1)):
+            ok, x0, x1, x2, fa, _ = _deepest(qa, qb, w)
+            rok, rx, rfa = _companion_deepest(qa, qb)
+            assert ok == rok
+            if ok:
+                found += 1
+                assert np.abs(np.array([x0, x1, x2]) - rx).max() <= 1e-9
+                assert abs(fa - rfa) <= 1e-9
+    assert found >= 600, found
