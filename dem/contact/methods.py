@@ -13,18 +13,23 @@ pw_contact (@njit, allocation free)
     K1 + K2 at +-n as in ellipsoid.py.  Known error (reference §1.3, "Measured"): relative depth
     error <= ~2 delta/a_min, normal error <= ~4 delta/a_min rad, i.e. O(delta/a).
 
-sextic_contact (@njit, callable from other kernels; allocates small temporaries.  The sextic's roots
-come from dem.contact.roots.poly_roots, a numba port of NR balanc + hqr: numba's np.linalg would
-need SciPy's LAPACK at run time, which the project does not depend on)
+sextic_contact (@njit, callable from other kernels; allocates one work array of 61 floats a call.
+The sextic's real roots come from dem.contact.roots.real_roots6_into, allocation free; numba's
+np.linalg would need SciPy's LAPACK at run time, which the project does not depend on)
     Yan, Regueiro & Sture (2010), Eng. Comput. 27(4):519, as coded in ParaEllip3d (root6.cpp /
     zrhqr).  Each body is the quadric f_i(x) = x^T A_i x + b_i^T x + c_i (10 coefficients,
     x^2 coefficient normalised to 1, f_i < 0 inside).  The point of body 2 "deepest in body 1"
     minimises f_1 on f_2 = 0: x(lam) = -1/2 adj M (b_1 + lam b_2) / det M, M = A_1 + lam A_2, and
     lam is a root of the sextic p(lam) = N^T A_2 N + (b_2^T N) det M + c_2 det M^2,
-    N = -1/2 adj M (b_1 + lam b_2).  Roots: eigenvalues of the 6x6 companion matrix by balancing
-    + Hessenberg QR (NR balanc/hqr/zrhqr, as ParaEllip3d; dem.contact.roots); a QR failure
-    (30 iterations without deflation) counts as no contact.  Selection (root6): real roots
-    (|Im lam| < EPS), det M != 0, |f_2(x)| < EPS_F, the most negative f_1(x).  Both directions
+    N = -1/2 adj M (b_1 + lam b_2); its 7 coefficients by explicit scalar arithmetic
+    (_sextic_coeffs_into).  Roots: ParaEllip3d takes the eigenvalues of the 6x6 companion matrix
+    (balancing + Hessenberg QR, NR balanc/hqr/zrhqr) and keeps the real ones (|Im lam| < EPS);
+    here all real roots directly (real_roots6_into: derivative-chain isolation + safeguarded
+    Halley, rounding-level accuracy, near-double roots kept as real), the same set to rounding
+    at a sixth of the cost; a degenerate sextic (leading coefficient 0, or not finite; never for
+    an ellipsoid pair) keeps the eigenvalue route (dem.contact.roots.poly_roots), where a QR
+    failure counts as no contact.  Selection (root6): real roots, det M != 0, |f_2(x)| < EPS_F,
+    the most negative f_1(x).  Both directions
     give point2 (of 2, deepest in 1) and point1 (of 1, deepest in 2); delta = |point1 - point2|,
     n = (point1 - point2) / delta (from body 1 to body 2), x_c the midpoint.  Accepted only if
     both solves succeed, each point lies inside the other body (f < 0; the "two-sided" test:

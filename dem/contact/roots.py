@@ -32,6 +32,13 @@ poly_roots(p)  p [n+1] float64  ->  (re [m], im [m], ok)
     companion matrix is not finite (the arrays then hold no usable roots).
 balanc(a)  a [n, n], in place.
 hqr(a, wr, wi)  a [n, n] upper Hessenberg (destroyed), wr [n], wi [n]  ->  ok (1/0).
+
+Real roots of a sextic (the contact kernel's route since issue 33, 6x cheaper than the eigenvalues
+and allocation free; poly_roots stays for degenerate sextics and general degrees):
+real_roots6_into(w)  w [REAL6_WORK] with the 7 coefficients in w[0:7]  ->  m; the m real roots,
+    ascending, at w[REAL6_ROOTS:]; derivative-chain isolation + bisection-safeguarded Halley
+    (method, accuracy and near-double roots: its docstring).
+real_roots6(p)  p [7]  ->  the real roots, a new array.
 """
 import numpy as np
 from numba import njit
@@ -255,13 +262,14 @@ def poly_roots(p):
 
 # ================================================================ real roots of a sextic
 # Work-array layout of real_roots6_into (float64, REAL6_WORK entries): the coefficients of
-# p^(k), the k-th derivative of p (degree 6 - k, ascending powers), at REAL6_LEVEL[6 - k]; two
-# root buffers of 6 entries each (ping-pong between levels); the real roots of p end up at
-# REAL6_ROOTS.
-REAL6_LEVEL = (27, 25, 22, 18, 13, 7, 0)    # offset of the degree-d polynomial, d = 0..6
-REAL6_BUF = (28, 34)                        # root buffers: degree d writes to REAL6_BUF[d % 2]
-REAL6_ROOTS = 28                            # = REAL6_BUF[0]: the roots of the sextic (d = 6)
-REAL6_WORK = 40
+# p^(k), the k-th derivative of p (degree d = 6 - k, ascending powers), in a block of 7 at
+# REAL6_LEVEL[d] = 7 k, zero above degree d (so every level is evaluated as a sextic by the same
+# straight-line code, and its derivatives are the next two blocks); two root buffers of 6 entries
+# each (ping-pong between levels); the real roots of p end up at REAL6_ROOTS.
+REAL6_LEVEL = (42, 35, 28, 21, 14, 7, 0)    # offset of the degree-d polynomial, d = 0..6
+REAL6_BUF = (49, 55)                        # root buffers: degree d writes to REAL6_BUF[d % 2]
+REAL6_ROOTS = 49                            # = REAL6_BUF[0]: the roots of the sextic (d = 6)
+REAL6_WORK = 61
 REAL6_MAXIT = 128                           # iterations per root (bisection alone halves a
 #                                             bracket of 2 B to 1e-15 |x| in < 100)
 REAL6_TOL_ROOT = 1e-6                       # last Halley step |dx| / |x| of the sextic's roots
@@ -269,48 +277,49 @@ REAL6_TOL_ROOT = 1e-6                       # last Halley step |dx| / |x| of the
 REAL6_TOL_CRIT = 1e-3                       # ... of the lower derivatives' roots (interval ends
 #                                             only): error ~ 1e-9
 UNIT_ROUNDOFF = 2.0 ** -53
+REAL6_GAMMA = 12.0 * UNIT_ROUNDOFF / (1.0 - 12.0 * UNIT_ROUNDOFF)  # gamma_12 >= gamma_7 (_eval_bound)
 
 
 @njit(cache=True, _nrt=False)
-def _horner2(w, o, d, x):
-    """p(x), p'(x), p''(x) of the degree-d polynomial w[o .. o + d] (ascending powers), one Horner
-    pass (three independent recurrences: the latency of one)."""
-    f = w[o + d]
-    df = 0.0
-    d2 = 0.0
-    for j in range(d - 1, -1, -1):
-        d2 = d2 * x + df
-        df = df * x + f
-        f = f * x + w[o + j]
-    return f, df, 2.0 * d2
+def _estrin(w, o, x, x2, x4):
+    """sum_{j<=6} w[o + j] x^j by Estrin's scheme (a0 + a1 x) + x^2 (a2 + a3 x) + x^4 (a4 + a5 x
+    + a6 x^2): three levels of dependent operations instead of Horner's six."""
+    return ((w[o] + w[o + 1] * x) + x2 * (w[o + 2] + w[o + 3] * x)
+            + x4 * ((w[o + 4] + w[o + 5] * x) + x2 * w[o + 6]))
 
 
 @njit(cache=True, _nrt=False)
-def _horner_bound(w, o, d, x):
-    """p(x), p''(x) and the bound e = sum_j |a_j| |x|^j of Horner's rounding error (Higham (2002),
-    Accuracy and Stability of Numerical Algorithms, 2nd ed., §5.1: |fl(p(x)) - p(x)| <= gamma_2d e,
-    gamma_2d = 2 d u / (1 - 2 d u))."""
-    f = w[o + d]
-    e = abs(f)
+def _eval3(w, o, x):
+    """p(x), p'(x), p''(x) of the level at w[o ..] (its derivatives are the blocks at o + 7 and
+    o + 14), by Estrin: the three evaluations are independent, so one costs the latency of one."""
+    x2 = x * x
+    x4 = x2 * x2
+    return _estrin(w, o, x, x2, x4), _estrin(w, o + 7, x, x2, x4), _estrin(w, o + 14, x, x2, x4)
+
+
+@njit(cache=True, _nrt=False)
+def _eval_bound(w, o, x):
+    """p(x), p''(x) and e = sum_j |a_j| |x|^j of the level at w[o ..], by Estrin (_estrin).  Every
+    term a_j x^j of Estrin's expression passes at most 7 roundings (x^2: 1, x^4: 2, then the
+    products and sums), so |fl(p(x)) - p(x)| <= gamma_7 e (Higham (2002), Accuracy and Stability
+    of Numerical Algorithms, 2nd ed., §3.1, gamma_k = k u / (1 - k u)); e itself is exact to
+    gamma_7 (all terms positive)."""
+    x2 = x * x
+    x4 = x2 * x2
     ax = abs(x)
-    df = 0.0
-    d2 = 0.0
-    for j in range(d - 1, -1, -1):
-        d2 = d2 * x + df
-        df = df * x + f
-        f = f * x + w[o + j]
-        e = e * ax + abs(w[o + j])
-    return f, 2.0 * d2, e
+    e = ((abs(w[o]) + abs(w[o + 1]) * ax) + x2 * (abs(w[o + 2]) + abs(w[o + 3]) * ax)
+         + x4 * ((abs(w[o + 4]) + abs(w[o + 5]) * ax) + x2 * abs(w[o + 6])))
+    return _estrin(w, o, x, x2, x4), _estrin(w, o + 14, x, x2, x4), e
 
 
 @njit(cache=True, _nrt=False)
-def _root_in(w, o, d, xl, xh, x, tol):
-    """The root of the degree-d polynomial w[o .. o + d] in the bracket with p(xl) < 0 < p(xh)
+def _root_in(w, o, xl, xh, x, tol):
+    """The root of the level at w[o ..] (degree <= 6) in the bracket with p(xl) < 0 < p(xh)
     (either order), on which p is monotonic, from the start x inside it: Halley's method
-    x <- x - 2 p p' / (2 p'^2 - p p'') (cubic convergence; p'' comes from the same Horner pass)
+    x <- x - 2 p p' / (2 p'^2 - p p'') (cubic convergence; p', p'' come with p, _eval3)
     safeguarded by bisection as NR §9.4 rtsafe: a step that would leave the bracket, or that is
     not below half the step before last, is replaced by bisection; each evaluation shrinks the
-    bracket.  Returns after a Halley step |dx| <= tol |x| (the error after it is then
+    bracket.  Returns after a Halley step |dx| <= tol |x| or <= 2 u |x| (the error after it is then
     ~ K dx^3, K = (p''/2p')^2 - p'''/6p' ~ 1/(distance to the next root)^2: tol = 1e-6 leaves
     ~ 1e-18 |x| for a root apart from the others by > 3 % of |x|), when p(x) == 0, when x no
     longer moves, or after REAL6_MAXIT steps."""
@@ -321,7 +330,7 @@ def _root_in(w, o, d, xl, xh, x, tol):
     dxold = abs(xh - xl)
     dx = dxold
     for _ in range(REAL6_MAXIT):
-        f, df, d2 = _horner2(w, o, d, x)
+        f, df, d2 = _eval3(w, o, x)
         if f == 0.0:
             return x
         if f < 0.0:
@@ -332,8 +341,9 @@ def _root_in(w, o, d, xl, xh, x, tol):
         step = 2.0 * f * df / den if den != 0.0 else np.inf
         xn = x - step
         ax = abs(x)
-        if (not (min(xl, xh) < xn < max(xl, xh))
-                or (abs(2.0 * step) > abs(dxold) and abs(step) > 2.0 * UNIT_ROUNDOFF * ax)):
+        if abs(step) <= 2.0 * UNIT_ROUNDOFF * ax:
+            return xn                       # converged to rounding (xn may equal x, a bracket end)
+        if not (min(xl, xh) < xn < max(xl, xh)) or abs(2.0 * step) > abs(dxold):
             dxold = dx                      # bisection
             dx = 0.5 * (xh - xl)
             x = xl + dx
@@ -349,6 +359,19 @@ def _root_in(w, o, d, xl, xh, x, tol):
 
 
 @njit(cache=True, _nrt=False)
+def _smoothstep_inv(r):
+    """t in [0, 1] with 3 t^2 - 2 t^3 ~ r (r in (0, 1)), a start point: t0 = sqrt(r / 3) (the
+    small-t branch; r > 1/2 by the symmetry t(1 - r) = 1 - t(r)) and one Newton step, to < 0.01
+    (the exact inverse, 1/2 - sin(asin(1 - 2 r) / 3), costs two transcendental calls)."""
+    rr = r if r <= 0.5 else 1.0 - r
+    t = np.sqrt(rr / 3.0)
+    d = 6.0 * t * (1.0 - t)
+    if d > 0.0:
+        t -= (t * t * (3.0 - 2.0 * t) - rr) / d
+    return t if r <= 0.5 else 1.0 - t
+
+
+@njit(cache=True, _nrt=False)
 def _level_roots(w, d, co, m, oo, bound, tol):
     """Real roots of the degree-d polynomial p_d = w[REAL6_LEVEL[d] ..] (d >= 3), ascending into
     w[oo ..], given the m real roots crit = w[co .. co + m] (ascending) of its derivative and the
@@ -358,13 +381,16 @@ def _level_roots(w, d, co, m, oo, bound, tol):
     unbounded sides, Laguerre's step from the critical point c (p'(c) = 0),
     h = sqrt(d / (d - 1) |p(c) / p''(c)|) (exact when the other d - 1 roots coincide); between two
     critical points, the root of the cubic Hermite model with zero end slopes (the smoothstep
-    3 t^2 - 2 t^3, inverted in closed form).  A critical point where |p_d| is within Horner's
-    rounding bound gamma_2d sum |a_j||x|^j counts as a (double) root itself, and its sign as zero
+    3 t^2 - 2 t^3, inverted approximately: _smoothstep_inv).  A critical point where |p_d| is within Horner's
+    rounding bound (_eval_bound) counts as a (double) root itself, and its sign as zero
     (no root on either side of it then): near-double roots, whose computed eigenvalues the
-    companion-matrix route gives as real or as a pair with Im ~ sqrt(u), are kept as real."""
+    companion-matrix route gives as real or as a pair with Im ~ sqrt(u), are kept as real.
+    (The bound used is REAL6_GAMMA e = gamma_12 e, above Estrin's gamma_7 e: generous, so that a
+    double root is not lost to a rounding-level sign; a spurious one costs a candidate that the
+    contact's selection tests like any other.)"""
     o = REAL6_LEVEL[d]
     lead = w[o + d]
-    gam = 2.0 * d * UNIT_ROUNDOFF / (1.0 - 2.0 * d * UNIT_ROUNDOFF)
+    gam = REAL6_GAMMA
     lag = d / (d - 1.0)
     sr = 1.0 if lead > 0.0 else -1.0        # sign of p_d at +bound
     sl = sr if d % 2 == 0 else -sr          # ... at -bound
@@ -376,7 +402,7 @@ def _level_roots(w, d, co, m, oo, bound, tol):
     for i in range(m + 1):
         if i < m:
             x = w[co + i]
-            f, g, e = _horner_bound(w, o, d, x)
+            f, g, e = _eval_bound(w, o, x)
             s = 0.0
             if f > gam * e:
                 s = 1.0
@@ -395,13 +421,11 @@ def _level_roots(w, d, co, m, oo, bound, tol):
             elif i == m:                    # (crit_m-1, bound): Laguerre from crit_m-1
                 x0 = px + np.sqrt(lag * abs(pf / pg)) if pg != 0.0 else 0.5 * (px + x)
             else:                           # smoothstep model: 3 t^2 - 2 t^3 = pf / (pf - f)
-                r = pf / (pf - f)
-                t = 0.5 - np.sin(np.arcsin(1.0 - 2.0 * r) / 3.0)
-                x0 = px + t * (x - px)
+                x0 = px + _smoothstep_inv(pf / (pf - f)) * (x - px)
             if ps < 0.0:
-                w[oo + n] = _root_in(w, o, d, px, x, x0, tol)
+                w[oo + n] = _root_in(w, o, px, x, x0, tol)
             else:
-                w[oo + n] = _root_in(w, o, d, x, px, x0, tol)
+                w[oo + n] = _root_in(w, o, x, px, x0, tol)
             n += 1
         if s == 0.0:
             w[oo + n] = x
@@ -427,14 +451,15 @@ def real_roots6_into(w):
     roots of p^(k+1) split the real line into intervals on which p^(k) is monotonic
     (_level_roots), each sign change holds one root, found by bisection-safeguarded Halley
     iteration (_root_in).  All roots lie within the Fujiwara (1916) bound
-    B = 2 max_k |a_6-k / a_6|^(1/k) (a_0 / 2 for k = 6), which by the Gauss-Lucas theorem also
+    B = 2 max_k |a_6-k / a_6|^(1/k) (a_0 / 2 for k = 6; the odd roots bounded above by square
+    roots), which by the Gauss-Lucas theorem also
     bounds the roots of every derivative, so the two unbounded intervals are closed at -B, B.
 
     Accuracy: the roots of p'' and below (interval ends only) to ~1e-9 relative (last Halley step
     <= REAL6_TOL_CRIT = 1e-3, cubic convergence); those of p' (the sextic's critical points, which
     decide near-double roots) and of p to the rounding level (last step <= REAL6_TOL_ROOT = 1e-6):
     |x - x*| <~ u |x*| cond(x*), cond = sum|a_j||x*|^j / |x* p'(x*)| the condition number with
-    respect to the coefficients; |p(x)| <~ 16 u sum|a_j||x|^j (tests/dem/test_roots.py).  As good
+    respect to the coefficients; |p(x)| <~ 16 u sum|a_j||x|^j (tests/dem/test_roots.py; measured <= 3.4 u).  As good
     as or better than the companion-matrix eigenvalues (backward stable for the balanced matrix,
     not the coefficients; on the packed scene's sextics the two agree to 1e-13 relative).  An end
     off by delta changes p at it by ~ p'' delta^2, far below the rounding bound used to sign it.
@@ -446,19 +471,26 @@ def real_roots6_into(w):
     No failure mode: every bracket converges (bisection) within REAL6_MAXIT steps.
     """
     a6 = w[6]
+    # Fujiwara with t^(1/k) bounded above by square roots only: t^(1/3) <= max(t^(1/2), t^(1/4)),
+    # t^(1/5) and t^(1/6) <= max(t^(1/4), t^(1/8))
     B = abs(w[5] / a6)
     B = max(B, np.sqrt(abs(w[4] / a6)))
-    B = max(B, np.cbrt(abs(w[3] / a6)))
+    t = np.sqrt(abs(w[3] / a6))
+    B = max(B, t, np.sqrt(t))
     B = max(B, np.sqrt(np.sqrt(abs(w[2] / a6))))
-    B = max(B, abs(w[1] / a6) ** 0.2)
-    B = max(B, np.sqrt(np.cbrt(abs(0.5 * w[0] / a6))))
+    t = np.sqrt(np.sqrt(abs(w[1] / a6)))
+    B = max(B, t, np.sqrt(t))
+    t = np.sqrt(np.sqrt(abs(0.5 * w[0] / a6)))
+    B = max(B, t, np.sqrt(t))
     B = 2.0 * B * (1.0 + 1e-6) + 1e-300
-    # derivative chain: p^(k) at REAL6_LEVEL[6 - k], down to the quadratic
-    for d in range(5, 1, -1):
+    # derivative chain: p^(k) at REAL6_LEVEL[6 - k], down to the linear one, zero-padded
+    for d in range(5, 0, -1):
         o = REAL6_LEVEL[d]
         oh = REAL6_LEVEL[d + 1]
         for j in range(d + 1):
             w[o + j] = (j + 1) * w[oh + j + 1]
+        for j in range(d + 1, 7):
+            w[o + j] = 0.0
     # quadratic level c0 + c1 x + c2 x^2: stable closed form (a double root, disc == 0, once)
     o2 = REAL6_LEVEL[2]
     c0 = w[o2]
