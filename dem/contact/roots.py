@@ -459,10 +459,11 @@ def real_roots6_into(w):
     <= REAL6_TOL_CRIT = 1e-3, cubic convergence); those of p' (the sextic's critical points, which
     decide near-double roots) and of p to the rounding level (last step <= REAL6_TOL_ROOT = 1e-6):
     |x - x*| <~ u |x*| cond(x*), cond = sum|a_j||x*|^j / |x* p'(x*)| the condition number with
-    respect to the coefficients; |p(x)| <~ 16 u sum|a_j||x|^j (tests/dem/test_roots.py; measured <= 3.4 u).  As good
-    as or better than the companion-matrix eigenvalues (backward stable for the balanced matrix,
-    not the coefficients; on the packed scene's sextics the two agree to 1e-13 relative).  An end
-    off by delta changes p at it by ~ p'' delta^2, far below the rounding bound used to sign it.
+    respect to the coefficients; |p(x)| <~ 16 u sum|a_j||x|^j (tests/dem/test_roots.py;
+    measured <= 3.4 u).  As good as or better than the companion-matrix eigenvalues (backward
+    stable for the balanced matrix, not the coefficients; on the packed scene's sextics the two
+    agree to 1e-13 relative).  An interval end off by delta changes p at it by ~ p'' delta^2,
+    far below the rounding bound used to sign it.
     A near-double root (a close real pair, or a complex pair with Im below ~ sqrt(u)) comes back
     as the critical point between them (or as the pair), to ~ sqrt(u), the inherent limit, the
     same as the eigenvalue route's.  A root of multiplicity >= 3 (spheres give a quadruple root

@@ -173,9 +173,10 @@ def test_sextic_minoverlap_drops_small_overlaps():
 
 # ---------------------------------------------------------------- the sextic's algebra (issue 33)
 def _poly_sextic(qa, qb, bound=False):
-    """The sextic by polynomial arithmetic (np.convolve), the former kernel's route (_pmul/_padd): M = A + lam B
-    (linear polynomials), adj M by cyclic cofactors, det M = sum_j M_0j adj_j0, N = -1/2 adj M v,
-    v = b_a + lam b_b, p = cb det^2 + (b_b . N) det + N^T B N (ascending, length 7).
+    """The sextic by polynomial arithmetic (np.convolve), the former kernel's route (_pmul/_padd):
+    M = A + lam B (linear polynomials), adj M by cyclic cofactors, det M = sum_j M_0j adj_j0,
+    N = -1/2 adj M v, v = b_a + lam b_b, p = cb det^2 + (b_b . N) det + N^T B N (ascending,
+    length 7).
     bound=True: the same sums with every number replaced by its absolute value and every
     difference by a sum, S_k >= the sum of |terms| of p_k: the scale of p_k's rounding error (a few
     tens of u S_k for either evaluation order; Higham (2002) §3.1), p_k itself may cancel far below."""
@@ -251,13 +252,18 @@ def test_sextic_coefficients_and_roots_match_polynomial_arithmetic():
     """The scalar coefficient formula (_sextic_coeffs) and the real-root finder (real_roots6) against
     the former route, polynomial arithmetic on numpy + np.roots, on 300 quadric pairs x 2 directions
     (_sextic_pairs; the physics: p(lam) = det M^2 f_b(x(lam)), whose real roots are the stationary
-    points of f_a on the surface f_b = 0).  Coefficients: |p_k - p_k,ref| <= 1e-12 S_k, S_k the sum of
-    the |terms| of p_k (_poly_sextic bound=True): both are the same sums of products in another
-    order, each within a few tens of u S_k of the exact p_k (measured: <= 3e-16 S_k); relative to
-    p_k itself the test would measure cancellation (p_k ~ 1e-3 S_k for needles), not the code.  Roots: every np.roots root with |Im| < EPS_IM (the former candidates)
-    is found to 1e-9 relative to max(1, |r|) (the np.roots tolerance of tests/dem/test_roots.py),
-    and every root found is within 1e-7 of an np.roots root with |Im| <= 1e-6 (a near-double root,
-    Im up to ~sqrt(u), may be found where the companion matrix gave a complex pair)."""
+    points of f_a on the surface f_b = 0).
+    Coefficients: |p_k - p_k,ref| <= 1e-12 S_k, S_k the sum of the |terms| of p_k (_poly_sextic
+    bound=True): both are the same sums of products in another order, each within a few tens of
+    u S_k of the exact p_k (measured: <= 3e-16 S_k); relative to p_k itself the test would measure
+    cancellation (p_k ~ 1e-3 S_k for needles), not the code.
+    Roots: every np.roots root with |Im| < EPS_IM (the former candidates) is found to 1e-9
+    relative to max(1, |r|) (the np.roots tolerance of tests/dem/test_roots.py), or, in a cluster
+    (another root within 1e-3: the spheres' quadruple root at M = (1 + lam) A singular, which
+    _select rejects, comes out of np.roots spread by ~u^(1/4) ~ 1e-4), within twice the cluster's
+    spread; and every root found is within 1e-7 of an np.roots root (a near-double root, Im up to
+    ~sqrt(u), may be found where the companion matrix gave a complex pair), or within twice the
+    spread of a cluster."""
     from dem.contact.methods import SEXTIC_EPS_IM, _sextic_coeffs
     from dem.contact.roots import real_roots6
     n = 0
