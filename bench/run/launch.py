@@ -140,7 +140,8 @@ def _run_argv(args, out):
     """The bench-run options the ranks need (the same run, with the resolved output folder)."""
     argv = (["--restart", os.path.abspath(args.restart)] if args.restart else ["--scene", args.scene])
     argv += ["--mapping", args.mapping, "--neighbor", args.neighbor, "--out", out,
-             "--threaded", args.threaded, "--snapshot-every", str(args.snapshot_every), "--halo", args.halo,
+             "--threaded", args.threaded, "--snapshot-every", str(args.snapshot_every),
+             "--snapshot-format", getattr(args, "snapshot_format", None) or "vtu", "--halo", args.halo,
              "--guard-overlap", str(args.guard_overlap), "--update-grid", str(args.update_grid),
              "--balance", args.balance, "--newton", getattr(args, "newton", "auto"),
              "--contact-method", args.contact_method or "exact",

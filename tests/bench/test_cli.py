@@ -35,7 +35,8 @@ def test_run_writes_contract_files(tmp_path):
     per step and rank), state.npz (id, pos [n,3], quat [n,4], vel, omega sorted by id)."""
     scene = write(tmp_path, GOOD)
     out = tmp_path / "run"
-    res = bench("run", "--scene", scene, "--steps", "15", "--out", str(out), "--snapshot-every", "5")
+    res = bench("run", "--scene", scene, "--steps", "15", "--out", str(out), "--snapshot-every", "5",
+                "--snapshot-format", "vtk")
     assert res.returncode == 0, res.stderr
     info = json.loads((out / "run.json").read_text())
     for key in ("dt", "dt_critical", "stable", "max_overlap_ratio"):

@@ -87,7 +87,8 @@ def test_checkpoint_and_snapshot_cadence_follow_the_step_number(tmp_path):
     scene = write(tmp_path, GOOD)
     _, _, info = run(tmp_path / "a", "--scene", scene, "--steps", "7", "--checkpoint-every", "3")
     assert info["checkpoint"]["written"] == 3 and info["checkpoint"]["last_step"] == 7   # steps 3, 6, 7
-    run(tmp_path / "b", "--restart", str(tmp_path / "a" / "checkpoint.npz"), "--steps", "8", "--snapshot-every", "5")
+    run(tmp_path / "b", "--restart", str(tmp_path / "a" / "checkpoint.npz"), "--steps", "8", "--snapshot-every", "5",
+        "--snapshot-format", "vtk")
     assert sorted(os.listdir(tmp_path / "b" / "snapshots")) == ["step00000010.npz", "step00000010.vtk",
                                                                  "step00000015.npz", "step00000015.vtk"]
 

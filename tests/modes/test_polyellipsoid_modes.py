@@ -490,7 +490,8 @@ def test_vtk_surface_vertices_on_particle_surfaces(tmp_path):
     4 x 5e-9 |x| / alpha_min per vertex (measured worst ~1/10 of it); and the extreme vertices along
     each octant axis reach +a+ and -a- (1e-7 relative), i.e. the halves are on the right sides."""
     out = tmp_path / "run"
-    st, _, _ = _run(out, "gas", 10, "--shape", "polyellipsoid", "--particles", "20", "--snapshot-every", "10")
+    st, _, _ = _run(out, "gas", 10, "--shape", "polyellipsoid", "--particles", "20", "--snapshot-every", "10",
+                    "--snapshot-format", "vtk")
     main = out / "snapshots" / "step00000010.vtk"
     surf = out / "snapshots" / "step00000010_surface.vtk"
     assert main.exists() and surf.exists()
