@@ -312,6 +312,12 @@ def establish(threads, pin, comm=None):
     rank 0 (None on the others); raises BindingError (the same line on every rank) when the binding
     cannot be planned or did not hold."""
     problem, plan_row = None, None
+    # what the CPUs given are checked against: the launcher's count (MPI under bench run), this
+    # process's own for one process (it is its own launcher: a run of more threads than CPUs, for
+    # correctness, has all of them), else T (a starter such as srun placed the ranks)
+    given = launcher_cpus()
+    if given is None and comm is None:
+        given = len(os.sched_getaffinity(0))
     if pin:
         mine = os.sched_getaffinity(0) | set(process_cpus())
         if comm is not None:
@@ -340,15 +346,14 @@ def establish(threads, pin, comm=None):
         raise BindingError(first if comm is None else f"rank {rank}: {first}")
     records = comm.gather(record, root=0) if comm is not None else [record]
     rank = comm.Get_rank() if comm is not None else 0
-    verdict = check_binding(records, threads, pin, launcher_cpus()) if rank == 0 else None
+    verdict = check_binding(records, threads, pin, given) if rank == 0 else None
     if comm is not None:
         verdict = comm.bcast(verdict, root=0)
     if verdict:
         raise BindingError(verdict)
     if rank != 0:
         return None
-    return {"pinned": bool(pin), "held": True, "threads": threads, "launcher_cpus": launcher_cpus(),
-            "ranks": records}
+    return {"pinned": bool(pin), "held": True, "threads": threads, "launcher_cpus": given, "ranks": records}
 
 
 def recheck(affinity, threads, pin, comm=None):
