@@ -20,13 +20,24 @@ plot_sweep(DIR) writes, in DIR:
   particle radius) against totalT [ms/step], log-log; zero errors (bit-identical modes) are
   drawn hollow on a dashed floor line a decade below the smallest non-zero error.
 
+Every figure is drawn for a journal's double-column width (WIDTH = 7 in, no text below 7 pt at
+100 %) and written as PNG and, beside it, as vector PDF (speedup.pdf, ...; save_figure, both
+atomically). The legend sits below the axes in as many columns as fit under the axes' width, the
+foot note below it, and the figure grows in height to hold them (layout_figure); point labels are
+placed where they touch no marker, no drawn line and no other text (_place_labels, with a leader
+line when a label has to stand off); modules.png's mapping ticks stand upright when level ones
+would touch, and each bar carries one short number (totalT in ms above the bars, commuT + migraT
+in % above the shares).
+
 Points with status != done are not plotted; they are listed in a note at the foot of each
-figure (and once on stdout by plot_sweep). Points whose runs.csv `flag` is set (measured under
-foreign load, or with a wide spread: bench.sweep.records) are ringed in red on the speedup,
-efficiency, EDSF and error figures (a Line2D labelled FLAG_LABEL), their labels and the modules
-figure's tick labels end in `[flag]`, and each figure's foot note lists them with their foreign
-load and spreads. No figure raises on a runs.csv with only the
-serial point, with every point failed, with NaN columns or with a single core count.
+figure (at most two lines, then "and N more"; all of them once on stdout by plot_sweep). Points
+whose runs.csv `flag` is set (measured under foreign load, or with a wide spread:
+bench.sweep.records) are ringed in red on every figure (speedup, efficiency, EDSF and error: a
+Line2D labelled FLAG_LABEL, and their labels end in `[flag]`; modules.png: a small ring above the
+point's bars), and the foot note says so in one line: the flagged points with their foreign load
+and spreads when that fits on the line, else how many they are (the rest is in runs.csv). No
+figure raises on a runs.csv with only the serial point, with every point failed, with NaN
+columns or with a single core count.
 """
 import math
 import os
@@ -38,6 +49,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
+from matplotlib.transforms import offset_copy  # noqa: E402
 from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullFormatter, NullLocator  # noqa: E402
 
 from bench.sweep.records import read_runs  # noqa: E402
@@ -45,19 +57,26 @@ from bench.sweep.ceiling import read_ceiling  # noqa: E402
 
 FAMILY_STYLE = {"serial": ("k", "*"), "threads": ("C0", "o"), "MPI": ("C3", "s"), "hybrid": ("C2", "^")}
 FAMILY_ORDER = ("serial", "threads", "MPI", "hybrid")
-MODULES = (("compuT", "compuT (computation)", "C0"), ("commuT", "commuT (communication)", "C1"),
-           ("migraT", "migraT (migration)", "C2"))
+MODULES = (("compuT", "compuT: computation", "C0"), ("commuT", "commuT: communication", "C1"),
+           ("migraT", "migraT: migration", "C2"))
 # the overhead commuT + migraT split at the wire (issue 11): the second bar of an MPI point, syncT
 # (the allreduce inside commuT) only where runs.csv has it
-WIRE_SPLIT = (("compuT", "compuT (computation)", "C0", None),
-              ("syncT", "syncT: waiting for the slowest rank + the step's allreduce", "C4", None),
-              ("wireT", "wireT: wire time of the bytes sent (ping-pong alpha + n / beta)", "0.35", None),
-              ("above_wireT", "above_wireT: software above the wire = commuT + migraT - syncT - wireT", "C3", "////"))
-ABOVE_WIRE_OLD = "above_wireT: software above the wire = commuT + migraT - wireT"  # no syncT recorded
-DPI = 120
-FONT = 7
-FLAG_LABEL = "flagged: timing doubtful, its own or its T(1) reference's (runs.csv flag)"
-FLAG_RING = dict(ls="none", marker="o", ms=14, mfc="none", mec="red", mew=1.3, zorder=4)
+WIRE_SPLIT = (("compuT", "compuT: computation", "C0", None),
+              ("syncT", "syncT: allreduce + waiting for the slowest rank", "C4", None),
+              ("wireT", "wireT: modelled wire time of the bytes sent", "0.35", None),
+              ("above_wireT", "above_wireT = commuT + migraT - syncT - wireT", "C3", "////"))
+ABOVE_WIRE_OLD = "above_wireT = commuT + migraT - wireT"  # no syncT recorded
+# sizes for a journal's double-column width, read at 100 %: no text below FONT points
+WIDTH = 7.0  # in
+FONT = 7  # pt: legends, notes, point labels, numbers on bars
+TICK = 7.5  # pt: tick labels
+LABEL = 8  # pt: axis labels
+TITLE = 8  # pt: the one-line title (what was run)
+DPI = 200
+NOTE_LINES = 2  # at most this many lines of "not plotted" points in a foot note, then "and N more"
+FLAG_LABEL = "flagged: timing doubtful (runs.csv flag)"
+FLAG_HEAD = "Flagged, timing doubtful (red ring; runs.csv flag)"
+FLAG_RING = dict(ls="none", marker="o", ms=12, mfc="none", mec="red", mew=1.2, zorder=4)
 
 
 def flagged(d):
@@ -86,9 +105,21 @@ def flag_notes(d):
     return out
 
 
+def flag_note(d, width_in):
+    """One line on the flagged points of d: each with its foreign load and spreads when they all fit
+    on that line, else how many they are (the rest is in runs.csv)."""
+    fl = flagged(d)
+    if not len(fl):
+        return []
+    line = f"{FLAG_HEAD}: " + "; ".join(flag_notes(d))
+    if len(line) <= _note_chars(width_in):
+        return [line]
+    many = f"{len(fl)} point{'s' if len(fl) != 1 else ''}"
+    return [f"{FLAG_HEAD}: {many}; their foreign load and spreads are in runs.csv"]
+
+
 def figure_notes(done, skipped, width):
-    return note_lines(skipped, width) + note_lines(flag_notes(done), width,
-                                                   head="Flagged, timing doubtful (runs.csv flag): ")
+    return note_lines(skipped, width) + flag_note(done, width)
 
 
 def done_rows(df):
@@ -181,11 +212,27 @@ def _amdahl(directory):
 
 
 # --- layout helpers -------------------------------------------------------------------------------------
-def note_lines(lines, width_in, head="Not plotted (status != done): "):
+def _note_chars(width_in):
+    """Characters of FONT-point text on a line of width_in inches (DejaVu Sans: digits are 0.64 em)."""
+    return max(40, int((width_in - 0.15) * 72 / (0.6 * FONT)))
+
+
+def note_lines(lines, width_in, head="Not plotted (status != done): ", max_lines=NOTE_LINES):
+    """head + the entries '; '-joined, wrapped to width_in inches in at most max_lines lines: the
+    entries that fit, then 'and N more'."""
     if not lines:
         return []
-    chars = max(40, int(width_in * 72 / (0.52 * FONT)))
-    return textwrap.wrap(head + "; ".join(lines), chars)
+    chars = _note_chars(width_in)
+    for k in range(len(lines), 0, -1):
+        more = len(lines) - k
+        out = textwrap.wrap(head + "; ".join(lines[:k]) + (f"; and {more} more" if more else ""), chars)
+        if len(out) <= max_lines:
+            return out
+    out = textwrap.wrap(head + lines[0], chars)[:max_lines]
+    more = len(lines) - 1
+    tail = "..." + (f" and {more} more" if more else "")
+    out[-1] = out[-1][:chars - len(tail)] + tail
+    return out
 
 
 def finish_figure(fig, note):
@@ -198,77 +245,280 @@ def finish_figure(fig, note):
     return bottom
 
 
+def _legend(ax, handles, ncol, title=None):
+    """A frameless legend of FONT points in ncol columns, anchored in figure coordinates and left out
+    of tight_layout (layout_figure places it below the axes)."""
+    leg = ax.legend(handles=handles, fontsize=FONT, ncol=ncol, loc="upper center", bbox_to_anchor=(0.5, 0.0),
+                    bbox_transform=ax.figure.transFigure, frameon=False, borderaxespad=0.0, borderpad=0.2,
+                    handlelength=1.8, handletextpad=0.5, columnspacing=1.4, labelspacing=0.35,
+                    title=title, title_fontsize=FONT, alignment="left" if title else "center")
+    leg.set_in_layout(False)
+    return leg
+
+
+def layout_figure(fig, axes, handles=(), note=(), axes_h=3.2, legend_ax=None, legend_title=None):
+    """Lay a figure out at WIDTH inches: its axes `axes_h` inches high (tight_layout of the axes,
+    titles and labels), below them the legend of `handles` (on legend_ax, default axes[0]) in as
+    many columns as fit under the axes' width (handles may be a function ncol -> handles, for an
+    order that reads by rows), below it the foot note (lines of FONT points). The figure grows in
+    height to hold legend and note, so none of them squeezes the axes. Returns the legend or None."""
+    legend_ax = legend_ax or axes[0]
+    dpi = fig.dpi
+    gap, pad = 0.06, 0.04  # in
+    note_t, note_h = None, 0.0
+    if note:
+        note_t = fig.text(0.01, 0.0, "\n".join(note), fontsize=FONT, va="bottom", ha="left", color="0.25")
+        note_h = note_t.get_window_extent(fig.canvas.get_renderer()).height / dpi
+    hs = handles if callable(handles) else (lambda ncol, h=tuple(handles): list(h))
+    n = len(hs(1))
+    leg, leg_h, ncol = None, 0.0, max(n, 1)
+
+    def arrange(leg_h):
+        below = pad + (note_h + gap if note else 0.0) + (leg_h + gap if n else 0.0)
+        h = axes_h + below
+        fig.set_size_inches(WIDTH, h)
+        import warnings
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            fig.tight_layout(rect=(0, below / h, 1, 1), pad=0.3, h_pad=0.6)
+        return h
+
+    h = arrange(0.3 * n ** 0.5 if n else 0.0)
+    for _ in range(3):
+        if not n:
+            break
+        renderer = fig.canvas.get_renderer()
+        width = min(a.get_window_extent(renderer).width for a in axes)
+        k = ncol
+        while True:
+            rows = math.ceil(n / k)
+            k = math.ceil(n / rows)  # balanced columns
+            leg = _legend(legend_ax, hs(k), k, legend_title)
+            if leg.get_window_extent(renderer).width <= width or k == 1:
+                break
+            k -= 1
+        new_h = leg.get_window_extent(renderer).height / dpi
+        if k == ncol and abs(new_h - leg_h) < 1e-3:
+            break
+        ncol, leg_h = k, new_h
+        h = arrange(leg_h)
+    fig._bench_layout = lambda: place(arrange(leg_h))
+
+    def place(h):
+        if leg is not None:
+            renderer = fig.canvas.get_renderer()
+            boxes = [a.get_window_extent(renderer) for a in axes]
+            cx = (min(b.x0 for b in boxes) + max(b.x1 for b in boxes)) / 2 / (WIDTH * dpi)
+            leg.set_bbox_to_anchor((cx, (pad + (note_h + gap if note else 0.0) + leg_h) / h), fig.transFigure)
+        if note_t is not None:
+            note_t.set_position((0.01, pad / h))
+    place(h)
+    return leg
+
+
+def relayout(fig):
+    """Lay the figure out again as its layout_figure did (after a change of limits or ticks)."""
+    fig._bench_layout()
+
+
 def save_figure(fig, path):
-    """Write the figure atomically (a full disk leaves the old file and raises RecordError)."""
+    """Write the figure atomically as PNG at path and as PDF (vector, fonts embedded as TrueType)
+    beside it, path with .pdf for .png (a full disk leaves the old files and raises RecordError)."""
     from bench.run.records import atomic_write
     try:
-        atomic_write(path, lambda fh: fig.savefig(fh, format="png", dpi=DPI, bbox_inches="tight", pad_inches=0.08),
-                     mode="wb")
+        kw = dict(bbox_inches="tight", pad_inches=0.03)
+        atomic_write(path, lambda fh: fig.savefig(fh, format="png", dpi=DPI, **kw), mode="wb")
+        with matplotlib.rc_context({"pdf.fonttype": 42}):
+            atomic_write(os.path.splitext(path)[0] + ".pdf", lambda fh: fig.savefig(fh, format="pdf", **kw),
+                         mode="wb")
     finally:
         plt.close(fig)
     return path
 
 
-def _place_labels(ax, pts, fontsize=FONT - 0.5):
-    """Annotate points (x, y, text, color) right of the marker (left when near the right edge),
-    nudged vertically in display space so that labels do not overlap; call once limits and the
-    layout are final."""
+def _line_points(line, step=2.0):
+    """Display points along a drawn line (segments resampled every `step` pixels), NaN gaps kept."""
+    xy = line.get_transform().transform(np.asarray(line.get_xydata(), dtype=float))
+    out = []
+    for (x0, y0), (x1, y1) in zip(xy[:-1], xy[1:]):
+        if not (np.isfinite(x0) and np.isfinite(y0) and np.isfinite(x1) and np.isfinite(y1)):
+            continue
+        k = int(min(2000, max(1, math.hypot(x1 - x0, y1 - y0) / step)))
+        t = np.linspace(0.0, 1.0, k + 1)
+        out.append(np.column_stack([x0 + t * (x1 - x0), y0 + t * (y1 - y0)]))
+    return np.concatenate(out) if out else np.zeros((0, 2))
+
+
+def _place_labels(ax, pts, fontsize=FONT):
+    """Annotate points (x, y, text, color) with labels placed in display space, the first free of
+    several spots around the point (right, left, above, below, the diagonals, then right and left
+    nudged up and down) where a label touches no marker, no drawn line (ideal, fit, ceiling and
+    series lines), no other text and stays inside the axes; where no spot is free, the one that
+    hides least. Call once limits and the layout are final."""
+    pts = [p for p in pts if np.isfinite(p[0]) and np.isfinite(p[1])]
     if not pts:
         return
     fig = ax.figure
-    k = 72.0 / fig.dpi  # pixels -> points
-    bbox = ax.get_window_extent()
-    right = bbox.x1 * k
-    h = fontsize * 1.2
+    renderer = fig.canvas.get_renderer()
+    px = fig.dpi / 72.0  # pixels per point
+    abox = ax.get_window_extent(renderer)
+    marks, lines = [], []
+    for ln in ax.get_lines():
+        if not ln.get_visible():
+            continue
+        if ln.get_marker() not in (None, "None", "none", "", " ") and ln.get_markersize() > 0:
+            r = ln.get_markersize() * px / 2 + 0.5 * px
+            for X, Y in ln.get_transform().transform(np.asarray(ln.get_xydata(), dtype=float)):
+                if np.isfinite(X) and np.isfinite(Y):
+                    marks.append((X - r, Y - r, X + r, Y + r))
+        if ln.get_linestyle() not in ("None", "none", "", " "):
+            lines.append(_line_points(ln))
+    line_xy = np.concatenate(lines) if lines else np.zeros((0, 2))
+    inside = ((line_xy[:, 0] >= abox.x0) & (line_xy[:, 0] <= abox.x1) & (line_xy[:, 1] >= abox.y0)
+              & (line_xy[:, 1] <= abox.y1)) if len(line_xy) else np.zeros(0, bool)
+    line_xy = line_xy[inside]
+    texts = []
+    for t in ax.texts:
+        if t.get_visible() and t.get_text():
+            b = t.get_window_extent(renderer)
+            texts.append((b.x0, b.y0, b.x1, b.y1))
+    m = 1.2 * px  # clearance
+
+    def hits(boxes, pts_xy):
+        if not len(pts_xy) or not boxes:
+            return 0
+        bx = np.asarray(boxes)[None, :, :]
+        px_, py_ = pts_xy[:, None, 0], pts_xy[:, None, 1]
+        return int(np.count_nonzero((px_ > bx[..., 0] - m) & (px_ < bx[..., 2] + m)
+                                    & (py_ > bx[..., 1] - m) & (py_ < bx[..., 3] + m)))
+
+    def cost(b, leader, texts, line_xy, leaders):
+        x0, y0, x1, y1 = b
+        c = 0.0
+        if x0 < abox.x0 + m or x1 > abox.x1 - m or y0 < abox.y0 + m or y1 > abox.y1 - m:
+            c += 1e5
+        for o in texts:
+            if x0 < o[2] + m and x1 > o[0] - m and y0 < o[3] + m and y1 > o[1] - m:
+                c += 1e4
+        for o in marks:
+            if x0 < o[2] + m and x1 > o[0] - m and y0 < o[3] + m and y1 > o[1] - m:
+                c += 1e2
+        if len(line_xy):
+            c += float(np.count_nonzero((line_xy[:, 0] > x0 - m) & (line_xy[:, 0] < x1 + m)
+                                        & (line_xy[:, 1] > y0 - m) & (line_xy[:, 1] < y1 + m)))
+        if leader is not None:
+            c += 1e3 * min(1, hits(texts, leader)) + 10 * min(3, hits(marks, leader))
+            (p0, p1) = leader[0], leader[-1]
+            c += 500 * sum(_crosses(p0, p1, q0, q1) for q0, q1 in leaders)
+        return c
+
+    probe = ax.text(0, 0, "", fontsize=fontsize)
     disp = []
     for x, y, text, color in pts:
-        if not (np.isfinite(x) and np.isfinite(y)):
-            continue
         X, Y = ax.transData.transform((x, y))
-        disp.append((X * k, Y * k, text, color, x, y))
-    disp.sort(key=lambda d: (round(d[0], 1), d[1]))
-    boxes = [(X - 3, Y - 3, X + 3, Y + 3) for X, Y, *_ in disp]  # the markers themselves
+        probe.set_text(text)
+        bb = probe.get_window_extent(renderer)
+        disp.append((X, Y, x, y, text, color, bb.width, bb.height))
+    probe.remove()
+    r = 8.0 * px  # clears the marker and a red ring around it (ms 12: radius 6 + edge)
 
-    def free(b):
-        return all(b[2] <= o[0] or b[0] >= o[2] or b[3] <= o[1] or b[1] >= o[3] for o in boxes)
+    def spots_of(X, Y, w, h):
+        d = r * 0.75
+        spots = [(X + r, Y - h / 2), (X - r - w, Y - h / 2), (X - w / 2, Y + r), (X - w / 2, Y - r - h),
+                 (X + d, Y + d), (X + d, Y - d - h), (X - d - w, Y + d), (X - d - w, Y - d - h)]
+        for k in range(1, 25):
+            dy = r * 0.5 + k * h * 0.5
+            dx = r + 4 * px if k > 2 else r
+            for sgn in (1, -1):
+                spots += [(X + dx, Y - h / 2 + sgn * dy), (X - dx - w, Y - h / 2 + sgn * dy)]
+            if k <= 8:
+                spots += [(X - w / 2, Y + r + k * h * 0.5), (X - w / 2, Y - r - h - k * h * 0.5)]
+        for k in range(1, 6):  # further aside, level with the point and a little above and below
+            for dy in (0.0, h, -h):
+                spots += [(X + r + k * h, Y - h / 2 + dy), (X - r - w - k * h, Y - h / 2 + dy)]
+        return spots
 
-    for X, Y, text, color, x, y in disp:
-        w = 0.56 * fontsize * len(text)
-        side = 1 if X + 6 + w < right + 40 else -1
-        chosen = None
-        for step in [0, 1, -1, 2, -2, 3, -3, 4, -4, 5, -5, 6, -6, 8, -8]:
-            dy = step * h
-            x0 = X + 5 if side > 0 else X - 5 - w
-            b = (x0, Y + dy - h / 2, x0 + w, Y + dy + h / 2)
-            if free(b):
-                chosen = (dy, b)
-                break
-        if chosen is None:
-            dy = 0.0
-            x0 = X + 5 if side > 0 else X - 5 - w
-            chosen = (dy, (x0, Y - h / 2, x0 + w, Y + h / 2))
-        dy, b = chosen
-        boxes.append(b)
-        arrow = dict(arrowstyle="-", lw=0.4, color="0.55", shrinkA=0, shrinkB=2) if abs(dy) > h * 0.6 else None
-        ax.annotate(text, (x, y), xytext=(5 * side, dy), textcoords="offset points", fontsize=fontsize,
-                    ha="left" if side > 0 else "right", va="center", color=color, arrowprops=arrow,
-                    annotation_clip=False, zorder=4,
-                    bbox=dict(boxstyle="square,pad=0.05", fc="white", ec="none", alpha=0.75))
+    def run(order):
+        """Greedy placement in this order: (total cost, [(index, box, leader)])."""
+        placed_texts, lxy, leaders, out, total = list(texts), line_xy, [], [], 0.0
+        for i in order:
+            X, Y, *_, w, h = disp[i]
+            best = None
+            for x0, y0 in spots_of(X, Y, w, h):
+                b = (x0, y0, x0 + w, y0 + h)
+                leader = _leader(X, Y, b, r)
+                c = cost(b, leader, placed_texts, lxy, leaders) + (0.5 if leader is not None else 0.0)
+                if best is None or c < best[0]:
+                    best = (c, b, leader)
+                if c <= 0.5:
+                    break
+            c, b, leader = best
+            total += c
+            placed_texts.append(b)
+            if leader is not None:
+                lxy = np.concatenate([lxy, leader])
+                leaders.append((leader[0], leader[-1]))
+            out.append((i, b, leader))
+        return total, out
+
+    idx = range(len(disp))
+    crowd = [sum(math.hypot(disp[i][0] - disp[j][0], disp[i][1] - disp[j][1]) < 40 * px for j in idx) for i in idx]
+    orders = [sorted(idx, key=lambda i: (round(disp[i][0], 1), -disp[i][1])),
+              sorted(idx, key=lambda i: (-crowd[i], round(disp[i][0], 1), -disp[i][1])),
+              sorted(idx, key=lambda i: (-round(disp[i][0], 1), disp[i][1]))]
+    best = None
+    for order in orders:
+        total, out = run(order)
+        if best is None or total < best[0]:
+            best = (total, out)
+        if total < 1:
+            break
+    for i, b, leader in best[1]:
+        X, Y, x, y, text, color, w, h = disp[i]
+        ax.annotate(text, (x, y), xytext=((b[0] - X) / px, (b[1] - Y) / px), textcoords="offset points",
+                    fontsize=fontsize, ha="left", va="bottom", color=color, annotation_clip=False, zorder=5)
+        if leader is not None:
+            (lx0, ly0), (lx1, ly1) = ax.transData.inverted().transform(leader[[0, -1]])
+            ax.plot([lx0, lx1], [ly0, ly1], color=color, lw=0.5, alpha=0.7, zorder=2, label="_leader")
 
 
-def _log2_cores_axis(ax, cores, label_room=1.8):
+def _crosses(p0, p1, q0, q1):
+    """Whether segments p0-p1 and q0-q1 cross."""
+    def side(a, b, c):
+        return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+    return (side(p0, p1, q0) * side(p0, p1, q1) < 0) and (side(q0, q1, p0) * side(q0, q1, p1) < 0)
+
+
+def _leader(X, Y, b, r):
+    """Points along a leader line from a marker (X, Y) (from its edge, radius r) to the nearest point
+    of label box b, or None when the label sits next to the marker."""
+    cx, cy = min(max(X, b[0]), b[2]), min(max(Y, b[1]), b[3])
+    dist = math.hypot(cx - X, cy - Y)
+    if dist <= 1.6 * r:
+        return None
+    t = np.linspace(r / dist, 1.0, max(2, int(dist / 2)))
+    return np.column_stack([X + t * (cx - X), Y + t * (cy - Y)])
+
+
+def _log2_cores_axis(ax, cores, label_room=1.6):
     cores = sorted({int(c) for c in cores if np.isfinite(c) and c > 0}) or [1]
     ax.set_xscale("log", base=2)
-    ax.set_xlim(min(cores) / 1.35, max(cores) * label_room)
+    ax.set_xlim(min(cores) / 1.4, max(cores) * label_room)
     ax.xaxis.set_major_locator(FixedLocator(cores))
     ax.xaxis.set_minor_locator(NullLocator())
     ax.set_xticklabels([str(c) for c in cores])
-    ax.set_xlabel("cores = processes x threads")
+    ax.set_xlabel("cores p = processes \u00d7 threads", fontsize=LABEL)
     return cores
 
 
+def _style(ax):
+    ax.tick_params(labelsize=TICK, length=3, width=0.6)
+    for s in ax.spines.values():
+        s.set_linewidth(0.7)
+
+
 def empty_axes(ax, text):
-    ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", fontsize=9, color="0.35")
+    ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", fontsize=LABEL, color="0.35")
 
 
 # --- plot_sweep -----------------------------------------------------------------------------------------
@@ -311,7 +561,8 @@ def _metric_figure(done, skipped, ctx, fit, metric, ceiling=()):
     """speedup / efficiency / edsf against cores, one series per family (and scheme); on the
     efficiency figure also the machine's ceiling of DIR/ceiling.csv where a sweep measured it
     (bench.sweep.ceiling: W independent copies, alone over together and over meeting every step)."""
-    fig, ax = plt.subplots(figsize=(8.6, 5.0))
+    fig, ax = plt.subplots(figsize=(WIDTH, 4.0))
+    _style(ax)
     d = done[np.isfinite(done[metric]) & np.isfinite(done["cores"])]
     if metric == "edsf":
         d = d[d["cores"] > 1]
@@ -323,7 +574,7 @@ def _metric_figure(done, skipped, ctx, fit, metric, ceiling=()):
     labels = []
     for label, fam, rows in series:
         color, marker = colors[label], FAMILY_STYLE.get(fam, ("C7", "o"))[1]
-        ax.plot(rows["cores"], rows[metric], ls="none", marker=marker, ms=8 if marker == "*" else 6,
+        ax.plot(rows["cores"], rows[metric], ls="none", marker=marker, ms=8 if marker == "*" else 5.5,
                 color=color, label=label, zorder=3)
         # a thin line through the best point per core count, from the serial reference
         best = rows.sort_values("totalT").groupby("cores", sort=True)[metric].first()
@@ -331,21 +582,22 @@ def _metric_figure(done, skipped, ctx, fit, metric, ceiling=()):
         if fam != "serial" and s_ref[1] is not None and (not xs or xs[0] > 1):
             xs, ys = [1.0] + xs, [s_ref[1]] + ys
         if len(xs) > 1:
-            ax.plot(xs, ys, color=color, lw=1.0, alpha=0.6, zorder=2)
+            ax.plot(xs, ys, color=color, lw=0.9, alpha=0.55, zorder=2)
         for _, r in rows.iterrows():
             labels.append((r["cores"], r[metric], (r["mapping"] or r["point"]) + flag_suffix(r), color))
     fl = flagged(d)
     if len(fl):
         ax.plot(fl["cores"], fl[metric], label=FLAG_LABEL, **FLAG_RING)
     cores = _log2_cores_axis(ax, list(d["cores"]) + ([] if metric == "edsf" and len(d) else [1]))
+    _label_room(ax, [lab for lab in labels if lab[0] == max(cores)])
     xlo, xhi = ax.get_xlim()
     pp = np.geomspace(max(xlo, 1.0), xhi, 100)
     if metric == "speedup":
         ax.set_yscale("log", base=2)
-        ax.plot([xlo, xhi], [xlo, xhi], "k--", lw=0.8, label="ideal: speedup = cores", zorder=1)
+        ax.plot([xlo, xhi], [xlo, xhi], "k--", lw=0.8, label="ideal (S = p)", zorder=1)
         if fit is not None:
             ax.plot(pp, 1 / (fit + (1 - fit) / pp), color="0.5", ls=":", lw=1.0,
-                    label=f"Amdahl fit, serial fraction f = {fit:.3f}")
+                    label=f"Amdahl fit (serial fraction f = {fit:.3f})")
         vals = [v for v in d[metric] if v > 0] + [1.0, max(cores)]
         lo, hi = min(vals) / 1.5, max(vals) * 1.5
         ax.set_ylim(lo, hi)
@@ -353,34 +605,33 @@ def _metric_figure(done, skipped, ctx, fit, metric, ceiling=()):
         ax.yaxis.set_major_locator(FixedLocator(ticks))
         ax.yaxis.set_minor_locator(NullLocator())
         ax.set_yticklabels([f"{t:g}" for t in ticks])
-        ax.set_ylabel("speedup T(1) / T(p)  [totalT of serial 1-1-1-1-1 / totalT]")
-        ax.set_title(f"Speedup against cores\n{ctx}", fontsize=9)
+        ax.set_ylabel("speedup S = T(1) / T(p)", fontsize=LABEL)
+        ax.set_title(f"Speedup: {ctx}", fontsize=TITLE)
     elif metric == "efficiency":
-        ax.axhline(1.0, color="k", ls="--", lw=0.8, label="ideal: efficiency = 1", zorder=1)
+        ax.axhline(1.0, color="k", ls="--", lw=0.8, label="ideal (E = 1)", zorder=1)
         if fit is not None:
             ax.plot(pp, 1 / (fit * pp + (1 - fit)), color="0.5", ls=":", lw=1.0,
-                    label=f"Amdahl fit, serial fraction f = {fit:.3f}")
+                    label=f"Amdahl fit (serial fraction f = {fit:.3f})")
         if len(ceiling):
             cx = [1.0] + [c["cores"] for c in ceiling]
             ax.plot(cx, [1.0] + [c["ceiling_free"] for c in ceiling], color="k", ls=":", lw=0.9, marker="^",
-                    mfc="none", ms=6, zorder=2, label="machine ceiling: W copies sharing nothing (alone / together)")
+                    mfc="none", ms=5, zorder=2, label="machine ceiling: copies sharing nothing")
             ax.plot(cx, [1.0] + [c["ceiling_step"] for c in ceiling], color="k", ls="-.", lw=0.9, marker="v",
-                    ms=6, zorder=2, label="machine ceiling: W copies meeting every step (ceiling.csv)")
+                    ms=5, zorder=2, label="machine ceiling: copies meeting every step")
         top = max([1.0] + [v for v in d[metric] if np.isfinite(v)] + [c["ceiling_free"] for c in ceiling])
-        ax.set_ylim(0, 1.15 * top)
-        ax.set_ylabel("parallel efficiency = speedup / cores")
-        ax.set_title(f"Parallel efficiency against cores\n{ctx}", fontsize=9)
+        ax.set_ylim(0, 1.18 * top)
+        ax.set_ylabel("efficiency E = S / p", fontsize=LABEL)
+        ax.set_title(f"Parallel efficiency: {ctx}", fontsize=TITLE)
     else:
-        ax.axhline(0.0, color="k", ls="--", lw=0.8, label="e = 0 (ideal; < 0 is superlinear)", zorder=1)
+        ax.axhline(0.0, color="k", ls="--", lw=0.8, label="e = 0 (ideal; < 0 superlinear)", zorder=1)
         if fit is not None:
-            ax.axhline(fit, color="0.5", ls=":", lw=1.0, label=f"Amdahl fit, serial fraction f = {fit:.3f}")
+            ax.axhline(fit, color="0.5", ls=":", lw=1.0, label=f"Amdahl fit (serial fraction f = {fit:.3f})")
         vals = [v for v in d[metric] if np.isfinite(v)] + [0.0] + ([fit] if fit is not None else [])
         lo, hi = min(vals), max(vals)
         span = max(hi - lo, 0.05)
-        ax.set_ylim(lo - 0.12 * span, hi + 0.18 * span)
-        ax.set_ylabel("Karp-Flatt serial fraction e = (1/S - 1/p) / (1 - 1/p)\n(S = speedup, p = cores; "
-                      "undefined at p = 1)")
-        ax.set_title(f"Experimentally determined serial fraction (Karp-Flatt) against cores\n{ctx}", fontsize=9)
+        ax.set_ylim(lo - 0.15 * span, hi + 0.2 * span)
+        ax.set_ylabel("serial fraction e (Karp-Flatt)", fontsize=LABEL)
+        ax.set_title(f"Karp-Flatt serial fraction e = (1/S - 1/p) / (1 - 1/p): {ctx}", fontsize=TITLE)
     if len(d) == 0:
         if len(done) == 0:
             msg = "no completed point"
@@ -390,10 +641,40 @@ def _metric_figure(done, skipped, ctx, fit, metric, ceiling=()):
             msg = f"no completed point has a {metric} value\n(it needs the serial reference 1-1-1-1-1 done)"
         empty_axes(ax, msg)
     ax.grid(True, which="major", lw=0.4, alpha=0.5)
-    ax.legend(fontsize=FONT, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
-    finish_figure(fig, figure_notes(d, skipped, 8.6))
+    layout_figure(fig, [ax], _legend_handles(ax), figure_notes(d, skipped, WIDTH))
     _place_labels(ax, labels)
     return fig
+
+
+def _label_room(ax, last, fontsize=FONT):
+    """Widen the log2 cores axis to the right so that the labels of the points at the largest core
+    count fit beside them (at most a third of the axes, taken WIDTH - 1 in wide: call before the
+    layout and the lines that span the axes)."""
+    if not last:
+        return
+    fig = ax.figure
+    renderer = fig.canvas.get_renderer()
+    t = ax.text(0, 0, "", fontsize=fontsize)
+    need = 0.0
+    for *_, text, _c in last:
+        t.set_text(text)
+        need = max(need, t.get_window_extent(renderer).width)
+    t.remove()
+    need += 10 * fig.dpi / 72.0
+    lo, hi = ax.get_xlim()
+    cmax = max(x for x, *_ in last)
+    width = (WIDTH - 1.0) * fig.dpi
+    # pixels per octave with hi' = cmax * 2**e: width / (log2(cmax / lo) + e); room = e * that
+    span = math.log2(cmax / lo)
+    e = min(need * span / max(1.0, width - need), span / 2)
+    if cmax * 2.0 ** e > hi:
+        ax.set_xlim(lo, cmax * 2.0 ** e)
+
+
+def _legend_handles(ax):
+    """The axes' labelled artists but the red rings (the foot note names them)."""
+    hs, ls = ax.get_legend_handles_labels()
+    return [h for h, lab in zip(hs, ls) if lab != FLAG_LABEL]
 
 
 def modules_figure(directory):
@@ -430,8 +711,9 @@ def _modules_figure(done, skipped, ctx):
     hs = np.isfinite(sync_all[has])  # the split points with a syncT (not older records)
     ns = int(hs.sum())
     nw = int(has.sum())
-    width = max(6.4, 0.62 * n + 0.3 * nw + 2.0)
-    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(width, 6.4), sharex=True, gridspec_kw=dict(height_ratios=(3, 2)))
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(WIDTH, 4.4), sharex=True, gridspec_kw=dict(height_ratios=(3, 2)))
+    for a in (ax, ax2):
+        _style(a)
     split_scheme = len(set(d.loc[d["threads"] > 1, "scheme"])) > 1
     split_nb = len(set(d["neighbor"])) > 1
     x = np.arange(n)
@@ -441,18 +723,22 @@ def _modules_figure(done, skipped, ctx):
     compu = d["compuT"].to_numpy()
     compu = np.where(np.isfinite(compu), compu, total - commu - migra)
     vals = {"compuT": np.clip(compu, 0, None), "commuT": np.clip(commu, 0, None), "migraT": np.clip(migra, 0, None)}
-    half = 0.36
+    # bars at most 0.45 in wide (a pair 0.6 in), however few the mappings (the axes about WIDTH - 0.8 in)
+    unit = (WIDTH - 0.8) / max(n, 1)  # inches per mapping
+    half = min(0.38, 0.3 / unit)
     xs = np.where(has, x - half / 2 - 0.01, x)  # a point with a wire split: first bar left of centre
-    ws = np.where(has, half, 0.7)
+    ws = np.where(has, half, min(0.66, 0.45 / unit))
     pct = lambda v: np.where(total > 0, 100.0 * v / total, 0.0)  # noqa: E731
     bottom = np.zeros(n)
     bottom2 = np.zeros(n)
     for key, label, color in MODULES:
         v = vals[key]
-        ax.bar(xs, 1e3 * v, ws, bottom=1e3 * bottom, color=color, label=key)
-        ax2.bar(xs, pct(v), ws, bottom=bottom2, color=color, label=key)
+        ax.bar(xs, 1e3 * v, ws, bottom=1e3 * bottom, color=color, label=key, lw=0)
+        ax2.bar(xs, pct(v), ws, bottom=bottom2, color=color, label=key, lw=0)
         bottom += v
         bottom2 += pct(v)
+    tops = 1e3 * np.where(np.isfinite(total), total, 0.0)  # where the numbers above a point start
+    lt0 = np.zeros(n, dtype=bool)
     if nw:
         sync = np.where(hs, sync_all[has], 0.0)
         above = (commu + migra)[has] - sync - wire[has]
@@ -473,67 +759,117 @@ def _modules_figure(done, skipped, ctx):
                 ax2.bar(xw[on], pw(v)[on], half, bottom=bottom2[on], label=name, **kw)
             bottom += v
             bottom2 += pw(v)
-        for xi, a, b in zip(xw, above, 1e3 * bottom):
-            if a < 0:
-                ax.text(xi, b, "<0", ha="center", va="bottom", fontsize=FONT - 1.5, color="C3")
-    top = max([1e3 * t for t in total if np.isfinite(t)] + [1e-9])
-    if nw:
-        top = max(top, 1e3 * float(np.nanmax(split["compuT"] + split["syncT"] + split["wireT"])))
-    for xi, t in zip(x, total):
-        ax.text(xi, 1e3 * t + 0.01 * top, f"{1e3 * t:.3g}" if t < 1 else f"{1e3 * t:.0f}", ha="center", va="bottom", fontsize=FONT - 1)
-    # communication + migration share printed on the lower panel (and the allreduce's and the wire's part of it)
-    recorded = np.isfinite(d["commuT"].to_numpy()) | np.isfinite(d["migraT"].to_numpy())
-    for xi, c, m, t, rec, w, sy in zip(x, commu, migra, total, recorded, wire, sync_all):
-        if t > 0:
-            text = f"{100 * (c + m) / t:.1f}%" if rec else "n/a"
-            if np.isfinite(w) and np.isfinite(sy):
-                text += f"\nsync {100 * sy / t:.1f}%"
-            if np.isfinite(w):
-                text += f"\nwire {100 * w / t:.1f}%"
-            ax2.text(xi, 101, text, ha="center", va="bottom", fontsize=FONT - 1, color="C1")
-    ax.set_ylim(0, 1.14 * top)
-    ax2.set_ylim(0, 134 if ns else 124 if nw else 112)
-    # core-count groups: separators and labels
+        tops[has] = np.maximum(tops[has], 1e3 * bottom)
+        lt0[has] = above < 0
+    top = max(list(tops) + [1e-9])
+    flag = np.array([bool(str(f).strip()) for f in d["flag"]]) if "flag" in d else np.zeros(n, dtype=bool)
+    # core-count groups: separators, and their core counts on a top axis
     cores = d["cores"].to_numpy()
     starts = ([0] if n else []) + [i for i in range(1, n) if cores[i] != cores[i - 1]]
-    for k, s in enumerate(starts):
-        e = starts[k + 1] if k + 1 < len(starts) else n
-        if s > 0:
-            for a in (ax, ax2):
-                a.axvline(s - 0.5, color="0.5", lw=0.8, ls="--")
-        c = int(cores[s])
-        ax.text((s + e - 1) / 2, 1.12 * top, f"{c} core{'s' if c != 1 else ''}", ha="center", va="top",
-                fontsize=FONT + 1, fontweight="bold", color="0.3")
+    groups = [(s, starts[k + 1] if k + 1 < len(starts) else n) for k, s in enumerate(starts)]
+    for s, _ in groups[1:]:
+        for a in (ax, ax2):
+            a.axvline(s - 0.5, color="0.55", lw=0.7, ls="--", zorder=0)
     ticks = []
     for _, r in d.iterrows():
-        t = (r["mapping"] or r["point"]) + flag_suffix(r)
         extra = [s for s, on in ((r["scheme"], split_scheme and r["threads"] > 1), (r["neighbor"], split_nb))
                  if on and s]
-        ticks.append(t + ("\n" + ", ".join(extra) if extra else ""))
+        ticks.append((r["mapping"] or r["point"]) + ("\n" + ", ".join(extra) if extra else ""))
     ax2.set_xticks(x)
-    ax2.set_xticklabels(ticks, rotation=45 if n > 6 else 0, ha="right" if n > 6 else "center", fontsize=FONT)
-    ax2.set_xlabel("mapping P-px-py-pz-T (ordered by cores, then processes)")
-    ax.set_ylabel("time per step [ms]\n(totalT printed on top)")
-    ax2.set_ylabel("share of totalT [%]\n(commuT + migraT" + (", syncT, wireT printed)" if ns else " and wireT printed)"
-                                                             if nw else " printed)"))
-    ax.set_title(f"Module times per mapping (paper Figs. 19-21 in kind)\n{ctx}", fontsize=9)
-    handles = [Patch(color=c, label=lab) for _, lab, c in MODULES]
-    if nw:
-        handles.append(Patch(color="none", label="second bar of an MPI point: the same commuT + migraT split into"))
-        labels = {"above_wireT": ABOVE_WIRE_OLD if not ns else
-                  WIRE_SPLIT[-1][1] + ("\n(points without syncT: commuT + migraT - wireT)" if ns < nw else "")}
-        handles += [Patch(facecolor=c, hatch=h, edgecolor="white" if h else None, label=labels.get(key, lab))
-                    for key, lab, c, h in WIRE_SPLIT if key != "compuT" and (key != "syncT" or ns)]
-    ax.legend(handles=handles, fontsize=FONT, loc="upper left", bbox_to_anchor=(1.005, 1.0), borderaxespad=0.0)
+    ax2.set_xticklabels(ticks, fontsize=TICK)
+    ax2.set_xlabel("mapping P-px-py-pz-T", fontsize=LABEL)
+    ax.set_ylabel("time per step [ms]", fontsize=LABEL)
+    ax2.set_ylabel("share of totalT [%]", fontsize=LABEL)
+    ax.set_title(f"Module times per mapping: {ctx}", fontsize=TITLE)
+    top_axis = ax.secondary_xaxis("top")
+    top_axis.tick_params(length=0, labelsize=TICK, labelcolor="0.3", pad=2)
     if n == 0:
         ax.set_xlim(-0.5, 0.5)
         ax.set_ylim(0, 1)
+        ax2.set_ylim(0, 100)
+        top_axis.set_xticks([])
         empty_axes(ax, "no completed point")
     else:
         ax.set_xlim(-0.6, n - 0.4)
+        ax.set_ylim(0, 1.25 * top)
+        ax2.set_ylim(0, 115)
     for a in (ax, ax2):
         a.grid(True, axis="y", lw=0.4, alpha=0.5)
-    finish_figure(fig, figure_notes(d, skipped, width))
+        a.set_axisbelow(True)
+
+    def handles(ncol):
+        first = [Patch(color=c, label=lab) for _, lab, c in MODULES]
+        if not nw:
+            return first
+        above = ABOVE_WIRE_OLD if not ns else WIRE_SPLIT[-1][1] + (
+            "\n(without syncT: commuT + migraT - wireT)" if ns < nw else "")
+        second = [Patch(facecolor=c, hatch=h, edgecolor="white" if h else None, lw=0,
+                        label=above if key == "above_wireT" else lab)
+                  for key, lab, c, h in WIRE_SPLIT if key != "compuT" and (key != "syncT" or ns)]
+        if ncol != len(first):
+            return first + second  # (by columns: the first bar's modules, then the second bar's)
+        # read by rows: the first bar's modules on the first row, the second bar's on the second
+        return [h for j in range(ncol) for h in (first[j:j + 1] + second[j:j + 1])]
+    title = ("left bar: totalT split into modules (totalT [ms] above it, commuT + migraT [%] below); right bar "
+             "of an MPI point:\nthe same commuT + migraT split at the wire" if nw else
+             "totalT [ms] above each bar; commuT + migraT [% of totalT] above each share")
+    renderer = fig.canvas.get_renderer()
+    px = fig.dpi / 72.0
+    # the x ticks: level while they fit between their neighbours (the axes about WIDTH - 0.8 in
+    # wide), else upright
+    if n and max(t.get_window_extent(renderer).width / px for t in ax2.get_xticklabels()) + 4 > \
+            (WIDTH - 0.8) * 72 / n:
+        ax2.set_xticklabels(ticks, fontsize=TICK, rotation=90, ha="center", va="top")
+    layout_figure(fig, [ax, ax2], handles, figure_notes(d, skipped, WIDTH), axes_h=4.2, legend_title=title)
+    if n == 0:
+        return fig
+    renderer = fig.canvas.get_renderer()
+    step = ax.get_window_extent(renderer).width / n / px  # points between two mappings
+    top_axis.set_xticks([(s + e - 1) / 2 for s, e in groups])
+    names = []
+    probe = ax.text(0, 0, "", fontsize=TICK)
+    for s, e in groups:
+        c = int(cores[s])
+        probe.set_text(f"{c} core{'s' if c != 1 else ''}")
+        fits = probe.get_window_extent(renderer).width / px + 4 <= (e - s) * step
+        names.append(probe.get_text() if fits else str(c))
+    probe.remove()
+    top_axis.set_xticklabels(names)
+    # numbers on the bars, one short line each; upright where they would touch their neighbours
+    t_txt = [f"{v:.3g}" if v < 100 else f"{v:.0f}" for v in 1e3 * total]
+    recorded = np.isfinite(d["commuT"].to_numpy()) | np.isfinite(d["migraT"].to_numpy())
+    p_txt = [(f"{v:.1f}%" if v < 9.95 else f"{v:.0f}%") if rec else "n/a"
+             for v, rec in zip(100 * (commu + migra) / np.where(total > 0, total, np.nan), recorded)]
+    char = 0.62 * FONT
+    t_up = max(len(s) for s in t_txt) * char + 2 > step
+    p_up = max(len(s) for s in p_txt) * char + 2 > step
+    line = FONT * 1.25
+    heads = []
+    for i in range(n):
+        off = 1.0
+        if lt0[i]:
+            ax.annotate("<0", (xw[np.flatnonzero(has).tolist().index(i)], tops[i]), xytext=(0, off),
+                        textcoords="offset points", ha="center", va="bottom", fontsize=FONT, color="C3")
+            off += line
+        if flag[i]:
+            ax.plot([x[i]], [tops[i]], transform=offset_copy(ax.transData, fig, y=off + 4, units="points"),
+                    label="_flag", **dict(FLAG_RING, ms=6, mew=1.0))
+            off += 9
+        ax.annotate(t_txt[i], (x[i], tops[i]), xytext=(0, off), textcoords="offset points", ha="center",
+                    va="bottom", fontsize=FONT, rotation=90 if t_up else 0)
+        heads.append(off + (len(t_txt[i]) * char if t_up else line) + 2)
+        if total[i] > 0:
+            ax2.annotate(p_txt[i], (x[i], 100.0), xytext=(0, 1.0), textcoords="offset points", ha="center",
+                         va="bottom", fontsize=FONT, color="C1" if recorded[i] else "0.4",
+                         rotation=90 if p_up else 0)
+    # room above the bars for their numbers
+    h_pt = ax.get_window_extent(renderer).height / px
+    need = max(t / max(1e-9, 1 - hd / h_pt) for t, hd in zip(tops, heads))
+    ax.set_ylim(0, max(need, 1.02 * top))
+    h2_pt = ax2.get_window_extent(renderer).height / px
+    p_head = (max(len(s) for s in p_txt) * char if p_up else line) + 3
+    ax2.set_ylim(0, 100 / max(0.3, 1 - p_head / h2_pt))
+    relayout(fig)
     return fig
 
 
@@ -551,7 +887,8 @@ def _plot_error(done, skipped, ctx, path):
 
 def _error_figure(done, skipped, ctx):
     """err_max against totalT, log-log, zeros at a floor marked bit-identical."""
-    fig, ax = plt.subplots(figsize=(8.6, 5.0))
+    fig, ax = plt.subplots(figsize=(WIDTH, 4.0))
+    _style(ax)
     d = done[np.isfinite(done["totalT"]) & (done["totalT"] > 0)]
     noerr = [f"{_point_name(r)}" for _, r in d.iterrows() if not np.isfinite(r["err_max"])]
     d = d[np.isfinite(d["err_max"])]
@@ -567,7 +904,7 @@ def _error_figure(done, skipped, ctx):
         y = rows["err_max"].to_numpy()
         zero = y <= 0
         any_zero |= bool(zero.any())
-        ms = 8 if marker == "*" else 6
+        ms = 8 if marker == "*" else 5.5
         if (~zero).any():
             ax.plot(1e3 * rows["totalT"].to_numpy()[~zero], y[~zero], ls="none", marker=marker, ms=ms, color=color,
                     label=label, zorder=3)
@@ -594,14 +931,14 @@ def _error_figure(done, skipped, ctx):
     ax.set_yscale("log")
     if len(d):
         t = 1e3 * d["totalT"].to_numpy()
-        ax.set_xlim(t.min() / 1.6, t.max() * 2.8)
+        ax.set_xlim(t.min() / 1.8, t.max() * 2.5)
         hi = max(pos.max() if len(pos) else floor * 100, floor * 100)
         ax.set_ylim(floor / 4, hi * 4)
     else:
         empty_axes(ax, "no completed point with an error recorded")
     if any_zero or len(d):
         ax.axhline(floor, color="0.4", ls="--", lw=0.8, zorder=1,
-                   label=f"bit-identical (err = 0), drawn at floor {floor:.0e}")
+                   label=f"err = 0 (bit-identical), drawn at {floor:.0e}")
     ax.plot([], [], ls="none", marker=".", color="0.4", label="err_rms (small dots)")
     ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
     ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
@@ -609,14 +946,13 @@ def _error_figure(done, skipped, ctx):
     ax.yaxis.set_major_locator(LogLocator(base=10, numticks=12))
     ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     ax.yaxis.set_minor_formatter(NullFormatter())
-    ax.set_xlabel("totalT: wall time per step [ms] (mean over steps of the max over ranks)")
-    ax.set_ylabel("err_max: final-position error vs serial\n[in mean particle radii]")
-    ax.set_title(f"Final-position error against time per step\n{ctx}", fontsize=9)
+    ax.set_xlabel("time per step totalT [ms]", fontsize=LABEL)
+    ax.set_ylabel("err_max [mean particle radii]", fontsize=LABEL)
+    ax.set_title(f"Final-position error against the serial run: {ctx}", fontsize=TITLE)
     ax.grid(True, which="major", lw=0.4, alpha=0.5)
-    ax.legend(fontsize=FONT, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
-    note = figure_notes(d, skipped, 8.6)
+    note = figure_notes(d, skipped, WIDTH)
     if noerr:
-        note += note_lines(noerr, 8.6, head="Done, no error recorded (not plotted): ")
-    finish_figure(fig, note)
+        note += note_lines(noerr, WIDTH, head="Done, no error recorded (not plotted): ")
+    layout_figure(fig, [ax], _legend_handles(ax), note)
     _place_labels(ax, labels)
     return fig

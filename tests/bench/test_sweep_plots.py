@@ -522,3 +522,162 @@ def test_efficiency_figure_draws_the_machine_ceiling(tmp_path):
         assert np.allclose(step.get_ydata(), [1.0, 10 / 11.0])
     finally:
         sweep_plots.plt.close(fig)
+
+
+# --- figures fit for a paper (issue 34): no text on text, legends under the axes, PDFs beside PNGs -----
+def flag_all(rows):
+    """Every done point flagged (the worst case for labels and notes): load, spread or both, with
+    the foreign load and spreads bench sweep records."""
+    kinds = ("load", "spread", "load,spread", "load,ref")
+    for k, r in enumerate(x for x in rows if x["status"] == "done"):
+        r.update(flag=kinds[k % len(kinds)], foreign_cores=0.4 + 0.1 * k, step_spread=0.12 + 0.01 * k,
+                 totalT_spread=0.3)
+    return rows
+
+
+def sweep_4_points():
+    """4 points on 2 cores, all flagged, one more not done: serial, 2 threads (two schemes) and 2 MPI
+    ranks with syncT and wireT (the example that showed the overlaps)."""
+    t1 = 0.00052
+    return flag_all([
+        row("1-1-1-1-1", totalT=t1, t1=t1),
+        row("1-1-1-1-2", "dynamic", totalT=0.0261, t1=t1),
+        row("1-1-1-1-2", "static", totalT=0.0244, t1=t1),
+        row("2-2-1-1-1", totalT=0.00243, commu=0.0012, migra=0.0001, err=2e-13, wire=0.000005, sync=0.00026, t1=t1),
+        row("2-2-1-1-1", "", status="failed", reason="exit status 1: mpirun was unable to launch the specified "
+                                                         "application as it could not access or execute"),
+    ])
+
+
+def sweep_16_points():
+    """16 points on up to 16 cores: the paper's Table 4 mappings on 16 cores (1-1-1-1-1, 1-1-1-1-4,
+    1-1-1-1-16, 2-2-1-1-8, 4-2-2-1-4, 8-2-2-2-2, 4-2-2-1-1, 16-4-2-2-1) with the 2- and 8-core ones,
+    every MPI point with syncT and wireT, every point flagged, three points not done."""
+    rows = [row("1-1-1-1-1", totalT=T1)]
+    spec = [("1-1-1-1-2", "dynamic", 0.108), ("2-2-1-1-1", "", 0.104), ("1-1-1-1-4", "dynamic", 0.058),
+            ("1-1-1-1-4", "static", 0.066), ("2-2-1-1-2", "dynamic", 0.056), ("4-2-2-1-1", "", 0.054),
+            ("1-1-1-1-8", "dynamic", 0.033), ("2-2-1-1-4", "dynamic", 0.031), ("4-2-2-1-2", "dynamic", 0.030),
+            ("8-2-2-2-1", "", 0.029), ("1-1-1-1-16", "dynamic", 0.021), ("2-2-1-1-8", "dynamic", 0.0185),
+            ("4-2-2-1-4", "dynamic", 0.0172), ("8-2-2-2-2", "dynamic", 0.0168), ("16-4-2-2-1", "", 0.0175)]
+    for k, (m, scheme, t) in enumerate(spec):
+        procs = int(m.split("-")[0])
+        if procs > 1:
+            c = t * (0.05 + 0.02 * math.log2(procs))
+            rows.append(row(m, scheme, totalT=t, commu=c, migra=0.1 * c, err=1e-13 * procs, wire=0.2 * c,
+                            sync=0.3 * c))
+        else:
+            rows.append(row(m, scheme, totalT=t))
+    rows += [row("16-4-2-2-1", "static", status="timeout", reason="no result within 600 s"),
+             row("8-2-2-2-2", "static", status="failed", reason="exit status 137: killed (out of memory?)"),
+             row("4-4-1-1-4", "dynamic", status="unstable", reason="kinetic energy blew up at step 12")]
+    return flag_all(rows)
+
+
+def with_fit_and_ceiling(d, cores=(2, 4, 8, 16)):
+    """summary.json with an Amdahl fit and a ceiling.csv, so every reference line is drawn."""
+    import json
+    from bench.sweep.ceiling import CEILING_COLUMNS
+    with open(os.path.join(d, "summary.json"), "w") as fh:
+        json.dump({"serial_fraction": 0.04}, fh)
+    pd.DataFrame([[c, 100, 3, 10.0, 10.0 * (1 + 0.03 * c), 10.0 * (1 + 0.06 * c), 1 / (1 + 0.03 * c),
+                   1 / (1 + 0.06 * c)] for c in cores], columns=CEILING_COLUMNS).to_csv(
+        os.path.join(d, "ceiling.csv"), index=False)
+    return d
+
+
+def drawn_texts(fig):
+    """The figure's visible, non-empty Text artists (fig.findobj) that a draw actually renders (a
+    tick whose label is set but which lies outside the view is kept by the axis and not drawn),
+    with their window extents."""
+    import matplotlib.text
+    drawn = set()
+    orig = matplotlib.text.Text.draw
+
+    def spy(self, renderer):
+        drawn.add(id(self))
+        return orig(self, renderer)
+
+    matplotlib.text.Text.draw = spy
+    try:
+        fig.canvas.draw()
+    finally:
+        matplotlib.text.Text.draw = orig
+    renderer = fig.canvas.get_renderer()
+    return [(t, t.get_window_extent(renderer)) for t in fig.findobj(matplotlib.text.Text)
+            if t.get_visible() and t.get_text().strip() and id(t) in drawn]
+
+
+def assert_readable(fig, name):
+    """No two drawn texts overlap (touching within 0.5 px is allowed), none leaves the figure, no
+    text is below 7 pt, and every legend is at most as wide as its axes."""
+    texts = drawn_texts(fig)
+    assert texts, name
+    W, H = fig.bbox.width, fig.bbox.height
+    tol = 0.5
+    for t, b in texts:
+        assert t.get_fontsize() >= 7, (name, t.get_text(), t.get_fontsize())
+        assert b.x0 >= -tol and b.y0 >= -tol and b.x1 <= W + tol and b.y1 <= H + tol, \
+            (name, "outside the figure", t.get_text(), b.bounds, (W, H))
+    for i, (t, b) in enumerate(texts):
+        for u, c in texts[i + 1:]:
+            ov_x = min(b.x1, c.x1) - max(b.x0, c.x0)
+            ov_y = min(b.y1, c.y1) - max(b.y0, c.y0)
+            assert ov_x <= tol or ov_y <= tol, (name, "texts overlap", t.get_text(), u.get_text(), b.bounds, c.bounds)
+    renderer = fig.canvas.get_renderer()
+    for ax in fig.axes:
+        leg = ax.get_legend()
+        if leg is not None:
+            assert leg.get_window_extent(renderer).width <= ax.get_window_extent(renderer).width + tol, name
+
+
+def figures_of(d):
+    return {"speedup.png": metric_figure(d, "speedup"), "efficiency.png": metric_figure(d, "efficiency"),
+            "edsf.png": metric_figure(d, "edsf"), "modules.png": modules_figure(d),
+            "error_vs_time.png": error_figure(d)}
+
+
+@pytest.mark.parametrize("sweep", ["4_points", "16_points"])
+def test_figures_readable_at_journal_width(tmp_path, sweep):
+    """Every sweep figure at a double-column width (7 in), fonts of 7 pt and more, for a sweep of 4
+    points on 2 cores and one of 16 points on 16 cores, every point flagged, points not done, an
+    Amdahl fit and a machine ceiling drawn: no two texts overlap (point labels, tick labels, the
+    numbers on the bars, legend, notes), no text leaves the figure, legends are no wider than their
+    axes; the foot note gives the flags in one line and the points not done in at most two. plot_sweep
+    writes a PDF beside each PNG."""
+    rows = sweep_4_points() if sweep == "4_points" else sweep_16_points()
+    d = with_fit_and_ceiling(write_runs(tmp_path, rows), (2,) if sweep == "4_points" else (2, 4, 8, 16))
+    figs = figures_of(d)
+    try:
+        for name, fig in figs.items():
+            assert fig.get_size_inches()[0] == pytest.approx(7.0), name
+            assert_readable(fig, name)
+            notes = [t.get_text() for t in fig.texts]
+            lines = "\n".join(notes).split("\n")
+            assert sum("Flagged" in s for s in lines) == 1, (name, lines)
+            assert len([s for s in lines if s.strip()]) <= 3, (name, lines)
+            assert any("Not plotted" in s for s in lines), name
+    finally:
+        for fig in figs.values():
+            sweep_plots.plt.close(fig)
+    paths = plot_sweep(d)
+    assert_pngs(paths, SWEEP_PNGS)
+    for p in paths:
+        pdf = os.path.splitext(p)[0] + ".pdf"
+        with open(pdf, "rb") as fh:
+            assert fh.read(5) == b"%PDF-", pdf
+
+
+def test_modules_figure_16_points_ticks_and_notes(tmp_path):
+    """modules.png of 16 points: the mapping ticks stand upright (level they would run into each other),
+    one share note per point, a single short line each, and a red ring over each flagged point."""
+    d = write_runs(tmp_path, sweep_16_points())
+    fig = modules_figure(d)
+    try:
+        ax, ax2 = fig.axes[:2]
+        assert all(t.get_rotation() == 90 for t in ax2.get_xticklabels())
+        notes = [t.get_text() for t in ax2.texts]
+        assert len(notes) == 16 and all("\n" not in s and s.endswith("%") for s in notes)
+        rings = [ln for ln in ax.lines if ln.get_markeredgecolor() == "red"]
+        assert len(rings) == 16
+    finally:
+        sweep_plots.plt.close(fig)
