@@ -176,14 +176,7 @@ def grid_threads(threads, pos, rbound, gid, cutoff):
             cell_of[p] = c
             fill[t, c] += 1
     cell_start = np.empty(ncell + 1, dtype=np.int64)
-    acc = 0
-    for c in range(ncell):
-        cell_start[c] = acc
-        for t in range(threads):
-            k = fill[t, c]
-            fill[t, c] = acc
-            acc += k
-    cell_start[ncell] = acc
+    _offsets_by_row(fill, ncell, cell_start)  # each thread's first slot in each cell, in thread order
     cell_items = np.empty(n, dtype=np.int64)
     spos = np.empty((n, 3))
     srb = np.empty(n)
