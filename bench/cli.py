@@ -199,8 +199,9 @@ def build_parser():
     nd.add_argument("--repeats", type=positive_int, default=2, help="repeats a point (default 2)")
     nd.add_argument("--schemes-particles", type=positive_int, default=2500, help="Table 1's scene (default 2500)")
     nd.add_argument("--schemes-repeats", type=positive_int, default=21, help="Table 1's rounds (default 21)")
-    nd.add_argument("--sweep-time", type=positive_int, default=200, help="seconds for each sweep (default 200)")
-    nd.add_argument("--schemes-time", type=positive_int, default=60, help="seconds for Table 1 (default 60)")
+    nd.add_argument("--sweep-time", type=positive_int, default=160,
+                    help="seconds for each sweep (default 160: the whole check within 6 minutes)")
+    nd.add_argument("--schemes-time", type=positive_int, default=40, help="seconds for Table 1 (default 40)")
     nd.add_argument("--point-timeout", type=positive_int, default=200, help="seconds a run (default 200)")
     nd.add_argument("--out", default="results/node", help="folder for the records and verdict.md")
 

@@ -12,7 +12,8 @@ is started on, what decides how a step should be split there:
    into DIR/pinned;
 3. Table 1 in kind at C threads (`bench schemes`, 2.5k packed ellipsoids), into DIR/schemes;
 
-then writes DIR/verdict.md: each comparison the issue sets a target for, as a ratio measured
+(each part within its own time limit, by default 160 + 160 + 40 s: the whole check within 6
+minutes), then writes DIR/verdict.md: each comparison the issue sets a target for, as a ratio measured
 within one sweep, beside the target and the repeats' spread of the two times (a ratio closer to 1
 than the larger spread is called a tie). Every part has its own time limit, so that a part that
 runs long leaves the others their time; what did not finish is named in the verdict.
