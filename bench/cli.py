@@ -12,13 +12,13 @@ import os
 import sys
 
 from bench.run.options import (BALANCE, CONTACT_METHOD_CHOICES, NEIGHBOR_CHOICES, PRESETS, SHAPE_CHOICES,
-                               add_run_arguments, apply_preset, nonneg_int, positive_int, skin_fraction)
+                               SWEEP_FALLBACK, add_run_arguments, apply_preset, nonneg_int, positive_int,
+                               skin_fraction)
 from bench.run.threads_env import configure_threads
 from bench.sweep.slurm_options import FIELDS as SLURM_FIELDS
 from bench.sweep.slurm_options import check_field, check_options
 
 EXIT_USAGE = 2
-PRESET_FALLBACK_SWEEP = {"neighbor": "linkcell", "contact_method": "exact"}
 
 
 class UsageError(Exception):
@@ -389,7 +389,7 @@ def cmd_sweep(args):
         _sweep_file(args)
     if getattr(args, "preset", None) is not None and args.preset not in PRESETS:
         raise UsageError(f"bench sweep: unknown preset {args.preset!r} (presets: {', '.join(sorted(PRESETS))})")
-    apply_preset(args, fallback=dict(PRESET_FALLBACK_SWEEP))
+    apply_preset(args, fallback=SWEEP_FALLBACK)
     for need in ("mappings", "scene", "out"):
         if not getattr(args, need) or not str(getattr(args, need)).strip():
             raise UsageError(f"bench sweep: --{need} is required (or set it in the sweep file)")

@@ -509,14 +509,7 @@ def cut_ranges(w, threads, pi, pj, n_owned, bounds, gat, home_start, home_items)
             if g == 0:
                 count[b, home[p]] += 1
     # write offsets: range-major, then particle block (ascending index within a range)
-    acc = 0
-    for t in range(threads):
-        home_start[t] = acc
-        for b in range(threads):
-            c = count[b, t]
-            count[b, t] = acc
-            acc += c
-    home_start[threads] = acc
+    _offsets_by_row(count, threads, home_start)
     for b in prange(threads):
         for p in range(b * n_owned // threads, (b + 1) * n_owned // threads):
             if gat[p] == 0:

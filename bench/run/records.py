@@ -326,10 +326,8 @@ def _merge_in_place(out, ranks, chunk=16384):
         head = data.find(b"\n") + 1            # the header stays behind
         end = data.rfind(b"\n") + 1            # whole rows only
         while end > head:
+            # the whole rows within the last chunk (all that is left when no row ends before it)
             start = max(head, data.rfind(b"\n", head, max(head, end - chunk)) + 1)
-            if start >= end:                     # a row longer than a chunk: take it whole
-                start = data.rfind(b"\n", head, end - 1) + 1
-                start = max(start, head)
             try:
                 with open(target, "ab") as fh:
                     fh.write(data[start:end])

@@ -358,7 +358,7 @@ def _deepest(qa, qb, w):
     that the eigenvalues (|p| ~ 1e-13 worse) lost, and the point found is then the deeper one
     that root6 asks for.  Measured: no difference on the packed scene's 2002 pairs (shallow
     contacts) nor in the tests; 71 of 4115 contacts differ on random deep overlaps (centres
-    0.05-1 x the sum of the long semi-axes apart, /tmp/sx/dump2.py), 47 of the 48 differing
+    0.05-1 x the sum of the long semi-axes apart; a probe outside the repository), 47 of the 48 differing
     solves examined being such a recovered candidate (the other: a sextic whose leading
     coefficient is 1e-11 of the largest, both routes at rounding level)."""
     _sextic_coeffs_into(qa, qb, w)
