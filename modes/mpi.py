@@ -77,6 +77,7 @@ class _Blocks:
                             "pair's forces (use newton off)")
         self.newton = takes if newton is None else bool(newton)
         self.reverse_time = 0.0
+        self.rebuild_comm = 0.0
         s = self.state
         self.cart = cart
         dims = cart.Get_topo()[0]
@@ -113,7 +114,8 @@ class _Blocks:
         self.halo.wire = self.wire
         self.steps_done = 0
         self.grid_updates = 0
-        self.decision = np.zeros(4)
+        self.decision = np.zeros(5)
+        self.counts_check = 0.0  # this rank's term of the cross pairs' counts checksum (modes.newton)
         self.leaving = None  # the owned particles' blocks and outside_block's marks, found by leaver_history
         # walls only where the block touches the box face (others are farther than any radius)
         touch = []
@@ -208,7 +210,9 @@ class _Blocks:
         so that the list holds that of both-sided resolution."""
         if self.plan is not None:
             self.plan.put_back(self.pairs)
+            t0 = self.clock()
             self.plan.send_history(self.pairs.hist, self.halo.account)
+            self.rebuild_comm += self.clock() - t0
 
     def sync_history(self):
         self._history_back()
@@ -249,7 +253,7 @@ class _Blocks:
         self._free_plan()
         self.plan = NewtonPlan(self.cart, self.halo.ranks, cross_layout(p.pi, p.pj, s.gid, s.n_owned, ghost_dir),
                                self.halo.wire)
-        self.plan.check_counts(self.halo.account)
+        self.counts_check = self.plan.count_checksum()  # summed in this step's allreduce (decide)
         self.plan.take_sent(p)
         super().split(self.plan.cross, self.plan.terms)
 
@@ -281,21 +285,30 @@ class _Blocks:
         d[1] = flag
         d[2] = ke
         d[3] = wg
+        d[4] = self.counts_check
+        self.counts_check = 0.0
         t = self.clock()
         self.cart.Allreduce(self.mpi.IN_PLACE, d, op=self.mpi.SUM)
         self.sync_time = self.clock() - t
+        if d[4] != 0.0:
+            raise RuntimeError(f"cross-border pair lists disagree between neighbour ranks at step {self.steps_done + 1} "
+                               f"(the counts' checksum is {d[4]:g}, not 0: modes.newton count_checksum)")
         self.sums = (d[1], d[2], d[3])
         return bool(d[0] > 0.0) or self._refit_due(self.steps_done + 2)
 
     def step(self):
         self.reverse_time = 0.0
+        self.rebuild_comm = 0.0
         row = super().step()
         self.steps_done += 1
         h = self.halo
-        rt = self.reverse_time  # the reverse exchange inside the resolution is communication
-        row["commuT"] += rt
-        row["compuT"] -= rt
+        # the messages inside the resolution (the reverse exchange) and inside the rebuild (the
+        # received pairs' history back, the check of the cross pairs' counts) are communication
+        rt, bt = self.reverse_time, self.rebuild_comm
+        row["commuT"] += rt + bt
+        row["compuT"] -= rt + bt
         row["resolveT"] -= rt
+        row["neighborT"] -= bt
         row["bytes_sent"] = h.bytes_sent
         row["msgs_sent"] = h.msgs_sent
         row["wire_s"] = h.wire_s
