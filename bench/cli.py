@@ -186,8 +186,9 @@ def build_parser():
                     help="--what comm: seconds before the ranks are killed (default 120)")
     pf.add_argument("--threads", type=positive_int, default=1,
                     help="also time each thread scheme at T threads (packed ellipsoids)")
-    pf.add_argument("--skin", type=skin_fraction, default=0.1, metavar="F",
-                    help="Verlet skin for the second set of packed figures (default 0.1)")
+    pf.add_argument("--skin", type=skin_fraction, default=None, metavar="F",
+                    help="Verlet skin for the second set of packed figures (default 0.1); --what overhead: "
+                         "the skin of the MPI comparison (0: a rebuild every step, issue 33's targets)")
     pf.add_argument("--out", default=None, help="write perf.json here")
 
     nd = sub.add_parser("node", help="the many-core check of this node: unpinned and pinned sweeps, the ceiling, "
@@ -454,7 +455,7 @@ def cmd_schemes(args):
 def cmd_perf(args):
     if args.what == "overhead":
         from bench.studies.perf_overhead import measure
-        return _perf_report(args, lambda: measure(args.repeats, print))
+        return _perf_report(args, lambda: measure(args.repeats, print, skin=args.skin))
     if args.what == "contention":
         return _one_line(_perf_contention)(args)
     if args.what == "comm":

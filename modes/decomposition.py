@@ -205,13 +205,27 @@ def border_width(rbound_max):
     return 2.0 * rbound_max * (1.0 + 1e-9)
 
 
-def border_lists(pos, lo, hi, width):
+# border_lists' faces: all six (axis a low side bit 2a, high side 2a + 1)
+ALL_FACES = 63
+
+
+def border_lists(pos, lo, hi, width, faces=ALL_FACES):
     """For each of the 26 directions, the particles (centres pos [n, 3]) within `width` of the
     block faces on that side, ascending: direction k's are items[start[k]:start[k + 1]] (start
     [27], items int64). Per axis, offset -1 needs x - lo < width, +1 needs hi - x < width, 0
-    nothing (a box-distance test, a superset of the sphere test)."""
+    nothing (a box-distance test, a superset of the sphere test). faces: the faces that count, as
+    bits (axis a low side 2a, high side 2a + 1; face_bits): a direction that needs another lists
+    nothing (a block's faces on the box have no neighbour, and its particles there none to send)."""
     return _border_lists(np.ascontiguousarray(pos, dtype=np.float64), np.asarray(lo, dtype=np.float64),
-                         np.asarray(hi, dtype=np.float64), float(width), _NEEDS)
+                         np.asarray(hi, dtype=np.float64), float(width), _NEEDS, int(faces))
+
+
+def face_bits(directions):
+    """The faces (border_lists' bits) that the directions [k] need."""
+    bits = 0
+    for k in directions:
+        bits |= int(_NEEDS[k])
+    return bits
 
 
 def _needs():
@@ -228,7 +242,7 @@ _NEEDS = _needs()
 
 
 @njit(cache=True)
-def _border_lists(pos, lo, hi, width, needs):
+def _border_lists(pos, lo, hi, width, needs, faces):
     """border_lists in two passes (count, fill) over a face code per particle, so that the many
     particles near no face cost six comparisons (a [26, n] mask of every test took 0.1 ms at 800
     particles)."""
@@ -243,6 +257,7 @@ def _border_lists(pos, lo, hi, width, needs):
                 c |= 1 << (2 * a)
             if hi[a] - pos[p, a] < width:
                 c |= 1 << (2 * a + 1)
+        c &= faces
         code[p] = c
         if c:
             for k in range(nd):

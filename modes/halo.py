@@ -60,7 +60,8 @@ from numba import njit
 from dem.shapes import POLY_LEN, SPHERE
 from dem.state import HIST_LEN, bounding_radii, csr_rows
 from modes.base import call_entry
-from modes.decomposition import DIRECTIONS, OPPOSITE, BlockGrid, border_lists, direction_of, outside_block
+from modes.decomposition import (DIRECTIONS, OPPOSITE, BlockGrid, border_lists, direction_of, face_bits,
+                                 outside_block)
 
 GHOST_SPHERE = ("gid", "material", "mass", "axes0", "inertia0", "pos", "vel", "angmom")
 GHOST_GENERAL = ("gid", "shape", "material", "mass", "axes", "inertia", "pos", "vel", "angmom", "quat")
@@ -343,6 +344,7 @@ class Halo:
         # the (direction, rank) of the neighbours that exist: the loops of a rebuild visit these
         # only (a loop over all 26 directions in Python cost ~0.4 us a direction, each exchange)
         self.neighbours = [(k, r) for k, r in enumerate(self.ranks) if r is not None]
+        self.faces = face_bits([k for k, _ in self.neighbours])  # the block's faces that have a neighbour
         self.wire = wire
         from mpi4py import MPI  # a halo exists only under MPI; the per-step calls are bound once
         self.startall = MPI.Prequest.Startall
@@ -455,7 +457,7 @@ class Halo:
             if self.halo == "26":
                 # direct: each border particle goes straight to every neighbour that needs it (the
                 # records of all directions packed in one call, in direction order)
-                start, items = border_lists(state.pos[:n], self.lo, self.hi, width)
+                start, items = border_lists(state.pos[:n], self.lo, self.hi, width, self.faces)
                 lists = [items[start[k]:start[k + 1]] for k in dirs]
                 records = self._records(state, rec, items, ncol)
                 for k in dirs:

@@ -16,6 +16,7 @@ import sys
 import numpy as np
 from bench.run.prepare import load_prepared
 from bench.studies.perf_contact import time_ellipsoid_pairs
+from dem.pairs import DEFAULT_SKIN
 from dem.timestep import choose_time_step
 from modes.parallel import SCHEMES
 from modes.serial import SerialMode
@@ -66,7 +67,7 @@ def perf(args):
     for shape, key in (("ellipsoid", "packed_ellipsoid_us_per_particle_step"),
                        ("sphere", "packed_sphere_us_per_particle_step")):
         if what in ("all", shape + "s"):
-            for skin in (0.0, args.skin):
+            for skin in (0.0, DEFAULT_SKIN if args.skin is None else args.skin):
                 r = time_packed(shape, args.particles, args.steps, log, skin)
                 report[f"packed_{shape}s_skin{skin:g}"] = r
                 print(f"packed {shape}s, N = {r['particles']}, skin {skin:g}: {r['us_per_particle_step']:.3f} "

@@ -6,9 +6,10 @@ import pytest
 
 from dem.state import State
 from modes.decomposition import (DIRECTIONS, OPPOSITE, BlockGrid, DecompositionError, balanced_grid, blended_grid,
-                                 block_counts, border_width, direction_of, extent_grid, fit_skin, load_profiles,
-                                 border_lists)
-from modes.halo import GHOST_GENERAL, GHOST_SPHERE, _columns, _split, pack_moving, unpack_moving
+                                 block_counts, border_width, direction_of, extent_grid, face_bits, fit_skin,
+                                 load_profiles, border_lists)
+from modes.halo import (GHOST_GENERAL, GHOST_POLY, GHOST_SPHERE, PER_PARTICLE, REC_GENERAL, REC_POLY, REC_SPHERE, WIDTH,
+                        Halo, _columns, _split, drop_ghosts, pack_ghost_rows, pack_moving, unpack_moving)
 
 UNIT = ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
 
@@ -116,6 +117,14 @@ def test_block_of_and_border_lists_are_their_formulas(rng):
             elif d[a] > 0:
                 need &= hi[a] - pos[:, a] < w
         assert np.array_equal(items[start[k]:start[k + 1]], np.flatnonzero(need)), k
+    # a block whose low-x and high-z faces alone have neighbours (x -1 and z +1 and the edge
+    # between them): only those three directions list particles, the same ones as without the mask
+    dirs = [k for k, d in enumerate(DIRECTIONS) if d[1] == 0 and d[0] in (-1, 0) and d[2] in (0, 1)]
+    assert len(dirs) == 3
+    start_m, items_m = border_lists(pos, lo, hi, w, face_bits(dirs))
+    for k in range(len(DIRECTIONS)):
+        got = items_m[start_m[k]:start_m[k + 1]]
+        assert np.array_equal(got, items[start[k]:start[k + 1]] if k in dirs else np.zeros(0, dtype=np.int64)), k
 
 
 def test_grid_with_cut_planes():
@@ -217,6 +226,40 @@ def test_ghost_rows_round_trip_bit_exact(rng, spheres):
     assert np.array_equal(got["gid"], s.gid[idx])
     for f in ("material", "mass", "axes", "inertia", "pos", "vel", "angmom") + (() if spheres else ("shape", "quat")):
         assert np.array_equal(got[f], getattr(s, f)[idx]), f
+
+
+@pytest.mark.parametrize("rec", [REC_SPHERE, REC_GENERAL, REC_POLY])
+def test_ghost_records_in_place_equal_the_fields(rng, rec):
+    """pack_ghost_rows writes the records _columns writes (the same fields, order and bits), and a
+    halo's _append of them after rows 0..n-1 gives every per-particle array the selected rows bit
+    for bit, with a second _append into the same capacity arrays (no copy of the owned rows)
+    after the first ghosts are dropped; a poly-ellipsoid's bounding radius holds its offset."""
+    s = _state(rng, 50, rec == REC_SPHERE)
+    if rec == REC_POLY:
+        from dem.shapes import POLY, POLY_LEN
+        from dem.state import bounding_radii
+        s.shape[::3] = POLY
+        s.poly = rng.random((50, POLY_LEN))
+        s.rbound = bounding_radii(s.axes, s.shape, s.poly)
+    fields = {REC_SPHERE: GHOST_SPHERE, REC_GENERAL: GHOST_GENERAL, REC_POLY: GHOST_POLY}[rec]
+    idx = np.array([3, 0, 39, 17, 17, 21])
+    records = Halo._records(s, rec, idx, sum(WIDTH[f] for f in fields))
+    assert np.array_equal(records.view(np.int64), _columns(s, fields, idx).view(np.int64))
+    halo = Halo.__new__(Halo)
+    halo.store = {}
+    owned = {f: getattr(s, f).copy() for f in PER_PARTICLE}
+    s.n_owned = 40
+    for pick in (idx[:4], idx):
+        drop_ghosts(s)
+        halo._append(s, [None, (Halo._records(s, rec, pick, records.shape[1]),)], rec)
+        assert s.n == 40 + len(pick) and s.gid.base is halo.store["gid"]
+        for f in PER_PARTICLE:
+            want = owned[f][np.concatenate([np.arange(40), pick])]
+            if f in ("force", "torque"):
+                want[40:] = 0.0
+            if rec == REC_SPHERE and f == "quat":
+                want[40:] = (1.0, 0.0, 0.0, 0.0)
+            assert np.array_equal(getattr(s, f), want), f
 
 
 @pytest.mark.parametrize("with_quat", [True, False])

@@ -113,3 +113,41 @@ def test_terms_pack_and_unpack_exactly():
     got = np.full((4, TERMS), 9.0)
     unpack_received(buf, np.array([1, 2, 0]), got)
     assert np.array_equal(got[[1, 2, 0]], buf) and np.all(got[3] == 9.0)
+
+
+class _Cart:
+    """The two calls count_checksum makes of a communicator."""
+
+    def __init__(self, rank, size):
+        self.rank, self.size = rank, size
+
+    def Get_rank(self):
+        return self.rank
+
+    def Get_size(self):
+        return self.size
+
+
+def _checksum(rank, size, slots):
+    from modes.newton import NewtonPlan
+    plan = NewtonPlan.__new__(NewtonPlan)
+    plan.cart = _Cart(rank, size)
+    plan.slots = [(k, r, ns, nr, 0, 0) for k, r, ns, nr in slots]
+    return plan.count_checksum()
+
+
+def test_count_checksum_is_zero_exactly_when_every_link_agrees():
+    """Three ranks in a row (0 - 1 - 2): each link's pairs sent by one end and expected by the
+    other. Summed over the ranks the checksum is 0 when every count agrees, and not 0 when one
+    rank expects one pair more than its neighbour sends, or when two links are off by one in
+    opposite senses (the links' weights 1 + a P + b differ)."""
+    neighbours = {0: [(13, 1)], 1: [(12, 0), (13, 2)], 2: [(12, 1)]}  # rank: [(direction, rank)]
+    sent = {(0, 1): 5, (1, 0): 7, (1, 2): 0, (2, 1): 11}                # (a, b): pairs a sends b
+
+    def total(expected):  # expected[(a, b)]: the pairs b expects from a
+        return sum(_checksum(a, 3, [(k, b, sent[(a, b)], expected[(b, a)]) for k, b in nbrs])
+                   for a, nbrs in neighbours.items())
+
+    assert total(sent) == 0.0
+    assert total({**sent, (0, 1): 6}) != 0.0             # rank 1 expects 6 from rank 0, which sends 5
+    assert total({**sent, (0, 1): 6, (2, 1): 10}) != 0.0  # +1 on one link, -1 on another
