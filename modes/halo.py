@@ -6,8 +6,8 @@ between them), the work splits by how often it is needed:
 - on neighbour-rebuild steps, migration (migraT): particles whose centre left the block move to
   the neighbour that owns it with their whole state, wall history and contact history (rows
   keyed by partner gid, written for the leaving particles only: modes.mpi leaver_history), so
-  the tangential springs never reset (the paper's code loses them); when nobody leaves, one
-  round of counts is all that travels;
+  the tangential springs never reset (the paper's code loses them); when nobody leaves, a
+  message of empty headers is all that travels;
   then the choice of ghosts (commuT): each block sends the owned particles inside the border
   layer to each neighbour that needs them, with every field the contact kernels read, directly
   to all 26 neighbours (the paper's exchange, --halo 26) or in three sweeps of two messages that
@@ -51,8 +51,12 @@ Persistent requests create no request objects in Python each step; the neighbour
 and one collective call cannot express the --halo 6 sweeps, whose later rounds forward what the
 first brought.
 
-Message sizes are fixed between rebuilds, so a forward round sends no counts; a rebuild round
-sends row counts first, then the rows.
+Message sizes are fixed between rebuilds, so a forward round sends no counts; a rebuild's
+exchange (migration, ghost choice) sends one message per neighbour, a header of row counts and
+the rows, which the receiver sizes by a matched probe (Halo.exchange). The ghosts' records are
+packed by one numba call and written in place after the owned rows of capacity arrays the halo
+keeps (Halo._append); the owned rows are copied only when a migration replaced the arrays or
+they are full.
 """
 import numpy as np
 from numba import njit
@@ -279,14 +283,24 @@ def compile_kernels():
 
 class _Round:
     """One round of a forward exchange, fixed at a rebuild: the rows sent to each neighbour
-    (send_idx, concatenated in direction order, send_off [d+1]), the ghost rows received from each
-    (rows g0 + recv_off[d] ..), their buffers and persistent requests. The pack and unpack
-    kernels are called through their compiled entry points (modes.base.compiled_entry), found at
-    their first call: until the next rebuild replaces the round, they see the same array types."""
+    (send_idx, concatenated in direction order), the ghost rows received from each (rows g0 + ..),
+    their buffers and persistent requests. The buffers and requests are made at the round's first
+    start (prepare): with --skin 0 every step rebuilds and no forward exchange ever runs (making
+    them took 9 us of each 2-rank rebuild of 1521 falling ellipsoids). The pack and unpack kernels
+    are called through their compiled entry points (modes.base.compiled_entry), found at their
+    first call: until the next rebuild replaces the round, they see the same array types."""
 
     def __init__(self, cart, dirs, ranks, send_lists, recv_counts, g0, width, wire):
         self.g0 = g0
         self.kernels = {}
+        self.plan = (cart, dirs, ranks, send_lists, recv_counts, width, wire)
+        self.requests = None
+
+    def prepare(self):
+        """Buffers, persistent requests and what one start sends (bytes, msgs, wire_s)."""
+        if self.requests is not None:
+            return
+        cart, dirs, ranks, send_lists, recv_counts, width, wire = self.plan
         self.send_idx = (np.concatenate(send_lists).astype(np.int64) if send_lists
                          else np.zeros(0, dtype=np.int64))
         self.send_buf = np.zeros((len(self.send_idx), width))
@@ -317,9 +331,9 @@ class _Round:
         call_entry(self.kernels, kernel, args)
 
     def free(self):
-        for req in self.requests:
+        for req in self.requests or ():
             req.Free()
-        self.requests = []
+        self.requests = None
 
 
 class Halo:
@@ -355,6 +369,7 @@ class Halo:
         self.ghost_dirs = None  # the direction of each ghost's owner [n_ghost] (direct exchange), or None
         self.started = False   # the first forward round's messages are on their way (forward_start)
         self.store = {}        # the capacity arrays that hold the state's rows and its ghosts (_append)
+        self.entries = {}      # the compiled entry points of the ghost records' kernels (their types are fixed)
         self.with_quat = True
         self.reset_counters()
 
@@ -388,8 +403,8 @@ class Halo:
         per neighbour, whatever the number of arrays: a header of the arrays' row counts, then their
         rows, flat; the receiver sizes it by probing (Mprobe, MPI-3's matched probe), so no round of
         counts goes first. Measured on 2 ranks, 1521 falling ellipsoids with --skin 0 (a rebuild
-        every step, two exchanges a step): 26 -> xx us an exchange against a round of counts, then
-        the rows."""
+        every step, two exchanges a step; medians of 300 steps, in-process timers): 26-27 us an
+        exchange with a round of counts first, 19-20 us without."""
         na = len(widths)
         nbrs = self.neighbours if dirs is None else [(k, self.ranks[k]) for k in dirs if self.ranks[k] is not None]
         reqs = []
@@ -485,6 +500,7 @@ class Halo:
         return state.n - n
 
     def _start(self, rd, state):
+        rd.prepare()
         rd.call(pack_moving, (rd.send_idx, state.pos, state.vel, state.angmom, state.quat, self.with_quat, rd.send_buf))
         self.startall(rd.requests)
         self.bytes_sent += rd.bytes
@@ -524,13 +540,12 @@ class Halo:
             rd.free()
         self.rounds = []
 
-    @staticmethod
-    def _records(state, rec, idx, ncol):
+    def _records(self, state, rec, idx, ncol):
         """The ghost records [len(idx), ncol] of rows idx (pack_ghost_rows)."""
         out = np.empty((len(idx), ncol))
-        pack_ghost_rows(np.ascontiguousarray(idx, dtype=np.int64), rec, state.gid.view(np.float64), state.shape,
-                        state.material, state.mass, state.axes, state.inertia, state.pos, state.vel, state.angmom,
-                        state.quat, state.poly, out)
+        call_entry(self.entries, pack_ghost_rows, (
+            np.ascontiguousarray(idx, dtype=np.int64), rec, state.gid.view(np.float64), state.shape, state.material,
+            state.mass, state.axes, state.inertia, state.pos, state.vel, state.angmom, state.quat, state.poly, out))
         return out
 
     def _append(self, state, incoming, rec):
@@ -554,7 +569,7 @@ class Halo:
                 store[f][:n] = old[:n]
         view = [store[f][:n + m] for f in PER_PARTICLE]
         gids = np.ascontiguousarray(rows[:, 0]).view(np.int64)
-        write_ghost_rows(n, rows, gids, rec, *view)
+        call_entry(self.entries, write_ghost_rows, (n, rows, gids, rec, *view))
         for f, a in zip(PER_PARTICLE, view):
             setattr(state, f, a)
         if rec == REC_POLY:  # a poly-ellipsoid's bounding sphere holds its octant origin's offset too

@@ -243,15 +243,15 @@ def test_ghost_records_in_place_equal_the_fields(rng, rec):
         s.rbound = bounding_radii(s.axes, s.shape, s.poly)
     fields = {REC_SPHERE: GHOST_SPHERE, REC_GENERAL: GHOST_GENERAL, REC_POLY: GHOST_POLY}[rec]
     idx = np.array([3, 0, 39, 17, 17, 21])
-    records = Halo._records(s, rec, idx, sum(WIDTH[f] for f in fields))
-    assert np.array_equal(records.view(np.int64), _columns(s, fields, idx).view(np.int64))
     halo = Halo.__new__(Halo)
-    halo.store = {}
+    halo.store, halo.entries = {}, {}
+    records = halo._records(s, rec, idx, sum(WIDTH[f] for f in fields))
+    assert np.array_equal(records.view(np.int64), _columns(s, fields, idx).view(np.int64))
     owned = {f: getattr(s, f).copy() for f in PER_PARTICLE}
     s.n_owned = 40
     for pick in (idx[:4], idx):
         drop_ghosts(s)
-        halo._append(s, [None, (Halo._records(s, rec, pick, records.shape[1]),)], rec)
+        halo._append(s, [None, (halo._records(s, rec, pick, records.shape[1]),)], rec)
         assert s.n == 40 + len(pick) and s.gid.base is halo.store["gid"]
         for f in PER_PARTICLE:
             want = owned[f][np.concatenate([np.arange(40), pick])]
