@@ -77,7 +77,7 @@ def collect(args):
         by_key[point.key] = row
         keys.append(reference_key(point))
     for row, ref in zip(rows, keys):  # the serial row too (speedup 1.0), against its group's T(1)
-        with_speedup(row, t1.get(ref))
+        with_speedup(row, t1.get(ref), by_key.get(ref))
         flag_reference(row, by_key.get(ref))
     runs_path = os.path.join(args.dir, "runs.csv")
     write_runs(runs_path, rows)

@@ -237,7 +237,7 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
     for key, row in rows.items():
         ref = rows.get(reference_key(everything[key]["point"]))
         if ref is not None and ref.get("status") == "done":
-            with_speedup(row, float(ref["totalT"]))
+            with_speedup(row, float(ref["totalT"]), ref)
         flag_reference(row, ref)
     write_runs(runs_path, [rows[k] for k in everything if k in rows])
     layers = set()

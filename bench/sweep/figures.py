@@ -6,6 +6,8 @@ plot_sweep(DIR) writes, in DIR:
   neighbour method when those vary), every point labelled with its mapping P-px-py-pz-T, the
   ideal y = x and, when DIR/summary.json holds one, the Amdahl curve of the fitted serial fraction;
 - efficiency.png: speedup / cores against cores, ideal line at 1;
+- on both, each point's 95 % interval (runs.csv speedup_lo/hi, efficiency_lo/hi) as a vertical
+  bar where the records have one;
 - edsf.png: the Karp-Flatt experimentally determined serial fraction against cores (p > 1), a
   line at 0 and the Amdahl fit when present;
 - modules.png: per mapping (x axis ordered by cores, then procs; grouped by core count) stacked
@@ -557,6 +559,19 @@ def _plot_metric(done, skipped, ctx, fit, metric, path, ceiling=()):
     return save_figure(_metric_figure(done, skipped, ctx, fit, metric, ceiling), path)
 
 
+def _interval_bars(ax, rows, metric, color):
+    """The 95 % intervals of runs.csv (metric_lo, metric_hi: bench.sweep.intervals) as vertical bars
+    through the points that have them (older records have none)."""
+    lo, hi = f"{metric}_lo", f"{metric}_hi"
+    if lo not in rows or hi not in rows:
+        return
+    r = rows[np.isfinite(rows[lo]) & np.isfinite(rows[hi]) & (rows[lo] > 0)]
+    if len(r):  # not part of the axes' data limits: an interval of two discordant repeats can span decades
+        from matplotlib.collections import LineCollection
+        segs = [[(x, a), (x, b)] for x, a, b in zip(r["cores"], r[lo], r[hi])]
+        ax.add_collection(LineCollection(segs, colors=color, linewidths=1.1, alpha=0.7, zorder=2.5), autolim=False)
+
+
 def _metric_figure(done, skipped, ctx, fit, metric, ceiling=()):
     """speedup / efficiency / edsf against cores, one series per family (and scheme); on the
     efficiency figure also the machine's ceiling of DIR/ceiling.csv where a sweep measured it
@@ -576,6 +591,7 @@ def _metric_figure(done, skipped, ctx, fit, metric, ceiling=()):
         color, marker = colors[label], FAMILY_STYLE.get(fam, ("C7", "o"))[1]
         ax.plot(rows["cores"], rows[metric], ls="none", marker=marker, ms=8 if marker == "*" else 5.5,
                 color=color, label=label, zorder=3)
+        _interval_bars(ax, rows, metric, color)
         # a thin line through the best point per core count, from the serial reference
         best = rows.sort_values("totalT").groupby("cores", sort=True)[metric].first()
         xs, ys = list(best.index), list(best.values)

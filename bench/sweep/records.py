@@ -36,17 +36,19 @@ from dataclasses import asdict
 
 import numpy as np
 
+from bench.sweep.intervals import format_reps, parse_reps, speedup_interval, step_time_interval
 from modes.base import parse_mapping
 
 RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores", "scheme", "neighbor", "scene",
                "particles", "steps", "repeats", "status", "reason", "totalT", "commuT", "migraT", "compuT",
                "syncT", "wireT", "above_wireT", "neighborT", "resolveT", "overhead_pct", "speedup", "efficiency", "edsf", "rss_mb", "err_max",
                "err_rms", "stable", "wall_s", "load_before", "load_after", "contact_method",
-               "skin", "preset", "binding", "foreign_cores", "foreign_cpu_s", "step_spread", "totalT_spread", "flag"]
+               "skin", "preset", "binding", "foreign_cores", "foreign_cpu_s", "step_spread", "totalT_spread", "flag",
+               "totalT_lo", "totalT_hi", "speedup_lo", "speedup_hi", "efficiency_lo", "efficiency_hi", "totalT_reps"]
 
 
 TEXT_COLUMNS = ("point", "mapping", "scheme", "neighbor", "scene", "status", "reason", "stable", "contact_method",
-                "preset", "binding", "flag")
+                "preset", "binding", "flag", "totalT_reps")
 
 LOAD_FLAG_CORES = 0.25      # foreign CPUs busy on average during a repeat's timed steps
 SPREAD_FLAG_REPEATS = 0.10  # (max - min) / median of totalT over the repeats
@@ -186,7 +188,7 @@ def summarise(point, rep_dirs, ref_state, t1, statuses=None):
                cores=m.procs * m.threads, scheme=point.scheme, neighbor=point.neighbor, scene=point.scene,
                contact_method=point.contact_method,
                repeats=len(rep_dirs), status="done", reason="")
-    times, walls, loads, spreads, bindings = [], [], [], [], []
+    times, walls, loads, spreads, bindings, series = [], [], [], [], [], []
     state = None
     statuses = statuses or [read_status(d) for d in rep_dirs]
     for status in statuses:
@@ -195,7 +197,9 @@ def summarise(point, rep_dirs, ref_state, t1, statuses=None):
             return row
     for d in rep_dirs:
         info = json.load(open(os.path.join(d, "run.json")))
-        times.append(module_times(pd.read_csv(os.path.join(d, "steps.csv"))))
+        steps = pd.read_csv(os.path.join(d, "steps.csv"))
+        times.append(module_times(steps))
+        series.append(steps.groupby("step")["totalT"].max().to_numpy())  # a step's time: its slowest rank's
         walls.append(info.get("wall_s", math.nan))
         loads.append(info.get("load") or {})
         spreads.append((info.get("step_time") or {}).get("spread"))
@@ -207,6 +211,8 @@ def summarise(point, rep_dirs, ref_state, t1, statuses=None):
         row[k] = float(np.median([t[k] for t in times]))
     if m.procs == 1:  # no MPI, no wire, no allreduce (a serial steps.csv may carry wire_s = 0)
         row["syncT"] = row["wireT"] = row["above_wireT"] = math.nan
+    row["totalT_lo"], row["totalT_hi"] = step_time_interval(series)
+    row["totalT_reps"] = format_reps(t["totalT"] for t in times)
     row["wall_s"] = float(np.median(walls))
     row["binding"] = next((b for b in bindings if b == "lost"), bindings[0] if bindings else "")
     trust(row, [t["totalT"] for t in times], loads, spreads)
@@ -275,15 +281,22 @@ def flag_reference(row, ref):
     return row
 
 
-def with_speedup(row, t1):
+def with_speedup(row, t1, ref=None):
     """Set speedup T(1)/T(p), efficiency = speedup / p and the Karp-Flatt EDSF
     (1/S - 1/p) / (1 - 1/p) of a done row against the serial totalT t1 (p = cores); no-op without
-    t1 or a time."""
+    t1 or a time. Given the reference row ref (t1's), also the 95 % intervals speedup_lo/hi and
+    efficiency_lo/hi (bench.sweep.intervals; none for the reference itself)."""
     if not t1 or row["status"] != "done" or not row["totalT"] == row["totalT"]:
         return row
     s = t1 / float(row["totalT"])
     p = int(row["cores"])
     row.update(speedup=s, efficiency=s / p, edsf=(1 / s - 1 / p) / (1 - 1 / p) if p > 1 else math.nan)
+    lo = hi = math.nan
+    if ref is not None and ref is not row and ref.get("point") != row.get("point"):
+        lo, hi = speedup_interval(t1, _num(ref.get("totalT_lo")), _num(ref.get("totalT_hi")), float(row["totalT"]),
+                                  _num(row.get("totalT_lo")), _num(row.get("totalT_hi")),
+                                  parse_reps(ref.get("totalT_reps")), parse_reps(row.get("totalT_reps")))
+    row.update(speedup_lo=lo, speedup_hi=hi, efficiency_lo=lo / p, efficiency_hi=hi / p)
     return row
 
 
