@@ -427,11 +427,16 @@ def cmd_plot(args):
     from bench.studies.paper_figures import plot_paper
     from bench.sweep.figures import plot_sweep
     from bench.sweep.records import RunsFileError
+    from bench.sweep.ranking import rank, ranking_lines
+    from bench.sweep.records import read_runs
     try:
         figs = plot_sweep(args.dir) + (plot_paper(args.dir) if args.paper else [])
+        rows = read_runs(args.dir).to_dict("records")
     except RunsFileError as e:
         raise UsageError(f"bench plot: {e}") from None
     print("\n".join(figs))
+    for line in ranking_lines(rank(rows)):
+        print(f"ranking, {line}")
     return 0
 
 

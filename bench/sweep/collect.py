@@ -17,6 +17,7 @@ import numpy as np
 from bench.run.records import write_json
 from bench.sweep.figures import plot_sweep
 from bench.sweep.points import SERIAL, point_from_dict
+from bench.sweep.ranking import rank, ranking_lines
 from bench.sweep.records import amdahl, flag_reference, reference_key, summarise, with_speedup, write_runs
 from bench.sweep.status import PRIORITY, read_json, sweep_outcomes
 from dem.scene import SceneError
@@ -81,7 +82,11 @@ def collect(args):
         flag_reference(row, by_key.get(ref))
     runs_path = os.path.join(args.dir, "runs.csv")
     write_runs(runs_path, rows)
-    write_json(os.path.join(args.dir, "summary.json"), amdahl(rows))
+    summary = amdahl(rows)
+    summary["ranking"] = rank(rows)
+    write_json(os.path.join(args.dir, "summary.json"), summary)
+    for line in ranking_lines(summary["ranking"]):
+        print(f"ranking, {line}")
     if batch:
         nodes = compute_nodes(args.dir, outcomes)
         info["nodes"] = nodes

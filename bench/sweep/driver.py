@@ -38,6 +38,7 @@ from bench.sweep.figures import plot_sweep
 from bench.sweep.launchers import LAUNCHERS
 from bench.sweep.lock import SweepLock
 from bench.sweep.points import SERIAL, make_points, point_from_dict
+from bench.sweep.ranking import rank, ranking_lines
 from bench.sweep.records import (RUN_COLUMNS, RunsFileError, amdahl, flag_reference, manifest, merge_manifest,
                                  read_runs_rows, reference_key, summarise, with_speedup, write_runs)
 from modes.base import ModeError, parse_mapping
@@ -256,10 +257,13 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
               flush=True)
         return exit_status(stopped)
     summary = amdahl(list(rows.values()))
+    summary["ranking"] = rank(list(rows.values()))
     write_json(os.path.join(out, "summary.json"), summary)
     if summary.get("serial_fraction") is not None:
         print(f"Amdahl fit over {summary['points']} points: serial fraction {summary['serial_fraction']:.3f}"
               + ("" if summary["valid"] else f" ({summary['note']})"))
+    for line in ranking_lines(summary["ranking"]):
+        print(f"ranking, {line}")
     figs = plot_sweep(out)
     print(f"records: {runs_path}; figures: {', '.join(os.path.basename(f) for f in figs)}")
     flagged = [r for r in rows.values() if isinstance(r.get("flag"), str) and r["flag"]]
