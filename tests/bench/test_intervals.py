@@ -8,18 +8,9 @@ import pytest
 
 from bench.sweep.intervals import (batch_means, format_reps, mean_interval, parse_reps, speedup_interval,
                                    step_time_interval)
+from tests.bench.synthetic_steps import ar1
 
 SEEDS = 1000
-
-
-def ar1(rng, n, mean, sd, phi):
-    """n correlated step times: an AR(1) series of lag-1 correlation phi and spread sd about mean."""
-    e = rng.normal(0.0, sd * math.sqrt(1.0 - phi ** 2), n)
-    x = np.empty(n)
-    x[0] = rng.normal(0.0, sd)
-    for i in range(1, n):
-        x[i] = phi * x[i - 1] + e[i]
-    return mean + x
 
 
 def coverage(draw, truth):

@@ -5,17 +5,9 @@ import numpy as np
 
 from bench.sweep.intervals import format_reps, step_time_interval
 from bench.sweep.ranking import rank, ranking_lines
+from tests.bench.synthetic_steps import ar1
 
 SEEDS = 1000
-
-
-def ar1(rng, n, mean, sd, phi):
-    e = rng.normal(0.0, sd * np.sqrt(1.0 - phi ** 2), n)
-    x = np.empty(n)
-    x[0] = rng.normal(0.0, sd)
-    for i in range(1, n):
-        x[i] = phi * x[i - 1] + e[i]
-    return mean + x
 
 
 def row(mapping, series, cores=2, flag="", status="done"):
