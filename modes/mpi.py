@@ -246,8 +246,8 @@ class _Blocks:
 
     def split(self):
         """With newton: pick out the cross-border pairs this rank resolves and those it receives, and
-        fix the reverse exchange (modes.newton); its counts are checked with the neighbours
-        (collective); then the base mode's split, with the cross pairs' terms taken in their place.
+        fix the reverse exchange (modes.newton); its counts' checksum goes into this step's
+        allreduce (decide); then the base mode's split, with the cross pairs' terms taken in their place.
         Else the base mode's split."""
         if not self.newton:
             return super().split()

@@ -80,9 +80,8 @@ from dem.state import HIST_LEN
 from modes.base import call_entry
 from modes.decomposition import DIRECTIONS, OPPOSITE, direction_of
 
-# tags of the per-step messages, and of the rebuild's counts and history (apart from the halo's)
+# tags of the per-step messages and of the rebuild's history (apart from the halo's)
 REVERSE_TAG = 400
-COUNT_TAG = 450
 HISTORY_TAG = 500
 NDIR = len(DIRECTIONS)
 

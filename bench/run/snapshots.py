@@ -68,10 +68,15 @@ def write_vtk(path, snap, step=0, time=0.0):
         fh.write("\n".join(lines) + "\n")
     written = [path]
     if six:
-        surface = path[:-4] + "_surface.vtk" if path.endswith(".vtk") else path + "_surface.vtk"
+        surface = _surface_path(path, ".vtk")
         write_surfaces(surface, snap, step, time)
         written.append(surface)
     return written
+
+
+def _surface_path(path, ext):
+    """The surfaces' file beside a snapshot path: stem + "_surface" + ext (ext: ".vtk" or ".vtu")."""
+    return (path[:-len(ext)] if path.endswith(ext) else path) + "_surface" + ext
 
 
 def _unit_sphere(nlat=8, nlon=12):
@@ -224,7 +229,7 @@ def write_vtu(path, snap, step=0, time=0.0):
                                  field_data=fields, active={"Scalars": "id", "Vectors": "vel", "Tensors": "ellipsoid"}))
     written = [path]
     if six:
-        surface = path[:-4] + "_surface.vtu" if path.endswith(".vtu") else path + "_surface.vtu"
+        surface = _surface_path(path, ".vtu")
         write_surfaces_vtu(surface, snap, step, time)
         written.append(surface)
     return written

@@ -167,6 +167,17 @@ def _lq(p0, p1, q0, q1, q2):
 
 
 @njit(cache=True, _nrt=False)
+def _half_adj_row(ba0, bb0, ba1, bb1, ba2, bb2, c0, c1, c2):
+    """-1/2 (c0 v0 + c1 v1 + c2 v2) with v_k = ba_k + l bb_k and c_k a row of adj M (quadratics):
+    one component of N, 4 coefficients ascending."""
+    u0 = _lq(ba0, bb0, c0[0], c0[1], c0[2])
+    u1 = _lq(ba1, bb1, c1[0], c1[1], c1[2])
+    u2 = _lq(ba2, bb2, c2[0], c2[1], c2[2])
+    return (-0.5 * (u0[0] + u1[0] + u2[0]), -0.5 * (u0[1] + u1[1] + u2[1]), -0.5 * (u0[2] + u1[2] + u2[2]),
+            -0.5 * (u0[3] + u1[3] + u2[3]))
+
+
+@njit(cache=True, _nrt=False)
 def _sextic_coeffs_into(qa, qb, w):
     """The 7 coefficients (ascending) of p(lam) = N^T B N + (bb^T N) det M + cb det M^2 into
     w[0:7], M = A + lam B (quadrics qa = (A, ba, ca), qb = (B, bb, cb)), N = -1/2 adj M (ba + lam bb).
@@ -198,27 +209,9 @@ def _sextic_coeffs_into(qa, qb, w):
     e2 = t0[2] + t1[2] + t2[2]
     e3 = t0[3] + t1[3] + t2[3]
     # N_i = -1/2 (adj_i0 v0 + adj_i1 v1 + adj_i2 v2)
-    u0 = _lq(ba0, bb0, d00[0], d00[1], d00[2])
-    u1 = _lq(ba1, bb1, d01[0], d01[1], d01[2])
-    u2 = _lq(ba2, bb2, d02[0], d02[1], d02[2])
-    n00 = -0.5 * (u0[0] + u1[0] + u2[0])
-    n01 = -0.5 * (u0[1] + u1[1] + u2[1])
-    n02 = -0.5 * (u0[2] + u1[2] + u2[2])
-    n03 = -0.5 * (u0[3] + u1[3] + u2[3])
-    u0 = _lq(ba0, bb0, d01[0], d01[1], d01[2])
-    u1 = _lq(ba1, bb1, d11[0], d11[1], d11[2])
-    u2 = _lq(ba2, bb2, d12[0], d12[1], d12[2])
-    n10 = -0.5 * (u0[0] + u1[0] + u2[0])
-    n11 = -0.5 * (u0[1] + u1[1] + u2[1])
-    n12 = -0.5 * (u0[2] + u1[2] + u2[2])
-    n13 = -0.5 * (u0[3] + u1[3] + u2[3])
-    u0 = _lq(ba0, bb0, d02[0], d02[1], d02[2])
-    u1 = _lq(ba1, bb1, d12[0], d12[1], d12[2])
-    u2 = _lq(ba2, bb2, d22[0], d22[1], d22[2])
-    n20 = -0.5 * (u0[0] + u1[0] + u2[0])
-    n21 = -0.5 * (u0[1] + u1[1] + u2[1])
-    n22 = -0.5 * (u0[2] + u1[2] + u2[2])
-    n23 = -0.5 * (u0[3] + u1[3] + u2[3])
+    n00, n01, n02, n03 = _half_adj_row(ba0, bb0, ba1, bb1, ba2, bb2, d00, d01, d02)
+    n10, n11, n12, n13 = _half_adj_row(ba0, bb0, ba1, bb1, ba2, bb2, d01, d11, d12)
+    n20, n21, n22, n23 = _half_adj_row(ba0, bb0, ba1, bb1, ba2, bb2, d02, d12, d22)
     # g = cb det + bb.N, h_i = (B N)_i (cubics)
     g0 = cb * e0 + bb0 * n00 + bb1 * n10 + bb2 * n20
     g1 = cb * e1 + bb0 * n01 + bb1 * n11 + bb2 * n21
