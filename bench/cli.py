@@ -12,9 +12,10 @@ import os
 import sys
 
 from bench.run.options import (BALANCE, CONTACT_METHOD_CHOICES, NEIGHBOR_CHOICES, PRESETS, SHAPE_CHOICES,
-                               SWEEP_FALLBACK, add_run_arguments, apply_preset, nonneg_int, positive_int,
-                               skin_fraction)
+                               SWEEP_FALLBACK, add_run_arguments, apply_preset, nonneg_int, positive_float,
+                               positive_int, precision_fraction, skin_fraction)
 from bench.run.threads_env import configure_threads
+from bench.sweep.precision import ROUNDS_CAP
 from bench.sweep.slurm_options import FIELDS as SLURM_FIELDS
 from bench.sweep.slurm_options import check_field, check_options
 
@@ -82,6 +83,16 @@ def build_parser():
                          "independent serial copies of the scene at N/W particles, alone, together and meeting "
                          "every step, a round after each round of repeats): OUT/ceiling.csv, drawn on "
                          "efficiency.png (local launcher)")
+    sw.add_argument("--precision", type=precision_fraction, default=None, metavar="F",
+                    help="after --repeats rounds (at least 2), more interleaved rounds of every point until each "
+                         "point's 95 %% interval of its step time is within F of its median (e.g. 0.05), the "
+                         f"--budget is spent or {ROUNDS_CAP} rounds are run; runs.csv `resolved` says which")
+    sw.add_argument("--budget", type=positive_float, default=None, metavar="SECONDS",
+                    help="with --precision: start no further round once the sweep has run this long or the next "
+                         "round would not fit")
+    sw.add_argument("--compare", metavar="DIR",
+                    help="after the sweep, each point against the same point of the earlier sweep in DIR: faster, "
+                         "slower or the same, with the 95 %% interval of the ratio (bench compare DIR OUT)")
     sw.add_argument("--timeout", type=positive_int, default=1800, help="seconds per point run")
     sw.add_argument("--launcher", default="local", help="local (default: each point here, one after another) or "
                                                          "slurm (a prepare job, a job array a point, a collect job)")
@@ -142,6 +153,11 @@ def build_parser():
 
     co = sub.add_parser("collect", help="gather a (Slurm) sweep's point folders into runs.csv")
     co.add_argument("dir")
+
+    cm = sub.add_parser("compare", help="each point of sweep NEW against the same point of the earlier sweep "
+                                        "OLD: faster, slower or the same, with the 95 %% interval of the ratio")
+    cm.add_argument("old", help="the earlier sweep's folder (read, never written)")
+    cm.add_argument("new", help="the sweep folder compared with it")
 
     sc = sub.add_parser("schemes", help="Table 1 in kind: contact-detection speedup of each thread scheme")
     sc.add_argument("--particles", type=positive_int, default=2500,
@@ -300,8 +316,12 @@ def cmd_run(args):
 SWEEP_FIELDS = {"mappings": str, "schemes": str, "scene": str, "particles": int, "shape": str, "steps": int,
                 "warmup": int, "repeats": int, "neighbor": str, "contact_method": str, "halo": str, "update_grid": int,
                 "balance": str, "newton": str, "skin": float, "pin": bool, "preset": str,
-                "ceiling": bool, "timeout": int,
+                "ceiling": bool, "precision": float, "budget": float, "compare": str, "timeout": int,
                 "launcher": str, "out": str, "slurm": dict}
+
+# the sweep file's numbers that are not skin fractions: their checks and what they expect
+FLOAT_FIELDS = {"precision": (precision_fraction, "a fraction in (0, 1)"),
+                "budget": (positive_float, "a number of seconds > 0")}
 
 
 def _sweep_file(args):
@@ -346,9 +366,13 @@ def _sweep_file(args):
                             value == 0 and not zero_ok or value > 2**62):
             raise UsageError(f"{key} in {args.file} must be a {'non-negative' if zero_ok else 'positive'} "
                              f"integer, got {_short(value)}")
-        if want is float and (isinstance(value, bool) or not isinstance(value, (int, float))
-                              or not 0.0 <= value <= 10.0):
-            raise UsageError(f"{key} in {args.file} must be a fraction in [0, 10], got {_short(value)}")
+        if want is float:
+            check, expected = FLOAT_FIELDS.get(key, (skin_fraction, "a fraction in [0, 10]"))
+            try:
+                value = check(str(value)) if not isinstance(value, bool) and isinstance(value, (int, float)) \
+                    else check("bad")
+            except argparse.ArgumentTypeError:
+                raise UsageError(f"{key} in {args.file} must be {expected}, got {_short(value)}") from None
         if want is bool and not isinstance(value, bool):
             raise UsageError(f"{key} in {args.file} must be true or false, got {value!r}")
         default = build_parser()._subparsers._group_actions[0].choices["sweep"].get_default(key)
@@ -407,6 +431,12 @@ def cmd_sweep(args):
         raise UsageError(f"bench sweep: neighbor must be {'|'.join(NEIGHBOR_CHOICES)}, halo 26|6, "
                          f"contact_method {'|'.join(CONTACT_METHOD_CHOICES)}, balance {'|'.join(BALANCE)}, "
                          f"newton auto|on|off")
+    if getattr(args, "budget", None) is not None and not getattr(args, "precision", None):
+        raise UsageError("bench sweep: --budget bounds the rounds of --precision: give --precision too")
+    if getattr(args, "precision", None) and args.launcher != "local":
+        raise UsageError("bench sweep: --precision adds rounds as the sweep goes: it needs the local launcher")
+    if getattr(args, "compare", None) and not os.path.isfile(os.path.join(args.compare, "runs.csv")):
+        raise UsageError(f"bench sweep: --compare {args.compare}: no runs.csv there (not a sweep folder)")
     args.slurm = _slurm_options(args)
     if args.launcher != "slurm" and (args.slurm or args.no_submit):
         given = ", ".join(sorted(args.slurm)) or "no_submit"
@@ -448,6 +478,21 @@ def cmd_collect(args):
         raise UsageError(f"bench collect: {args.dir} is not a folder")
     with SweepLock(args.dir):
         return collect(args)
+
+
+@_one_line
+def cmd_compare(args):
+    """bench compare OLD NEW: a line per point (bench.sweep.compare); exit 0 whatever the verdicts (a
+    regression is reported, not a failure), 2 when a folder has no readable runs.csv."""
+    from bench.sweep.compare import compare_folders, comparison_lines
+    from bench.sweep.records import RunsFileError
+    try:
+        entries = compare_folders(args.old, args.new)
+    except RunsFileError as e:
+        raise UsageError(f"bench compare: {e}") from None
+    for line in comparison_lines(entries):
+        print(line)
+    return 0
 
 
 @_one_line
@@ -576,7 +621,7 @@ def cmd_accuracy(args):
 
 COMMANDS = {"accuracy": cmd_accuracy, "run": cmd_run, "contacts": cmd_contacts, "scenes": cmd_scenes, "perf": cmd_perf,
             "schemes": cmd_schemes, "sweep": cmd_sweep, "plot": cmd_plot, "collect": cmd_collect,
-            "shapes": cmd_shapes, "peer": cmd_peer, "node": cmd_node}
+            "compare": cmd_compare, "shapes": cmd_shapes, "peer": cmd_peer, "node": cmd_node}
 
 
 if __name__ == "__main__":

@@ -50,6 +50,16 @@ def skin_fraction(text):
     return _number_in(text, lambda v: 0.0 <= v <= 10.0, "a fraction in [0, 10]")
 
 
+def precision_fraction(text):
+    """bench sweep --precision: the relative half-width sought, in (0, 1)."""
+    return _number_in(text, lambda v: 0.0 < v < 1.0, "a fraction in (0, 1), e.g. 0.05")
+
+
+def positive_float(text):
+    """A finite number > 0 (e.g. --budget seconds)."""
+    return _number_in(text, lambda v: 0.0 < v < 1e12, "a finite number > 0")
+
+
 def overlap_fraction(text):
     """--guard-overlap: a finite fraction in (0, 1] (nan would turn the guard off)."""
     return _number_in(text, lambda v: 0.0 < v <= 1.0, "a fraction in (0, 1]")

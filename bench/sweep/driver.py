@@ -38,6 +38,7 @@ from bench.sweep.figures import plot_sweep
 from bench.sweep.launchers import LAUNCHERS
 from bench.sweep.lock import SweepLock
 from bench.sweep.points import SERIAL, make_points, point_from_dict
+from bench.sweep.precision import MIN_ROUNDS, mark, next_round, unresolved, widest_text
 from bench.sweep.ranking import rank, ranking_lines
 from bench.sweep.records import (RUN_COLUMNS, RunsFileError, amdahl, flag_reference, manifest, merge_manifest,
                                  read_runs_rows, reference_key, summarise, with_speedup, write_runs)
@@ -125,7 +126,17 @@ def _typed(text):
 
 def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
     runs_path = os.path.join(out, "runs.csv")
-    repeats = args.repeats
+    precision = getattr(args, "precision", None)
+    budget = getattr(args, "budget", None)
+    repeats = max(args.repeats, MIN_ROUNDS) if precision else args.repeats
+    if precision and args.repeats < MIN_ROUNDS:
+        print(f"sweep: --precision judges after at least {MIN_ROUNDS} rounds (one run's interval does not see "
+              f"what changes from run to run)", flush=True)
+    if args.resume:  # the rounds an earlier --precision sweep added are this sweep's too
+        started = {p.get("key"): p.get("repeats") for p in
+                   (read_json_file(os.path.join(out, "manifest.json")) or {}).get("points", []) if isinstance(p, dict)}
+        repeats = max([repeats] + [int(started[p.key]) for p in points
+                                   if isinstance(started.get(p.key), int) and started[p.key] > 0])
     info = manifest(out, points)
     for p in info["points"]:
         p["repeats"] = repeats
@@ -192,8 +203,27 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
                 ref_state[key] = dict(np.load(os.path.join(e["dirs"][0], "state.npz")))
     stopped = current = None
     clock = SweepClock(n_runs)
+    round_seconds, short = [], None   # each round's wall time; why --precision stopped short
+    this_sweep = [p.key for p in points]
     try:
-        for r in range(repeats):
+        r = -1
+        while True:
+            r += 1
+            if r >= repeats:  # the requested rounds are run: --precision may add one
+                if not precision:
+                    break
+                open_points = unresolved([rows[k] for k in this_sweep if k in rows], precision)
+                if not open_points:
+                    break
+                short = next_round(r, time.perf_counter() - start, round_seconds, budget)
+                if short is not None:
+                    break
+                print(f"round {r + 1}: {len(open_points)} point(s) not yet within +-{100 * precision:g} %, the widest "
+                      f"{open_points[0][0]} " + (f"+-{100 * open_points[0][1]:.1f} %" if math.isfinite(open_points[0][1])
+                                                 else "without an interval"), flush=True)
+                _add_round(info, everything, todo, points, r, out)
+                clock.add(len(points))
+            round_start = time.perf_counter()
             for k, p in enumerate(points, 1):
                 if r not in todo[p.key] or p.key in failed:
                     continue
@@ -201,7 +231,7 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
                 load0 = os.getloadavg()[0]
                 current = p
                 name = f"point {k}/{len(points)} {p.mapping}{' ' + p.scheme if p.scheme else ''}" + \
-                    (f" rep {r + 1}/{repeats}" if repeats > 1 else "")
+                    (f" rep {r + 1}/{max(repeats, r + 1)}" if repeats > 1 else "")
                 clock.begin(name, rep)
                 st = launcher.run_point(p, rep, env, lock_fd, tick=clock.tick)
                 clock.end(rep)
@@ -213,10 +243,15 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
                 write_json(os.path.join(out, "manifest.json"), info)
                 if st["status"] != "done":
                     failed[p.key] = st
-                last = st["status"] != "done" or r == max(todo[p.key])
+                # --precision judges after every repeat from the last requested round on
+                last = st["status"] != "done" or r == max(todo[p.key]) or bool(precision and r >= repeats - 1)
                 row = record(p) if last else None
                 el = time.perf_counter() - start
-                print(_progress(k, len(points), p, r, repeats, st, row, rep, el, clock.left()), flush=True)
+                line = _progress(k, len(points), p, r, max(repeats, r + 1), st, row, rep, el, clock.left())
+                if precision:
+                    line += widest_text([rows[q] for q in this_sweep if q in rows])
+                print(line, flush=True)
+            round_seconds.append(time.perf_counter() - round_start)
             if ceiling is not None and ceiling.cores:  # the control's round after the points' round
                 try:
                     ceiling.round()
@@ -240,6 +275,8 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
         if ref is not None and ref.get("status") == "done":
             with_speedup(row, float(ref["totalT"]), ref)
         flag_reference(row, ref)
+    if precision and stopped is None:
+        mark([rows[k] for k in this_sweep if k in rows], precision, short)
     write_runs(runs_path, [rows[k] for k in everything if k in rows])
     layers = set()
     for p in points:
@@ -258,12 +295,30 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
         return exit_status(stopped)
     summary = amdahl(list(rows.values()))
     summary["ranking"] = rank(list(rows.values()))
+    if precision:
+        summary["precision"] = {"target": precision, "budget_s": budget, "rounds": r,
+                                "unresolved": [_name(rows[k]) for k in this_sweep
+                                               if k in rows and rows[k].get("resolved") not in ("yes", "")],
+                                "stopped": short}
     write_json(os.path.join(out, "summary.json"), summary)
     if summary.get("serial_fraction") is not None:
         print(f"Amdahl fit over {summary['points']} points: serial fraction {summary['serial_fraction']:.3f}"
               + ("" if summary["valid"] else f" ({summary['note']})"))
     for line in ranking_lines(summary["ranking"]):
         print(f"ranking, {line}")
+    if precision:
+        left = [rows[k] for k in this_sweep if k in rows and rows[k].get("resolved") not in ("yes", "")]
+        print(f"precision +-{100 * precision:g} %: " + (
+            f"every point resolved in {r} rounds" if not left else
+            f"{len(left)} point(s) not resolved ({left[0]['resolved']}): " + ", ".join(_name(rw) for rw in left)),
+            flush=True)
+    if getattr(args, "compare", None):  # against an earlier sweep (bench.sweep.compare): reported, never failed on
+        from bench.sweep.compare import compare_folders, comparison_lines
+        entries = compare_folders(args.compare, out)
+        summary["compare"] = {"against": os.path.abspath(args.compare), "points": entries}
+        write_json(os.path.join(out, "summary.json"), summary)
+        for line in comparison_lines(entries):
+            print(f"compared, {line}")
     figs = plot_sweep(out)
     print(f"records: {runs_path}; figures: {', '.join(os.path.basename(f) for f in figs)}")
     flagged = [r for r in rows.values() if isinstance(r.get("flag"), str) and r["flag"]]
@@ -273,6 +328,24 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
                                       f" [{r['flag']}]" for r in flagged))
     failed_rows = [r for r in rows.values() if r["status"] != "done"]
     return 0 if not failed_rows else 4
+
+
+def _name(row):
+    scheme = row.get("scheme")
+    return f"{row['mapping']}{' ' + scheme if isinstance(scheme, str) and scheme else ''}"
+
+
+def _add_round(info, everything, todo, points, r, out):
+    """Round r (0-based) of --precision: repeat folder rep<r> for every point of this sweep, written
+    to manifest.json before it runs (a --resume then runs what is left of it)."""
+    keys = {p.key for p in points}
+    for d in info["points"]:
+        if d["key"] in keys:
+            d["repeats"] = r + 1
+    for p in points:
+        everything[p.key]["dirs"].append(os.path.join(out, p.key, f"rep{r}"))
+        todo[p.key].append(r)
+    write_json(os.path.join(out, "manifest.json"), info)
 
 
 def current_step(rep_dir):
@@ -315,6 +388,13 @@ class SweepClock:
         if on_terminal() and runs > 0:
             from tqdm import tqdm
             self.bar = tqdm(total=runs, desc="sweep", unit="run", leave=False, dynamic_ncols=True, file=sys.stderr)
+
+    def add(self, runs):
+        """`runs` more repeats to run (a round --precision adds)."""
+        self.runs += runs
+        if self.bar is not None:
+            self.bar.total = self.runs
+            self.bar.refresh()
 
     def begin(self, name, rep):
         self.name, self.rep, self.t0 = name, rep, time.monotonic()

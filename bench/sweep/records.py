@@ -44,11 +44,12 @@ RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores"
                "syncT", "wireT", "above_wireT", "neighborT", "resolveT", "overhead_pct", "speedup", "efficiency", "edsf", "rss_mb", "err_max",
                "err_rms", "stable", "wall_s", "load_before", "load_after", "contact_method",
                "skin", "preset", "binding", "foreign_cores", "foreign_cpu_s", "step_spread", "totalT_spread", "flag",
-               "totalT_lo", "totalT_hi", "speedup_lo", "speedup_hi", "efficiency_lo", "efficiency_hi", "totalT_reps"]
+               "totalT_lo", "totalT_hi", "speedup_lo", "speedup_hi", "efficiency_lo", "efficiency_hi", "totalT_reps",
+               "resolved"]
 
 
 TEXT_COLUMNS = ("point", "mapping", "scheme", "neighbor", "scene", "status", "reason", "stable", "contact_method",
-                "preset", "binding", "flag", "totalT_reps")
+                "preset", "binding", "flag", "totalT_reps", "resolved")
 
 LOAD_FLAG_CORES = 0.25      # foreign CPUs busy on average during a repeat's timed steps
 SPREAD_FLAG_REPEATS = 0.10  # (max - min) / median of totalT over the repeats
