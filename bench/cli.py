@@ -12,8 +12,8 @@ import os
 import sys
 
 from bench.run.options import (BALANCE, CONTACT_METHOD_CHOICES, NEIGHBOR_CHOICES, PRESETS, SHAPE_CHOICES,
-                               SWEEP_FALLBACK, add_run_arguments, apply_preset, nonneg_int, positive_float,
-                               positive_int, precision_fraction, skin_fraction)
+                               SWEEP_FALLBACK, add_run_arguments, apply_preset, nonneg_int, particle_counts,
+                               positive_float, positive_int, precision_fraction, skin_fraction)
 from bench.run.threads_env import configure_threads
 from bench.sweep.precision import ROUNDS_CAP
 from bench.sweep.slurm_options import FIELDS as SLURM_FIELDS
@@ -48,7 +48,10 @@ def build_parser():
     sw.add_argument("--file", help="sweep file (TOML, a [sweep] table with the same fields) instead of options")
     sw.add_argument("--schemes", help="comma-separated thread schemes for mappings with T > 1 (default dynamic)")
     sw.add_argument("--scene", help="built-in scene name (bench scenes) or a .toml file, the same for every point")
-    sw.add_argument("--particles", type=positive_int, help="particles of a generated scene (default the scene's)")
+    sw.add_argument("--particles", type=particle_counts,
+                    help="particles of a generated scene (default the scene's); a list (2000,12000,50000) runs "
+                         "every mapping at each count, each with its own serial reference, and draws "
+                         "granularity.png (efficiency against particles per core)")
     sw.add_argument("--shape", choices=SHAPE_CHOICES, help="shape of a generated scene's particles (default the "
                                                            "scene's)")
     sw.add_argument("--steps", type=positive_int, help="timed steps of every point (default the scene's)")
@@ -352,6 +355,16 @@ def _sweep_file(args):
             except ValueError as e:
                 raise UsageError(str(e)) from None
             continue
+        if key == "particles" and isinstance(value, list):  # the granularity study's counts
+            try:
+                value = particle_counts(",".join(str(v) if isinstance(v, int) and not isinstance(v, bool) else "x"
+                                                 for v in value))
+            except argparse.ArgumentTypeError:
+                raise UsageError(f"particles in {args.file} must be a positive integer or a list of distinct "
+                                 f"ones, got {_short(value)}") from None
+            if args.particles is None:
+                args.particles = value
+            continue
         listed = key in ("mappings", "schemes")
         if SWEEP_FIELDS[key] is str and not (isinstance(value, str) or listed and isinstance(value, list)):
             raise UsageError(f"{key} in {args.file} must be a string{' or a list of strings' if listed else ''}, "
@@ -447,7 +460,11 @@ def cmd_sweep(args):
         if too_big and args.launcher == "local":
             raise UsageError(f"bench sweep: {too_big}")
     from dem.scene import load_scene
-    load_scene(args.scene, particles=args.particles, shape=args.shape)  # a bad scene fails here, once
+    counts = args.particles if isinstance(args.particles, list) else [args.particles]
+    if len(counts) > 1 and getattr(args, "ceiling", False):
+        raise UsageError("bench sweep: --ceiling measures one scene size: give one --particles count with it")
+    for n in counts:
+        load_scene(args.scene, particles=n, shape=args.shape)  # a bad scene fails here, once
     return sweep(args)
 
 
@@ -456,11 +473,12 @@ def cmd_plot(args):
         raise UsageError(f"bench plot: {args.dir} has no runs.csv (not a sweep folder)")
     from bench.studies.paper_figures import plot_paper
     from bench.sweep.figures import plot_sweep
+    from bench.sweep.granularity import plot_granularity
     from bench.sweep.records import RunsFileError
     from bench.sweep.ranking import rank, ranking_lines
     from bench.sweep.records import read_runs
     try:
-        figs = plot_sweep(args.dir) + (plot_paper(args.dir) if args.paper else [])
+        figs = plot_sweep(args.dir) + plot_granularity(args.dir) + (plot_paper(args.dir) if args.paper else [])
         rows = read_runs(args.dir).to_dict("records")
     except RunsFileError as e:
         raise UsageError(f"bench plot: {e}") from None

@@ -50,6 +50,18 @@ def skin_fraction(text):
     return _number_in(text, lambda v: 0.0 <= v <= 10.0, "a fraction in [0, 10]")
 
 
+def particle_counts(text):
+    """bench sweep --particles: one count or a comma-separated list of distinct positive counts
+    (the granularity study); an int for one count, a list for several."""
+    parts = [t.strip() for t in str(text).split(",")]
+    if not parts or any(not t for t in parts):
+        raise argparse.ArgumentTypeError(f"expected a positive integer or a comma-separated list of them, got {text!r}")
+    counts = [_integer_at_least(t, 1, "a positive integer or a comma-separated list of them") for t in parts]
+    if len(set(counts)) != len(counts):
+        raise argparse.ArgumentTypeError(f"expected distinct particle counts, got {text!r}")
+    return counts[0] if len(counts) == 1 else counts
+
+
 def precision_fraction(text):
     """bench sweep --precision: the relative half-width sought, in (0, 1)."""
     return _number_in(text, lambda v: 0.0 < v < 1.0, "a fraction in (0, 1), e.g. 0.05")

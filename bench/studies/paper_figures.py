@@ -1,7 +1,9 @@
 """The paper beside our records: its Tables 4 and 1 overlaid on a sweep's (`bench plot --paper`).
 
 plot_paper(DIR) writes paper_table4.png (module times normalised by each side's pure-MPI
-totalT, ours at our largest core count beside the paper's pinned Table 4 on 36 cores) and,
+totalT, ours at our largest core count beside the paper's pinned Table 4 on 36 cores), for a
+sweep of several particle counts granularity_paper.png (bench.sweep.granularity with the paper's
+Tables 3 and 4 in kind, paper_granularity_points) and,
 only when DIR/schemes.csv exists (bench schemes), paper_table1.png (efficiency per thread scheme,
 ours vs the paper's Table 1). The paper: Yan & Regueiro, Computational Particle Mechanics 2019
 (its tables are package data, bench/studies/paper/).
@@ -34,6 +36,38 @@ def _read_paper_table4():
     t = pd.read_csv(path, comment="#")
     t["pinned"] = t["pinned"].astype(str).str.strip().str.lower()
     return t
+
+
+# Table 3's scales: ellipsoids and 16-core nodes (hybrid: one process of 16 threads a node)
+TABLE3_SCALES = {"12k": 12000, "150k": 150000, "1M": 1000000}
+TABLE3_CORES_PER_NODE = 16
+TABLE4_PARTICLES = 12000
+
+
+def paper_granularity_points():
+    """The paper's points for the granularity figure's bottom axes (bench.sweep.granularity), in
+    kind with ours: {g: particles per core, relative: T_fastest / T, family, source}. Table 3:
+    pure MPI and hybrid at N = 12k, 150k, 1M on 8, 64, 256 nodes of 16 cores (g = N / (16 nodes));
+    Table 4, pinned: each mapping of 12k ellipsoids on one 36-core node (g = 333) against the
+    fastest there (36 x 1, pure MPI). No serial times are given, so no efficiency."""
+    import pandas as pd
+    out = []
+    t3 = pd.read_csv(table_path("table3_pure_vs_hybrid.csv"), comment="#")
+    for scale, rows in t3.groupby("scale", sort=False):
+        g = TABLE3_SCALES[scale] / (int(rows["nodes"].iloc[0]) * TABLE3_CORES_PER_NODE)
+        best = rows["totalT"].min()
+        for _, r in rows.iterrows():
+            out.append({"g": g, "relative": best / r["totalT"], "source": "Table 3",
+                        "family": "MPI" if r["mode"] == "pure-mpi" else "hybrid"})
+    t4 = _read_paper_table4()
+    if t4 is not None:
+        t4 = t4[t4["pinned"] == "yes"]
+        best = t4["totalT"].min()
+        for _, r in t4.iterrows():
+            fam = "MPI" if r["threads"] == 1 else ("threads" if r["procs"] == 1 else "hybrid")
+            out.append({"g": TABLE4_PARTICLES / PAPER_CORES, "relative": best / r["totalT"], "source": "Table 4",
+                        "family": fam})
+    return out
 
 
 def _normalise(rows, procs, threads, cores):
@@ -72,6 +106,8 @@ def plot_paper(directory):
     p = _plot_paper_table4(directory)
     if p:
         paths.append(p)
+    from bench.sweep.granularity import plot_granularity
+    paths += plot_granularity(directory, paper_granularity_points(), name="granularity_paper.png")
     if os.path.exists(os.path.join(directory, "schemes.csv")):
         paths.append(_plot_paper_table1(directory))
     return paths

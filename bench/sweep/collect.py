@@ -16,6 +16,7 @@ import numpy as np
 
 from bench.run.records import write_json
 from bench.sweep.figures import plot_sweep
+from bench.sweep.granularity import plot_granularity
 from bench.sweep.points import SERIAL, point_from_dict
 from bench.sweep.ranking import rank, ranking_lines
 from bench.sweep.records import amdahl, flag_reference, reference_key, summarise, with_speedup, write_runs
@@ -109,7 +110,7 @@ def collect(args):
             info["mpi_library"] = sorted(libs)[0] if len(libs) == 1 else sorted(libs)
         info["collected"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
         write_json(os.path.join(args.dir, "manifest.json"), info)
-    figs = plot_sweep(args.dir)
+    figs = plot_sweep(args.dir) + plot_granularity(args.dir)
     done = sum(r["status"] == "done" for r in rows)
     for r in rows:
         if r["status"] != "done":

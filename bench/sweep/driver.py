@@ -35,6 +35,7 @@ from bench.run.lifeline import Interrupted, exit_status, raise_on_signals, signa
 from bench.run.records import prepare_output, process_alive, read_json_file, write_json
 from bench.sweep.ceiling import Ceiling, CeilingError
 from bench.sweep.figures import plot_sweep
+from bench.sweep.granularity import plot_granularity
 from bench.sweep.launchers import LAUNCHERS
 from bench.sweep.lock import SweepLock
 from bench.sweep.points import SERIAL, make_points, point_from_dict
@@ -205,6 +206,7 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
     clock = SweepClock(n_runs)
     round_seconds, short = [], None   # each round's wall time; why --precision stopped short
     this_sweep = [p.key for p in points]
+    sizes = len({p.particles for p in points}) > 1   # the granularity study: points named with their N
     try:
         r = -1
         while True:
@@ -230,7 +232,7 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
                 rep = everything[p.key]["dirs"][r]
                 load0 = os.getloadavg()[0]
                 current = p
-                name = f"point {k}/{len(points)} {p.mapping}{' ' + p.scheme if p.scheme else ''}" + \
+                name = f"point {k}/{len(points)} {_label(p, sizes)}" + \
                     (f" rep {r + 1}/{max(repeats, r + 1)}" if repeats > 1 else "")
                 clock.begin(name, rep)
                 st = launcher.run_point(p, rep, env, lock_fd, tick=clock.tick)
@@ -247,7 +249,7 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
                 last = st["status"] != "done" or r == max(todo[p.key]) or bool(precision and r >= repeats - 1)
                 row = record(p) if last else None
                 el = time.perf_counter() - start
-                line = _progress(k, len(points), p, r, max(repeats, r + 1), st, row, rep, el, clock.left())
+                line = _progress(k, len(points), p, r, max(repeats, r + 1), st, row, rep, el, clock.left(), sizes)
                 if precision:
                     line += widest_text([rows[q] for q in this_sweep if q in rows])
                 print(line, flush=True)
@@ -301,9 +303,10 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
                                                if k in rows and rows[k].get("resolved") not in ("yes", "")],
                                 "stopped": short}
     write_json(os.path.join(out, "summary.json"), summary)
-    if summary.get("serial_fraction") is not None:
-        print(f"Amdahl fit over {summary['points']} points: serial fraction {summary['serial_fraction']:.3f}"
-              + ("" if summary["valid"] else f" ({summary['note']})"))
+    for n, fit in ((summary.get("by_particles") or {}) | {"": summary}).items():
+        if fit.get("serial_fraction") is not None:
+            print(f"Amdahl fit over {fit['points']} points{f' of {int(n):,} particles' if n else ''}: serial "
+                  f"fraction {fit['serial_fraction']:.3f}" + ("" if fit["valid"] else f" ({fit['note']})"))
     for line in ranking_lines(summary["ranking"]):
         print(f"ranking, {line}")
     if precision:
@@ -315,11 +318,13 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
     if getattr(args, "compare", None):  # against an earlier sweep (bench.sweep.compare): reported, never failed on
         from bench.sweep.compare import compare_folders, comparison_lines
         entries = compare_folders(args.compare, out)
-        summary["compare"] = {"against": os.path.abspath(args.compare), "points": entries}
+        summary["compare"] = {"against": os.path.abspath(args.compare),  # JSON has no NaN: null
+                              "points": [{k: None if isinstance(v, float) and not math.isfinite(v) else v
+                                          for k, v in e.items()} for e in entries]}
         write_json(os.path.join(out, "summary.json"), summary)
         for line in comparison_lines(entries):
             print(f"compared, {line}")
-    figs = plot_sweep(out)
+    figs = plot_sweep(out) + plot_granularity(out)
     print(f"records: {runs_path}; figures: {', '.join(os.path.basename(f) for f in figs)}")
     flagged = [r for r in rows.values() if isinstance(r.get("flag"), str) and r["flag"]]
     if flagged:
@@ -449,9 +454,14 @@ class SweepClock:
             self.bar = None
 
 
-def _progress(k, n, p, r, repeats, st, row, rep, elapsed, eta):
+def _label(p, sizes=False):
+    """A point's name in the progress lines: mapping, scheme and, in a granularity study, N."""
+    return f"{p.mapping}{' ' + p.scheme if p.scheme else ''}" + (f" at {p.particles:,} particles" if sizes else "")
+
+
+def _progress(k, n, p, r, repeats, st, row, rep, elapsed, eta, sizes=False):
     """The progress line of one repeat: the point, its outcome, its time and what makes it doubtful."""
-    name = f"point {k}/{n} {p.mapping}{' ' + p.scheme if p.scheme else ''}"
+    name = f"point {k}/{n} {_label(p, sizes)}"
     if repeats > 1:
         name += f" rep {r + 1}/{repeats}"
     text = f"{name}: {st['status']}" + (f" ({st['reason']})" if st["status"] != "done" else "")

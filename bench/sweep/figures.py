@@ -1,6 +1,7 @@
 """Figures of a mapping sweep, drawn from DIR/runs.csv (plotting only reads records).
 
-plot_sweep(DIR) writes, in DIR:
+plot_sweep(DIR) writes, in DIR (a sweep of several particle counts, the granularity study: one
+set a count, speedup-2000.png, ..., and bench.sweep.granularity's granularity.png):
 - speedup.png: speedup T(1)/T(p) against cores p = procs x threads (log2-log2), one series per
   family (threads: 1 process; MPI: 1 thread; hybrid: both > 1; split by thread scheme and by
   neighbour method when those vary), every point labelled with its mapping P-px-py-pz-T, the
@@ -529,21 +530,32 @@ def plot_sweep(directory):
     error_vs_time.png in DIR; return their paths. Points not done are listed in a foot note
     of each figure and on stdout."""
     df = read_runs(directory)
-    done = done_rows(df)
     skipped = skipped_rows(df)
     if skipped:
         print(f"sweep plots: not plotted (status != done): {'; '.join(skipped)}")
-    ctx = sweep_context(df)
-    fit = _amdahl(directory)
-    paths = [
-        _plot_metric(done, skipped, ctx, fit, "speedup", os.path.join(directory, "speedup.png")),
-        _plot_metric(done, skipped, ctx, fit, "efficiency", os.path.join(directory, "efficiency.png"),
-                     read_ceiling(directory)),
-        _plot_metric(done, skipped, ctx, fit, "edsf", os.path.join(directory, "edsf.png")),
-        _plot_modules(done, skipped, ctx, os.path.join(directory, "modules.png")),
-        _plot_error(done, skipped, ctx, os.path.join(directory, "error_vs_time.png")),
-    ]
+    counts = sorted({int(n) for n in df["particles"] if np.isfinite(n)})
+    if len(counts) < 2:
+        return _figure_set(df, directory, "", _amdahl(directory), read_ceiling(directory))
+    # the granularity study (several N): one set a particle count, speedup-2000.png, ...; the
+    # Amdahl fit of summary.json pools the sizes, so none is drawn
+    paths = []
+    for n in counts:
+        paths += _figure_set(df[df["particles"] == n], directory, f"-{n}", None, ())
     return paths
+
+
+def _figure_set(df, directory, suffix, fit, ceiling):
+    done = done_rows(df)
+    skipped = skipped_rows(df)
+    ctx = sweep_context(df)
+    path = lambda name: os.path.join(directory, f"{name}{suffix}.png")  # noqa: E731
+    return [
+        _plot_metric(done, skipped, ctx, fit, "speedup", path("speedup")),
+        _plot_metric(done, skipped, ctx, fit, "efficiency", path("efficiency"), ceiling),
+        _plot_metric(done, skipped, ctx, fit, "edsf", path("edsf")),
+        _plot_modules(done, skipped, ctx, path("modules")),
+        _plot_error(done, skipped, ctx, path("error_vs_time")),
+    ]
 
 
 def metric_figure(directory, metric):

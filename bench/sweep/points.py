@@ -87,7 +87,10 @@ def point_from_dict(d):
 def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, shape, pin, halo,
                 contact_method="exact", update_grid=0, balance="extent", newton="auto", skin=None, preset=None):
     """Points of a sweep: the serial reference first, then each mapping (x each scheme when it has
-    more than one thread), without duplicates, in the order given; skin (a fraction, or None for
+    more than one thread), without duplicates, in the order given; particles: one count, None (the
+    scene's own) or a list of counts (the granularity study, issue 36: the grid counts x mappings,
+    each count with its own serial reference, the references first, then the count's points in
+    the order given, count by count); skin (a fraction, or None for
     bench run's default) goes to every point, the serial reference included. newton (auto, on, off) goes to
     the points with more than one process, except hybrid points under a scheme that stores every
     pair's forces (frogleap, headtail: they resolve a pair across a border on both ranks)."""
@@ -98,15 +101,17 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
     if SERIAL not in [str(m) for m in parsed]:
         parsed.insert(0, parse_mapping(SERIAL))
     points = []
-    for m in parsed:
-        for s in (schemes if m.threads > 1 else [""]):
-            p = Point(str(m), s, scene, particles or 0, steps or 0, warmup, neighbor, shape or "", pin, halo,
-                      contact_method, update_grid if m.procs > 1 else 0,
-                      balance if m.procs > 1 and update_grid else "extent",
-                      newton if m.procs > 1 and (m.threads == 1 or s in SPLIT_SCHEMES) else "auto",
-                      None if skin is None else float(skin), preset or "")
-            if p not in points:
-                points.append(p)
+    counts = list(particles) if isinstance(particles, (list, tuple)) else [particles]
+    for n in counts:
+        for m in parsed:
+            for s in (schemes if m.threads > 1 else [""]):
+                p = Point(str(m), s, scene, n or 0, steps or 0, warmup, neighbor, shape or "", pin, halo,
+                          contact_method, update_grid if m.procs > 1 else 0,
+                          balance if m.procs > 1 and update_grid else "extent",
+                          newton if m.procs > 1 and (m.threads == 1 or s in SPLIT_SCHEMES) else "auto",
+                          None if skin is None else float(skin), preset or "")
+                if p not in points:
+                    points.append(p)
     points.sort(key=lambda p: p.mapping != SERIAL)  # the reference runs first
     return points
 

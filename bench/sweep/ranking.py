@@ -40,15 +40,23 @@ def compare(fast, slow):
     return ratio, lo, hi
 
 
+def _count(row):
+    n = _num(row.get("particles"))
+    return int(n) if math.isfinite(n) else None
+
+
 def rank(rows):
-    """The ranking of runs.csv rows (dicts): a list, one entry per core count (ascending), of
-    {"cores", "fastest", "ties": [{point, percent, lo, hi}], "slower": [...], "excluded":
-    [{point, reason}]}; percent and its bounds: 100 (T / T_fastest - 1) [%] (None where there is no
-    interval: JSON has no NaN)."""
+    """The ranking of runs.csv rows (dicts): a list, one entry per particle count and core count
+    (ascending; only points of the same scene size are compared), of {"particles", "cores",
+    "fastest", "ties": [{point, percent, lo, hi}], "slower": [...], "excluded": [{point, reason}]};
+    percent and its bounds: 100 (T / T_fastest - 1) [%] (None where there is no interval: JSON has
+    no NaN)."""
     out = []
-    cores = sorted({int(_num(r["cores"])) for r in rows if math.isfinite(_num(r.get("cores")))})
-    for c in cores:
-        at = [r for r in rows if math.isfinite(_num(r.get("cores"))) and int(_num(r["cores"])) == c]
+    groups = sorted({(_count(r), int(_num(r["cores"]))) for r in rows if math.isfinite(_num(r.get("cores")))},
+                    key=lambda g: (-1 if g[0] is None else g[0], g[1]))
+    for n, c in groups:
+        at = [r for r in rows if math.isfinite(_num(r.get("cores"))) and int(_num(r["cores"])) == c
+              and _count(r) == n]
         excluded, ranked = [], []
         for r in at:
             flags = str(r.get("flag") or "").split(",")
@@ -58,7 +66,7 @@ def rank(rows):
                 excluded.append({"point": _label(r), "reason": "measured beside foreign load"})
             else:
                 ranked.append(r)
-        entry = {"cores": c, "fastest": None, "ties": [], "slower": [], "excluded": excluded}
+        entry = {"particles": n, "cores": c, "fastest": None, "ties": [], "slower": [], "excluded": excluded}
         if ranked:
             ranked.sort(key=lambda r: _num(r["totalT"]))
             best = ranked[0]
@@ -81,9 +89,11 @@ def _pct(item):
 
 
 def ranking_lines(ranking):
-    """The ranking in words, one line per core count, e.g. "2 cores: 2-2-1-1-1 fastest;
+    """The ranking in words, one line per core count (and particle count, named when the sweep has
+    several), e.g. "2 cores: 2-2-1-1-1 fastest;
     1-1-1-1-2 dynamic ties it (+1 %, 95 % interval -3 to +5 %); 2-1-2-1-1 is slower (+9 %, ...)"."""
     lines = []
+    sizes = len({e.get("particles") for e in ranking}) > 1
     for e in ranking:
         if e["fastest"] is None:
             parts = ["nothing to rank"]
@@ -92,5 +102,6 @@ def ranking_lines(ranking):
             parts += [f"{t['point']} ties it ({_pct(t)})" for t in e["ties"]]
             parts += [f"{s['point']} is slower ({_pct(s)})" for s in e["slower"]]
         parts += [f"{x['point']} left out: {x['reason']}" for x in e["excluded"]]
-        lines.append(f"{e['cores']} core{'s' if e['cores'] != 1 else ''}: " + "; ".join(parts))
+        size = f"{e['particles']:,} particles, " if sizes and e.get("particles") is not None else ""
+        lines.append(f"{size}{e['cores']} core{'s' if e['cores'] != 1 else ''}: " + "; ".join(parts))
     return lines

@@ -399,7 +399,16 @@ def merge_manifest(out, info, entry):
 
 def amdahl(rows):
     """Least-squares Amdahl serial fraction f from 1/S = f (1 - 1/p) + 1/p over the done points
-    with p > 1 cores (p = processes x threads)."""
+    with p > 1 cores (p = processes x threads). Points of several particle counts (the granularity
+    study) are not pooled: serial_fraction is None and `by_particles` holds one fit a count."""
+    counts = sorted({int(_num(r.get("particles"))) for r in rows if math.isfinite(_num(r.get("particles")))})
+    if len(counts) > 1:
+        return {"serial_fraction": None, "points": 0, "by_particles": {
+            str(n): _amdahl_fit([r for r in rows if _num(r.get("particles")) == n]) for n in counts}}
+    return _amdahl_fit(rows)
+
+
+def _amdahl_fit(rows):
     pts = [(float(r["speedup"]), int(r["cores"])) for r in rows
            if r["status"] == "done" and int(r["cores"]) > 1 and r["speedup"] == r["speedup"]]
     if not pts:
