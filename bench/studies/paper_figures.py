@@ -52,7 +52,12 @@ def paper_granularity_points():
     fastest there (36 x 1, pure MPI). No serial times are given, so no efficiency."""
     import pandas as pd
     out = []
-    t3 = pd.read_csv(table_path("table3_pure_vs_hybrid.csv"), comment="#")
+    path = table_path("table3_pure_vs_hybrid.csv")
+    if not os.path.exists(path):
+        print(f"sweep plots: paper table {os.path.normpath(path)} not found; no Table 3 overlay", file=sys.stderr)
+        t3 = pd.DataFrame(columns=["scale", "nodes", "mode", "totalT"])
+    else:
+        t3 = pd.read_csv(path, comment="#")
     for scale, rows in t3.groupby("scale", sort=False):
         g = TABLE3_SCALES[scale] / (int(rows["nodes"].iloc[0]) * TABLE3_CORES_PER_NODE)
         best = rows["totalT"].min()
@@ -106,8 +111,9 @@ def plot_paper(directory):
     p = _plot_paper_table4(directory)
     if p:
         paths.append(p)
-    from bench.sweep.granularity import plot_granularity
-    paths += plot_granularity(directory, paper_granularity_points(), name="granularity_paper.png")
+    from bench.sweep.granularity import plot_granularity, sizes
+    if os.path.exists(os.path.join(directory, "runs.csv")) and len(sizes(done_rows(read_runs(directory)))) > 1:
+        paths += plot_granularity(directory, paper_granularity_points(), name="granularity_paper.png")
     if os.path.exists(os.path.join(directory, "schemes.csv")):
         paths.append(_plot_paper_table1(directory))
     return paths

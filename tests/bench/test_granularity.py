@@ -146,3 +146,19 @@ def test_granularity_sweep_end_to_end(tmp_path):
     assert "at 400 particles" in res.stdout
     summary = json.loads((out / "summary.json").read_text())
     assert set(summary["by_particles"]) == {"200", "400"}
+
+
+def test_paper_overlay_in_kind(tmp_path):
+    """`bench plot --paper` on a granularity study: granularity_paper.png with the paper's points on the
+    bottom axes. Their values come from the package's copy of the paper's tables: Table 3 at 12k on 8
+    nodes of 16 cores, g = 12000 / 128 = 93.75, hybrid T_pure / T_hybrid = 2.42e-2 / 4.47e-2 = 0.541;
+    Table 4 pinned at g = 12000 / 36 = 333.3, the fastest mapping 36 x 1 (3.86e-2 s) at 1."""
+    from bench.studies.paper_figures import paper_granularity_points, plot_paper
+    pts = paper_granularity_points()
+    t3 = [p for p in pts if p["source"] == "Table 3" and p["g"] == pytest.approx(93.75)]
+    assert {p["family"]: p["relative"] for p in t3} == {"MPI": 1.0, "hybrid": pytest.approx(2.42e-2 / 4.47e-2)}
+    t4 = [p for p in pts if p["source"] == "Table 4"]
+    assert len(t4) == 8 and all(p["g"] == pytest.approx(12000 / 36) for p in t4)
+    assert max(p["relative"] for p in t4) == 1.0
+    d, _ = _study(tmp_path)
+    assert str(d / "granularity_paper.png") in plot_paper(str(d))
