@@ -329,7 +329,10 @@ def save_figure(fig, path):
     beside it, path with .pdf for .png (a full disk leaves the old files and raises RecordError)."""
     from bench.run.records import atomic_write
     try:
-        kw = dict(bbox_inches="tight", pad_inches=0.03)
+        # the legends stand out of tight_layout (layout_figure): named here, or a figure without a
+        # foot note below them would be cropped above its legend
+        legends = [a.get_legend() for a in fig.axes if a.get_legend() is not None] + list(fig.legends)
+        kw = dict(bbox_inches="tight", pad_inches=0.03, bbox_extra_artists=legends)
         atomic_write(path, lambda fh: fig.savefig(fh, format="png", dpi=DPI, **kw), mode="wb")
         with matplotlib.rc_context({"pdf.fonttype": 42}):
             atomic_write(os.path.splitext(path)[0] + ".pdf", lambda fh: fig.savefig(fh, format="pdf", **kw),

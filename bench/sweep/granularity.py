@@ -29,7 +29,7 @@ import os
 
 import numpy as np
 
-from bench.sweep.figures import (FAMILY_STYLE, LABEL, TITLE, WIDTH, _style, done_rows, layout_figure, note_lines,
+from bench.sweep.figures import (FAMILY_STYLE, LABEL, TICK, TITLE, WIDTH, _style, done_rows, layout_figure, note_lines,
                                  plt, save_figure, skipped_rows)
 from bench.sweep.records import read_runs
 
@@ -152,6 +152,7 @@ def granularity_figure(directory, paper=()):
     from matplotlib.ticker import FuncFormatter
     for a in (ax, axr):
         a.grid(True, which="major", lw=0.4, alpha=0.5)
+        a.tick_params(which="both", labelsize=TICK)
         a.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
         a.xaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}" if f"{v:g}"[0] in "25" else ""))
     if not curves:

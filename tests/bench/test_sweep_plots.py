@@ -681,3 +681,16 @@ def test_modules_figure_16_points_ticks_and_notes(tmp_path):
         assert len(rings) == 16
     finally:
         sweep_plots.plt.close(fig)
+
+
+def test_a_figure_without_a_foot_note_keeps_its_legend(tmp_path):
+    """The legend stands below the axes, out of tight_layout (layout_figure); a clean sweep has no foot
+    note below it, and the saved PNG must still hold it: the same figure saved with its legend is
+    taller than saved without (a crop above the legend lost it before issue 36)."""
+    import matplotlib.image as mpimg
+    d = write_runs(tmp_path / "sweep", [row("1-1-1-1-1", totalT=T1), row("2-2-1-1-1", totalT=T1 / 1.8)])
+    with_legend = sweep_plots.save_figure(metric_figure(d, "speedup"), str(tmp_path / "with.png"))
+    fig = metric_figure(d, "speedup")
+    fig.axes[0].get_legend().remove()
+    without = sweep_plots.save_figure(fig, str(tmp_path / "without.png"))
+    assert mpimg.imread(with_legend).shape[0] > mpimg.imread(without).shape[0]
