@@ -12,7 +12,8 @@ set a count, speedup-2000.png, ..., and bench.sweep.granularity's granularity.pn
 - edsf.png: the Karp-Flatt experimentally determined serial fraction against cores (p > 1), a
   line at 0 and the Amdahl fit when present;
 - modules.png: per mapping (x axis ordered by cores, then procs; grouped by core count) stacked
-  bars of compuT, commuT, migraT in ms/step (top) and as % of totalT (bottom), the paper's
+  bars of compuT, commuT, migraT in ms/step (top, with totalT's 95 % interval as whiskers where
+  runs.csv has totalT_lo/hi) and as % of totalT (bottom), the paper's
   Figs. 19-21 in kind; where runs.csv has wireT (MPI points whose steps.csv has wire_s), a second
   bar beside it stacks compuT, syncT (the step's allreduce: waiting for the slowest rank + the
   collective's latency; only where runs.csv has it), wireT (the modelled wire time of the bytes
@@ -769,6 +770,17 @@ def _modules_figure(done, skipped, ctx):
         bottom += v
         bottom2 += pct(v)
     tops = 1e3 * np.where(np.isfinite(total), total, 0.0)  # where the numbers above a point start
+    if "totalT_lo" in d and "totalT_hi" in d:  # the 95 % interval of totalT through the first bar's top
+        lo, hi = d["totalT_lo"].to_numpy(dtype=float), d["totalT_hi"].to_numpy(dtype=float)
+        ok = np.isfinite(lo) & np.isfinite(hi) & (hi > 0)
+        if ok.any():
+            from matplotlib.collections import LineCollection
+            cap = 0.25 * ws
+            segs = [seg for xi, c, a, b in zip(xs[ok], cap[ok], 1e3 * np.clip(lo[ok], 0, None), 1e3 * hi[ok])
+                    for seg in ([(xi, a), (xi, b)], [(xi - c, a), (xi + c, a)], [(xi - c, b), (xi + c, b)])]
+            ax.add_collection(LineCollection(segs, colors="k", linewidths=0.8, zorder=3,
+                                             label="totalT: 95 % interval"))
+            tops[ok] = np.maximum(tops[ok], 1e3 * hi[ok])
     lt0 = np.zeros(n, dtype=bool)
     if nw:
         sync = np.where(hs, sync_all[has], 0.0)
@@ -841,9 +853,12 @@ def _modules_figure(done, skipped, ctx):
             return first + second  # (by columns: the first bar's modules, then the second bar's)
         # read by rows: the first bar's modules on the first row, the second bar's on the second
         return [h for j in range(ncol) for h in (first[j:j + 1] + second[j:j + 1])]
+    interval = ax.findobj(lambda a: getattr(a, "get_label", lambda: "")() == "totalT: 95 % interval")
     title = ("left bar: totalT split into modules (totalT [ms] above it, commuT + migraT [%] below); right bar "
              "of an MPI point:\nthe same commuT + migraT split at the wire" if nw else
              "totalT [ms] above each bar; commuT + migraT [% of totalT] above each share")
+    if interval:
+        title += "; whiskers: totalT's 95 % interval"
     renderer = fig.canvas.get_renderer()
     px = fig.dpi / 72.0
     # the x ticks: level while they fit between their neighbours (the axes about WIDTH - 0.8 in

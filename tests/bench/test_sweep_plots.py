@@ -694,3 +694,20 @@ def test_a_figure_without_a_foot_note_keeps_its_legend(tmp_path):
     fig.axes[0].get_legend().remove()
     without = sweep_plots.save_figure(fig, str(tmp_path / "without.png"))
     assert mpimg.imread(with_legend).shape[0] > mpimg.imread(without).shape[0]
+
+
+def test_modules_figure_draws_the_totalT_interval(tmp_path):
+    """modules.png draws each point's totalT 95 % interval (runs.csv totalT_lo/hi) as whiskers from lo to
+    hi in ms at its first bar, for the points that have one (here 2-2-1-1-1: [0.9, 1.3] x T1 / 1.8;
+    the serial point has none), and says so above its legend."""
+    t = T1 / 1.8
+    mpi = dict(row("2-2-1-1-1", totalT=t, commu=0.1 * t), totalT_lo=0.9 * t, totalT_hi=1.3 * t)
+    d = write_runs(tmp_path / "sweep", [row("1-1-1-1-1", totalT=T1), mpi])
+    fig = modules_figure(d)
+    whiskers = [c for c in fig.axes[0].collections if c.get_label() == "totalT: 95 % interval"]
+    assert len(whiskers) == 1
+    ys = sorted({round(y, 9) for seg in whiskers[0].get_segments() for y in seg[:, 1]})
+    assert ys == pytest.approx([1e3 * 0.9 * t, 1e3 * 1.3 * t])
+    assert "95 % interval" in fig.axes[0].get_legend().get_title().get_text()
+    import matplotlib.pyplot as plt
+    plt.close(fig)
