@@ -35,23 +35,13 @@ import math
 import os
 
 from bench.sweep.intervals import speedup_interval
+from bench.sweep.ranking import number as _num
+from bench.sweep.ranking import point_label
 from bench.sweep.records import RunsFileError, read_runs_rows
 
 VERDICTS = ("faster", "slower", "same", "no interval", "not compared", "only in old", "only in new")
 
 
-def _num(v):
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return math.nan
-
-
-def point_label(row):
-    """The point as people name it: its mapping, and its thread scheme when it has one."""
-    scheme = (row.get("scheme") or "").strip()
-    mapping = (row.get("mapping") or "").strip() or row["point"]
-    return mapping + (f" {scheme}" if scheme else "")
 
 
 def read_sweep_rows(folder):

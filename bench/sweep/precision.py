@@ -17,19 +17,15 @@ says for each point: `yes`, `no: budget spent` or `no: ROUNDS_CAP rounds`.
 """
 import math
 
+from bench.sweep.ranking import number as _num
+from bench.sweep.ranking import point_label as label
+
 MIN_ROUNDS = 2
 ROUNDS_CAP = 20
 
 RESOLVED = "yes"
 STOPPED_BUDGET = "no: budget spent"
 STOPPED_CAP = f"no: {ROUNDS_CAP} rounds"
-
-
-def _num(v):
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return math.nan
 
 
 def half_width(row):
@@ -39,11 +35,6 @@ def half_width(row):
     if not (math.isfinite(t) and math.isfinite(lo) and math.isfinite(hi)) or t <= 0:
         return math.nan
     return (hi - lo) / 2.0 / t
-
-
-def label(row):
-    scheme = row.get("scheme")
-    return str(row.get("mapping")) + (f" {scheme}" if isinstance(scheme, str) and scheme else "")
 
 
 def unresolved(rows, precision):

@@ -16,32 +16,37 @@ import math
 from bench.sweep.intervals import parse_reps, speedup_interval
 
 
-def _num(v):
+def number(v):
+    """float(v), NaN for what is not a number (a runs.csv field: text, empty or NaN)."""
     try:
         return float(v)
     except (TypeError, ValueError):
         return math.nan
 
 
-def _label(row):
+def point_label(row):
+    """A point as people name it: its mapping, and its thread scheme when it has one."""
     scheme = row.get("scheme")
-    return str(row["mapping"]) + (f" {scheme}" if isinstance(scheme, str) and scheme else "")
+    scheme = scheme.strip() if isinstance(scheme, str) else ""
+    mapping = row.get("mapping")
+    mapping = mapping.strip() if isinstance(mapping, str) and mapping.strip() else str(row.get("point"))
+    return mapping + (f" {scheme}" if scheme else "")
 
 
 def compare(fast, slow):
     """(ratio, lo, hi) of T_slow / T_fast (rows of runs.csv as dicts) with its 95 % interval (module
     docstring); NaN bounds where neither pairing nor both intervals are available."""
-    t_fast, t_slow = _num(fast["totalT"]), _num(slow["totalT"])
+    t_fast, t_slow = number(fast["totalT"]), number(slow["totalT"])
     ratio = t_slow / t_fast
     # T_slow / T_fast is the "speedup" of the fast point against the slow one as reference
-    lo, hi = speedup_interval(t_slow, _num(slow.get("totalT_lo")), _num(slow.get("totalT_hi")), t_fast,
-                              _num(fast.get("totalT_lo")), _num(fast.get("totalT_hi")),
+    lo, hi = speedup_interval(t_slow, number(slow.get("totalT_lo")), number(slow.get("totalT_hi")), t_fast,
+                              number(fast.get("totalT_lo")), number(fast.get("totalT_hi")),
                               parse_reps(slow.get("totalT_reps")), parse_reps(fast.get("totalT_reps")))
     return ratio, lo, hi
 
 
 def _count(row):
-    n = _num(row.get("particles"))
+    n = number(row.get("particles"))
     return int(n) if math.isfinite(n) else None
 
 
@@ -52,28 +57,28 @@ def rank(rows):
     percent and its bounds: 100 (T / T_fastest - 1) [%] (None where there is no interval: JSON has
     no NaN)."""
     out = []
-    groups = sorted({(_count(r), int(_num(r["cores"]))) for r in rows if math.isfinite(_num(r.get("cores")))},
+    groups = sorted({(_count(r), int(number(r["cores"]))) for r in rows if math.isfinite(number(r.get("cores")))},
                     key=lambda g: (-1 if g[0] is None else g[0], g[1]))
     for n, c in groups:
-        at = [r for r in rows if math.isfinite(_num(r.get("cores"))) and int(_num(r["cores"])) == c
+        at = [r for r in rows if math.isfinite(number(r.get("cores"))) and int(number(r["cores"])) == c
               and _count(r) == n]
         excluded, ranked = [], []
         for r in at:
             flags = str(r.get("flag") or "").split(",")
-            if r.get("status") != "done" or not math.isfinite(_num(r.get("totalT"))):
-                excluded.append({"point": _label(r), "reason": f"not done ({r.get('status')})"})
+            if r.get("status") != "done" or not math.isfinite(number(r.get("totalT"))):
+                excluded.append({"point": point_label(r), "reason": f"not done ({r.get('status')})"})
             elif "load" in flags:
-                excluded.append({"point": _label(r), "reason": "measured beside foreign load"})
+                excluded.append({"point": point_label(r), "reason": "measured beside foreign load"})
             else:
                 ranked.append(r)
         entry = {"particles": n, "cores": c, "fastest": None, "ties": [], "slower": [], "excluded": excluded}
         if ranked:
-            ranked.sort(key=lambda r: _num(r["totalT"]))
+            ranked.sort(key=lambda r: number(r["totalT"]))
             best = ranked[0]
-            entry["fastest"] = _label(best)
+            entry["fastest"] = point_label(best)
             for r in ranked[1:]:
                 ratio, lo, hi = compare(best, r)
-                item = {"point": _label(r), "percent": 100.0 * (ratio - 1.0),
+                item = {"point": point_label(r), "percent": 100.0 * (ratio - 1.0),
                         "lo": 100.0 * (lo - 1.0) if math.isfinite(lo) else None,
                         "hi": 100.0 * (hi - 1.0) if math.isfinite(hi) else None}
                 # without an interval nothing can be told apart: a tie, said as such
