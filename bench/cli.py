@@ -382,8 +382,9 @@ def _sweep_file(args):
         if want is float:
             check, expected = FLOAT_FIELDS.get(key, (skin_fraction, "a fraction in [0, 10]"))
             try:
-                value = check(str(value)) if not isinstance(value, bool) and isinstance(value, (int, float)) \
-                    else check("bad")
+                if isinstance(value, bool) or not isinstance(value, (int, float)):
+                    raise argparse.ArgumentTypeError(expected)
+                value = check(str(value))
             except argparse.ArgumentTypeError:
                 raise UsageError(f"{key} in {args.file} must be {expected}, got {_short(value)}") from None
         if want is bool and not isinstance(value, bool):
@@ -448,6 +449,9 @@ def cmd_sweep(args):
         raise UsageError("bench sweep: --budget bounds the rounds of --precision: give --precision too")
     if getattr(args, "precision", None) and args.launcher != "local":
         raise UsageError("bench sweep: --precision adds rounds as the sweep goes: it needs the local launcher")
+    if getattr(args, "compare", None) and args.launcher != "local":
+        raise UsageError("bench sweep: --compare reads the finished sweep: with Slurm, run bench compare OLD DIR "
+                         "after bench collect")
     if getattr(args, "compare", None) and not os.path.isfile(os.path.join(args.compare, "runs.csv")):
         raise UsageError(f"bench sweep: --compare {args.compare}: no runs.csv there (not a sweep folder)")
     args.slurm = _slurm_options(args)
@@ -597,7 +601,8 @@ def cmd_peer(args):
         raise UsageError("--out must be a folder, got an empty string")
     from bench.studies.peer import SKIP_STEPS, Lammps, Liggghts, PeerError, compare
     if args.steps <= SKIP_STEPS:
-        raise UsageError(f"bench peer: --steps must be above {SKIP_STEPS} (ours leaves the first {SKIP_STEPS} out)")
+        raise UsageError(f"bench peer: --steps must be at least {SKIP_STEPS + 1} (ours leaves out step 1, which holds "
+                         f"the first neighbour-list build)")
     try:
         peer = Lammps(args.lmp, args.mpiexec) if args.peer == "lammps" else \
             Liggghts(args.liggghts, args.mpiexec, lattice)

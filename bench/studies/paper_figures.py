@@ -111,8 +111,10 @@ def plot_paper(directory):
     p = _plot_paper_table4(directory)
     if p:
         paths.append(p)
-    from bench.sweep.granularity import plot_granularity, sizes
-    if os.path.exists(os.path.join(directory, "runs.csv")) and len(sizes(done_rows(read_runs(directory)))) > 1:
+    from bench.sweep.figures import particle_counts
+    from bench.sweep.granularity import plot_granularity
+    runs = os.path.join(directory, "runs.csv")
+    if os.path.exists(runs) and len(particle_counts(done_rows(read_runs(directory)))) > 1:
         paths += plot_granularity(directory, paper_granularity_points(), name="granularity_paper.png")
     if os.path.exists(os.path.join(directory, "schemes.csv")):
         paths.append(_plot_paper_table1(directory))

@@ -369,7 +369,8 @@ def compare(peer, procs_list, steps, repeats, out, timeout=1800, log=print):
     """The study (module docstring) against peer (Lammps or Liggghts); returns the report written
     to out/peer.json."""
     if steps <= SKIP_STEPS:
-        raise PeerError(f"--steps must be above {SKIP_STEPS} (ours leaves the first {SKIP_STEPS} out)")
+        raise PeerError(f"--steps must be at least {SKIP_STEPS + 1} (ours leaves out step 1, which holds the first "
+                        f"neighbour-list build)")
     os.makedirs(out, exist_ok=True)
     scene = peer.prepare(out)
     untimed = peer.untimed_steps

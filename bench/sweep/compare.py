@@ -34,8 +34,8 @@ is written into either folder.
 import math
 import os
 
+from bench.sweep.intervals import number as _num
 from bench.sweep.intervals import speedup_interval
-from bench.sweep.ranking import number as _num
 from bench.sweep.ranking import point_label
 from bench.sweep.records import RunsFileError, read_runs_rows
 

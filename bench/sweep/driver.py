@@ -40,7 +40,7 @@ from bench.sweep.launchers import LAUNCHERS
 from bench.sweep.lock import SweepLock
 from bench.sweep.points import SERIAL, make_points, point_from_dict
 from bench.sweep.precision import MIN_ROUNDS, mark, next_round, unresolved, widest_text
-from bench.sweep.ranking import rank, ranking_lines
+from bench.sweep.ranking import point_label, rank, ranking_lines
 from bench.sweep.records import (RUN_COLUMNS, RunsFileError, amdahl, flag_reference, manifest, merge_manifest,
                                  read_runs_rows, reference_key, summarise, with_speedup, write_runs)
 from modes.base import ModeError, parse_mapping
@@ -133,7 +133,7 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
     if precision and args.repeats < MIN_ROUNDS:
         print(f"sweep: --precision judges after at least {MIN_ROUNDS} rounds (one run's interval does not see "
               f"what changes from run to run)", flush=True)
-    if args.resume:  # the rounds an earlier --precision sweep added are this sweep's too
+    if args.resume and precision:  # the rounds an earlier --precision sweep added are this sweep's too
         started = {p.get("key"): p.get("repeats") for p in
                    (read_json_file(os.path.join(out, "manifest.json")) or {}).get("points", []) if isinstance(p, dict)}
         repeats = max([repeats] + [int(started[p.key]) for p in points
@@ -220,9 +220,10 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
                 short = next_round(r, time.perf_counter() - start, round_seconds, budget)
                 if short is not None:
                     break
+                widest_point, width = open_points[0]
                 print(f"round {r + 1}: {len(open_points)} point(s) not yet within +-{100 * precision:g} %, the widest "
-                      f"{open_points[0][0]} " + (f"+-{100 * open_points[0][1]:.1f} %" if math.isfinite(open_points[0][1])
-                                                 else "without an interval"), flush=True)
+                      f"{widest_point} " + (f"+-{100 * width:.1f} %" if math.isfinite(width) else "without an interval"),
+                      flush=True)
                 _add_round(info, everything, todo, points, r, out)
                 clock.add(len(points))
             round_start = time.perf_counter()
@@ -297,11 +298,10 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
         return exit_status(stopped)
     summary = amdahl(list(rows.values()))
     summary["ranking"] = rank(list(rows.values()))
+    left = [rows[k] for k in this_sweep if k in rows and str(rows[k].get("resolved")).startswith("no")]
     if precision:
         summary["precision"] = {"target": precision, "budget_s": budget, "rounds": r,
-                                "unresolved": [_name(rows[k]) for k in this_sweep
-                                               if k in rows and rows[k].get("resolved") not in ("yes", "")],
-                                "stopped": short}
+                                "unresolved": [point_label(rw) for rw in left], "stopped": short}
     write_json(os.path.join(out, "summary.json"), summary)
     for n, fit in ((summary.get("by_particles") or {}) | {"": summary}).items():
         if fit.get("serial_fraction") is not None:
@@ -310,10 +310,9 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
     for line in ranking_lines(summary["ranking"]):
         print(f"ranking, {line}")
     if precision:
-        left = [rows[k] for k in this_sweep if k in rows and rows[k].get("resolved") not in ("yes", "")]
         print(f"precision +-{100 * precision:g} %: " + (
             f"every point resolved in {r} rounds" if not left else
-            f"{len(left)} point(s) not resolved ({left[0]['resolved']}): " + ", ".join(_name(rw) for rw in left)),
+            f"{len(left)} point(s) not resolved ({left[0]['resolved']}): " + ", ".join(point_label(rw) for rw in left)),
             flush=True)
     if getattr(args, "compare", None):  # against an earlier sweep (bench.sweep.compare): reported, never failed on
         from bench.sweep.compare import compare_folders, comparison_lines
@@ -333,11 +332,6 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
                                       f" [{r['flag']}]" for r in flagged))
     failed_rows = [r for r in rows.values() if r["status"] != "done"]
     return 0 if not failed_rows else 4
-
-
-def _name(row):
-    scheme = row.get("scheme")
-    return f"{row['mapping']}{' ' + scheme if isinstance(scheme, str) and scheme else ''}"
 
 
 def _add_round(info, everything, todo, points, r, out):

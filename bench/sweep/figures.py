@@ -537,7 +537,7 @@ def plot_sweep(directory):
     skipped = skipped_rows(df)
     if skipped:
         print(f"sweep plots: not plotted (status != done): {'; '.join(skipped)}")
-    counts = sorted({int(n) for n in df["particles"] if np.isfinite(n)})
+    counts = particle_counts(df)
     if len(counts) < 2:
         return _figure_set(df, directory, "", _amdahl(directory), read_ceiling(directory))
     # the granularity study (several N): one set a particle count, speedup-2000.png, ...; the
@@ -575,16 +575,21 @@ def _plot_metric(done, skipped, ctx, fit, metric, path, ceiling=()):
     return save_figure(_metric_figure(done, skipped, ctx, fit, metric, ceiling), path)
 
 
-def _interval_bars(ax, rows, metric, color):
+def particle_counts(df):
+    """The distinct particle counts of a runs.csv frame, ascending (several: the granularity study)."""
+    return sorted({int(n) for n in df["particles"] if np.isfinite(n)})
+
+
+def interval_bars(ax, rows, x, metric, color):
     """The 95 % intervals of runs.csv (metric_lo, metric_hi: bench.sweep.intervals) as vertical bars
-    through the points that have them (older records have none)."""
+    at rows[x] through the points that have them (older records have none)."""
     lo, hi = f"{metric}_lo", f"{metric}_hi"
     if lo not in rows or hi not in rows:
         return
     r = rows[np.isfinite(rows[lo]) & np.isfinite(rows[hi]) & (rows[lo] > 0)]
     if len(r):  # not part of the axes' data limits: an interval of two discordant repeats can span decades
         from matplotlib.collections import LineCollection
-        segs = [[(x, a), (x, b)] for x, a, b in zip(r["cores"], r[lo], r[hi])]
+        segs = [[(v, a), (v, b)] for v, a, b in zip(r[x], r[lo], r[hi])]
         ax.add_collection(LineCollection(segs, colors=color, linewidths=1.1, alpha=0.7, zorder=2.5), autolim=False)
 
 
@@ -607,7 +612,7 @@ def _metric_figure(done, skipped, ctx, fit, metric, ceiling=()):
         color, marker = colors[label], FAMILY_STYLE.get(fam, ("C7", "o"))[1]
         ax.plot(rows["cores"], rows[metric], ls="none", marker=marker, ms=8 if marker == "*" else 5.5,
                 color=color, label=label, zorder=3)
-        _interval_bars(ax, rows, metric, color)
+        interval_bars(ax, rows, "cores", metric, color)
         # a thin line through the best point per core count, from the serial reference
         best = rows.sort_values("totalT").groupby("cores", sort=True)[metric].first()
         xs, ys = list(best.index), list(best.values)

@@ -29,8 +29,8 @@ import os
 
 import numpy as np
 
-from bench.sweep.figures import (FAMILY_STYLE, LABEL, TICK, TITLE, WIDTH, _style, done_rows, layout_figure, note_lines,
-                                 plt, save_figure, skipped_rows)
+from bench.sweep.figures import (FAMILY_STYLE, LABEL, TICK, TITLE, WIDTH, _style, done_rows, interval_bars,
+                                 layout_figure, note_lines, particle_counts, plt, save_figure, skipped_rows)
 from bench.sweep.records import read_runs
 
 FAMILIES = ("threads", "MPI", "hybrid")
@@ -38,17 +38,10 @@ PAPER_LABELS = {"Table 3": "paper Table 3: 12k-1M on 8-256 nodes (hollow diamond
                 "Table 4": "paper Table 4: 12k on one 36-core node, pinned (hollow, the family's marker)"}
 
 
-def sizes(df):
-    """The distinct particle counts of a runs.csv frame's done points, ascending."""
-    n = df["particles"][np.isfinite(df["particles"])] if len(df) else []
-    return sorted({int(v) for v in n})
-
-
 def _usable(done):
     """(done points of more than one core with an efficiency, not measured beside foreign load;
     the done points that were measured beside foreign load)."""
-    loaded = done["flag"].astype(str).str.split(",").apply(lambda f: "load" in f).astype(bool) if len(done) \
-        else done["totalT"].astype(bool)
+    loaded = done["flag"].map(lambda f: "load" in str(f).split(",")).astype(bool)
     clean = done[~loaded]
     d = clean[np.isfinite(clean["efficiency"]) & (clean["cores"] > 1) & np.isfinite(clean["particles"])].copy()
     return d, done[loaded]
@@ -119,12 +112,7 @@ def granularity_figure(directory, paper=()):
     for fam, f in curves.items():
         color, marker = FAMILY_STYLE[fam]
         ax.plot(f["g"], f["efficiency"], color=color, marker=marker, ms=5.5, lw=1.0, label=fam, zorder=3)
-        ok = np.isfinite(f["efficiency_lo"]) & np.isfinite(f["efficiency_hi"])
-        if ok.any():
-            from matplotlib.collections import LineCollection
-            segs = [[(g, lo), (g, hi)] for g, lo, hi in zip(f["g"][ok], f["efficiency_lo"][ok], f["efficiency_hi"][ok])]
-            ax.add_collection(LineCollection(segs, colors=color, linewidths=1.1, alpha=0.7, zorder=2.5),
-                              autolim=False)
+        interval_bars(ax, f, "g", "efficiency", color)
         axr.plot(f["g"], f["relative"], color=color, marker=marker, ms=5.5, lw=1.0, zorder=3)
     sources = {}
     for p in paper:
@@ -143,7 +131,7 @@ def granularity_figure(directory, paper=()):
     top = max([1.0] + [float(v) for f in curves.values() for v in f["efficiency"]])
     ax.set_ylim(0, 1.18 * top)
     axr.set_ylim(0, 1.1)
-    ns = sizes(done)
+    ns = particle_counts(done)
     ax.set_title(f"Efficiency against granularity: {', '.join(f'{n:,}' for n in ns)} particles "
                  f"({first_scene(df)})", fontsize=TITLE)
     ax.set_ylabel("efficiency E = T(1) / (p T(p))", fontsize=LABEL)
@@ -180,7 +168,7 @@ def plot_granularity(directory, paper=(), name="granularity.png"):
     """Write DIR/granularity.png (and .pdf) when the sweep has more than one particle count and
     print its crossings in words; [its path], or [] for a sweep of one size."""
     df = read_runs(directory)
-    if len(sizes(done_rows(df))) < 2:
+    if len(particle_counts(done_rows(df))) < 2:
         return []
     for line in crossing_lines(family_curves(done_rows(df))):
         print(f"granularity: {line}")

@@ -32,6 +32,14 @@ LEVEL = 0.95
 B_STEPS = 10
 
 
+def number(v):
+    """float(v), NaN for what is not a number (a runs.csv field: text, empty or NaN)."""
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
+
+
 def t_quantile(df, level=LEVEL):
     """The two-sided Student t quantile t((1 + level) / 2, df)."""
     from scipy.stats import t

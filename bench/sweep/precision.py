@@ -17,7 +17,7 @@ says for each point: `yes`, `no: budget spent` or `no: ROUNDS_CAP rounds`.
 """
 import math
 
-from bench.sweep.ranking import number as _num
+from bench.sweep.intervals import number as _num
 from bench.sweep.ranking import point_label as label
 
 MIN_ROUNDS = 2

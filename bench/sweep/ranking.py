@@ -13,15 +13,7 @@ named with the reason. Plotting and this module only read records (runs.csv).
 """
 import math
 
-from bench.sweep.intervals import parse_reps, speedup_interval
-
-
-def number(v):
-    """float(v), NaN for what is not a number (a runs.csv field: text, empty or NaN)."""
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return math.nan
+from bench.sweep.intervals import number, parse_reps, speedup_interval
 
 
 def point_label(row):

@@ -37,6 +37,7 @@ from dataclasses import asdict
 import numpy as np
 
 from bench.sweep.intervals import format_reps, parse_reps, speedup_interval, step_time_interval
+from bench.sweep.intervals import number as _num
 from modes.base import parse_mapping
 
 RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores", "scheme", "neighbor", "scene",
@@ -232,14 +233,6 @@ def binding_word(affinity):
     if not affinity.get("held", False):
         return "lost"
     return "pinned" if affinity.get("pinned") else "unpinned"
-
-
-def _num(v):
-    try:
-        v = float(v)
-    except (TypeError, ValueError):
-        return math.nan
-    return v
 
 
 def trust(row, totals, loads, spreads):

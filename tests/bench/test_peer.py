@@ -244,7 +244,7 @@ def test_bad_input_one_line(tmp_path):
     one_line_error(bench("peer", "liggghts", "--liggghts", str(tmp_path / "no-such"), "--out", str(tmp_path / "a")),
                    "LIGGGHTS with superquadrics not found")
     one_line_error(bench("peer", "lammps", "--steps", "1", "--lmp", sys.executable, "--out", str(tmp_path / "a")),
-                   "--steps must be above 1")
+                   "--steps must be at least 2")
     one_line_error(bench("peer", "lammps", "--lmp", str(tmp_path / "no-lmp"), "--out", str(tmp_path / "a")),
                    "LAMMPS not found")
     broken = tmp_path / "broken-lmp"

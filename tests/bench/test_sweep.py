@@ -231,6 +231,13 @@ def test_bad_mapping_one_line_nothing_lost(tmp_path, mappings, words):
     (["--scene", "nosuch", "--mappings", "1-1-1-1-1"], "unknown scene 'nosuch'"),
     (["--scene", "pluviation", "--mappings", "1-1-1-1-2", "--schemes", "roundrobin"], "unknown scheme"),
     (["--scene", "pluviation", "--mappings", "1-1-1-1-1", "--repeats", "0"], "--repeats"),
+    (["--scene", "pluviation", "--mappings", "1-1-1-1-1", "--precision", "1.5"], "--precision"),
+    (["--scene", "pluviation", "--mappings", "1-1-1-1-1", "--budget", "60"], "give --precision too"),
+    (["--scene", "pluviation", "--mappings", "1-1-1-1-1", "--precision", "0.05", "--launcher", "slurm"],
+     "needs the local launcher"),
+    (["--scene", "pluviation", "--mappings", "1-1-1-1-1", "--compare", "nowhere"], "no runs.csv there"),
+    (["--scene", "pluviation", "--mappings", "1-1-1-1-1", "--particles", "200,400", "--ceiling"],
+     "one --particles count"),
 ])
 def test_bad_sweep_options(tmp_path, args, words):
     one_line_error(bench("sweep", *args, "--out", str(tmp_path / "o")), words)
