@@ -1,23 +1,33 @@
 """The paper beside our records: its Tables 4 and 1 overlaid on a sweep's (`bench plot --paper`).
 
 plot_paper(DIR) writes paper_table4.png (module times normalised by each side's pure-MPI
-totalT, ours at our largest core count beside the paper's pinned Table 4 on 36 cores), for a
+totalT, ours at our largest core count above the paper's pinned Table 4 on 36 cores; for a sweep
+of several particle counts, ours at the count nearest the paper's 12k), for a
 sweep of several particle counts granularity_paper.png (bench.sweep.granularity with the paper's
 Tables 3 and 4 in kind, paper_granularity_points) and,
 only when DIR/schemes.csv exists (bench schemes), paper_table1.png (efficiency per thread scheme,
 ours vs the paper's Table 1). The paper: Yan & Regueiro, Computational Particle Mechanics 2019
 (its tables are package data, bench/studies/paper/).
+
+Every figure is drawn as the sweep figures are (bench.sweep.figures): a journal's double-column
+width (WIDTH, 7 in), no text below FONT (7 pt), the legend in columns below the axes and the foot
+note below it (layout_figure), tick labels upright where level ones would touch, and written as PNG
+with a vector PDF beside it (save_figure). table4_figure and table1_figure return the Figures
+unsaved, for inspection.
 """
 import math
 import os
 import sys
 
 import numpy as np
+from matplotlib.patches import Patch
 from matplotlib.ticker import FuncFormatter, NullFormatter
+from matplotlib.transforms import offset_copy
 
 from bench.studies.paper import table_path
-from bench.sweep.figures import (FONT, MODULES, empty_axes, finish_figure, first_value, note_lines, plt,
-                                 save_figure, skipped_rows, done_rows, sweep_context)
+from bench.sweep.figures import (FLAG_RING, FONT, LABEL, MODULES, TICK, TITLE, WIDTH, _legend_handles, _style,
+                                 done_rows, empty_axes, figure_notes, first_value, layout_figure, particle_counts, plt,
+                                 relayout, save_figure, skipped_rows, sweep_context)
 from bench.sweep.records import read_runs
 
 SCHEME_ORDER = ("partition", "frogleap", "headtail", "static", "dynamic")
@@ -83,35 +93,61 @@ def _normalise(rows, procs, threads, cores):
     return float(rows["totalT"].min()), "best totalT"
 
 
+BAR_W = 0.2  # a group's four bars (totalT and its modules), in units of the group spacing
+BAR_COLS = (("totalT", "totalT", "0.55"),) + tuple(MODULES)
+
+
 def _grouped_log_bars(ax, labels, table, ref, hatch=None):
-    """Grouped bars (totalT, compuT, commuT, migraT)/ref on a log axis; zeros marked '0'."""
+    """Grouped bars (totalT, compuT, commuT, migraT)/ref on a log axis; zeros marked '0', values not
+    recorded '-' (FONT points, at the foot of the bar's place)."""
     x = np.arange(len(labels))
-    w = 0.2
-    cols = [("totalT", "totalT", "0.55")] + [(k, lab, c) for k, lab, c in MODULES]
-    for k, (key, lab, color) in enumerate(cols):
+    for k, (key, lab, color) in enumerate(BAR_COLS):
         v = np.asarray(table[key], dtype=float) / ref
-        xs = x + (k - 1.5) * w
+        xs = x + (k - 1.5) * BAR_W
         good = np.isfinite(v) & (v > 0)
-        ax.bar(xs[good], v[good], w, color=color, label=lab, hatch=hatch, edgecolor="white" if hatch else None,
+        ax.bar(xs[good], v[good], BAR_W, color=color, label=lab, hatch=hatch, edgecolor="white" if hatch else None,
                lw=0.3)
         for xi, vi in zip(xs[~good], v[~good]):
             ax.text(xi, 0.01, "0" if np.isfinite(vi) else "-", transform=ax.get_xaxis_transform(),
-                    ha="center", va="bottom", fontsize=FONT - 1, color=color)
+                    ha="center", va="bottom", fontsize=FONT, color=color)
     ax.set_xticks(x)
-    ax.set_xticklabels(labels, fontsize=FONT)
-    ax.set_xlim(-0.6, len(labels) - 0.4)
+    ax.set_xticklabels(labels, fontsize=TICK)
+    # groups at most about 1.4 in apart, however few (the axes about WIDTH - 0.6 in wide)
+    half = max(len(labels) + 0.2, (WIDTH - 0.6) / 1.4) / 2
+    ax.set_xlim((len(labels) - 1) / 2 - half, (len(labels) - 1) / 2 + half)
+
+
+def _upright_when_crowded(axes):
+    """Stand the x tick labels of each axes upright where level ones would touch their neighbours
+    (as modules.png's mapping ticks); True when any did (the caller lays the figure out again)."""
+    changed = False
+    for ax in axes:
+        renderer = ax.figure.canvas.get_renderer()
+        ticks = [t for t in ax.get_xticklabels() if t.get_text()]
+        if len(ticks) < 2:
+            continue
+        step = abs(ax.transData.transform((1.0, 1.0))[0] - ax.transData.transform((0.0, 1.0))[0])
+        if max(t.get_window_extent(renderer).width for t in ticks) + 4 * ax.figure.dpi / 72.0 > step:
+            for t in ticks:
+                t.set_rotation(90)
+                t.set_ha("center")
+                t.set_va("top")
+            changed = True
+    return changed
 
 
 def plot_paper(directory):
     """Overlay the paper's tables on ours: paper_table4.png (module times per procs x threads,
-    normalised by each side's pure-MPI totalT, ours at our largest core count beside the paper's
-    pinned Table 4, 36 cores) and, when DIR/schemes.csv exists, paper_table1.png (efficiency per
-    thread scheme, ours vs the paper's Table 1). Returns the written paths."""
+    normalised by each side's pure-MPI totalT, ours at our largest core count above the paper's
+    pinned Table 4, 36 cores), for a sweep of several particle counts granularity_paper.png, and,
+    when DIR/schemes.csv exists, paper_table1.png (efficiency per thread scheme, ours vs the
+    paper's Table 1). Each is drawn at the sweep figures' journal width (bench.sweep.figures: WIDTH,
+    no text below FONT points, legend below the axes) and written as PNG with a PDF beside it.
+    Returns the written PNG paths."""
     paths = []
     p = _plot_paper_table4(directory)
     if p:
         paths.append(p)
-    from bench.sweep.figures import particle_counts
     from bench.sweep.granularity import plot_granularity
     runs = os.path.join(directory, "runs.csv")
     if os.path.exists(runs) and len(particle_counts(done_rows(read_runs(directory)))) > 1:
@@ -125,15 +161,33 @@ def _plot_paper_table4(directory):
     if not os.path.exists(os.path.join(directory, "runs.csv")):
         print(f"sweep plots: {os.path.join(directory, 'runs.csv')} not found; no paper_table4.png", file=sys.stderr)
         return None
+    return save_figure(table4_figure(directory), os.path.join(directory, "paper_table4.png"))
+
+
+def table4_figure(directory):
+    """The paper_table4.png Figure of DIR/runs.csv, not saved: ours (top axes: the largest core
+    count, one bar group per procs x threads, the fastest point when several; a flagged point
+    ringed in red above its group) above the paper's pinned Table 4 (bottom axes, its unpinned
+    totals as crosses), the same log y axis, each side normalised by its own pure-MPI totalT.
+    The caller closes it."""
     df = read_runs(directory)
     done = done_rows(df)
     done = done[np.isfinite(done["cores"]) & (done["totalT"] > 0)]
     skipped = skipped_rows(df)
     ctx = sweep_context(df)
+    counts = particle_counts(done)
+    if len(counts) > 1:  # a granularity study: the particle count nearest the paper's 12k, not a mix
+        n = min(counts, key=lambda c: abs(math.log(c / TABLE4_PARTICLES)))
+        done = done[done["particles"] == n]
+        ctx = sweep_context(df[df["particles"] == n])
     paper = _read_paper_table4()
-    fig, axes = plt.subplots(1, 2, figsize=(11.5, 5.0), sharey=True, gridspec_kw=dict(width_ratios=(1, 1.25)))
+    fig, axes = plt.subplots(2, 1, figsize=(WIDTH, 5.6), sharey=True)
     ax, axp = axes
+    for a in axes:
+        _style(a)
     ymin, ymax = [], []
+    ours = done.iloc[0:0]
+    rings = []
     # ours: the largest core count, one bar group per procs x threads (the fastest when several)
     if len(done):
         cmax = done["cores"].max()
@@ -149,16 +203,16 @@ def _plot_paper_table4(directory):
         v = v[np.isfinite(v) & (v > 0)]
         ymin.append(v.min())
         ymax.append(v.max())
+        flag = np.array([bool(str(f).strip()) for f in ours["flag"]]) if "flag" in ours else np.zeros(len(ours), bool)
+        rings = [(i - 1.5 * BAR_W, t / ref) for i, (t, f) in enumerate(zip(tab["totalT"], flag)) if f]
         several = len(done[done["cores"] == cmax]) > len(ours)
         ax.set_title(f"ours: {int(cmax)} core{'s' if cmax != 1 else ''}, {ctx}\nnormalised by our {what} "
-                     f"= {1e3 * ref:.3g} ms/step" + ("\n(fastest point per procs x threads)" if several else ""),
-                     fontsize=8)
+                     f"= {1e3 * ref:.3g} ms/step" + ("; the fastest point per procs x threads" if several else ""),
+                     fontsize=TITLE)
     else:
         empty_axes(ax, "ours: no completed point")
         ax.set_xticks([])
-        ax.set_title(f"ours: {ctx}", fontsize=8)
-    ax.set_xlabel("procs x threads (mapping)")
-    ax.set_ylabel("time per step / reference totalT  (log)")
+        ax.set_title(f"ours: {ctx}", fontsize=TITLE)
     # the paper: pinned Table 4, 36 cores
     if paper is not None:
         pin = paper[paper["pinned"] == "yes"].sort_values("procs")
@@ -177,34 +231,43 @@ def _plot_paper_table4(directory):
         _grouped_log_bars(axp, labels, tab, pref)
         # unpinned totals as markers, same normalisation (pinned pure MPI)
         un = np.array([unpin["totalT"].get(int(p), np.nan) for p in pin["procs"]], dtype=float) / pref
-        axp.plot(np.arange(len(pin)) - 1.5 * 0.2, un, ls="none", marker="x", color="k", ms=6,
-                 label="totalT, not pinned")
+        axp.plot(np.arange(len(pin)) - 1.5 * BAR_W, un, ls="none", marker="x", color="k", ms=5, mew=1.0,
+                 label="paper: totalT not pinned")
         v = np.concatenate([t / pref for t in tab.values()] + [un])
         v = v[np.isfinite(v) & (v > 0)]
         ymin.append(v.min())
         ymax.append(v.max())
         axp.set_title(f"paper (Yan & Regueiro, Table 4): 12k ellipsoids, one {PAPER_CORES}-core node, pinned\n"
-                      f"normalised by its {pwhat} = {1e3 * pref:.3g} ms/step", fontsize=8)
-        axp.legend(fontsize=FONT, loc="upper right", framealpha=0.9)
+                      f"normalised by its {pwhat} = {1e3 * pref:.3g} ms/step", fontsize=TITLE)
     else:
         empty_axes(axp, "paper table 4 not found\n(bench/studies/paper/table4_mappings_one_node.csv)")
-        axp.set_title("paper (Yan & Regueiro, Table 4)", fontsize=8)
-        if len(done):
-            ax.legend(fontsize=FONT, loc="upper right", framealpha=0.9)
-    axp.set_xlabel("procs x threads (mapping)")
+        axp.set_xticks([])
+        axp.set_title("paper (Yan & Regueiro, Table 4)", fontsize=TITLE)
+    for a in axes:
+        a.set_xlabel("procs x threads (mapping)", fontsize=LABEL)
+        a.set_ylabel("time / reference totalT", fontsize=LABEL)
     if ymin:
         axp.set_yscale("log")
         axp.set_ylim(min(ymin) / 3, max(ymax) * 3)
-        axp.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-        axp.yaxis.set_minor_formatter(NullFormatter())
+        for a in axes:
+            a.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+            a.yaxis.set_minor_formatter(NullFormatter())
     for a in axes:
         a.grid(True, axis="y", which="major", lw=0.4, alpha=0.5)
+        a.set_axisbelow(True)
         a.axhline(1.0, color="k", lw=0.7, ls=":")
-    fig.suptitle("Module times per process x thread mapping, each side normalised by its own pure-MPI totalT "
-                 "(best totalT when it has no pure-MPI point); '0' = zero time, '-' = not recorded", fontsize=9)
-    path = os.path.join(directory, "paper_table4.png")
-    finish_figure(fig, note_lines(skipped, 11.5))
-    return save_figure(fig, path)
+    for xr, yr in rings:  # a small red ring above a flagged point's totalT bar (the foot note says why)
+        ax.plot([xr], [yr], transform=offset_copy(ax.transData, fig, y=6, units="points"), label="_flag",
+                **dict(FLAG_RING, ms=6, mew=1.0))
+    handles = [Patch(color=c, label=lab) for _, lab, c in BAR_COLS] if len(ours) or paper is not None else []
+    if paper is not None:
+        handles += [h for h in axp.get_lines() if h.get_label() == "paper: totalT not pinned"]
+    title = ("each panel normalised by its own pure-MPI totalT (its best totalT without one; dotted line: 1);\n"
+             "'0': a zero time, '-': a time not recorded")
+    layout_figure(fig, list(axes), handles, figure_notes(ours, skipped, WIDTH), axes_h=5.6, legend_title=title)
+    if _upright_when_crowded(axes):
+        relayout(fig)
+    return fig
 
 
 def _read_paper_table1():
@@ -219,9 +282,15 @@ def _read_paper_table1():
 
 
 def _plot_paper_table1(directory):
-    """Grouped bars of parallel efficiency per thread scheme: ours per (neighbour method, threads)
-    against its own serial (efficiency_own = T(serial, same neighbour method) / (threads x T));
-    the paper's Table 1 (12 threads, n-by-n loops, so against serial n-by-n) beside them."""
+    return save_figure(table1_figure(directory), os.path.join(directory, "paper_table1.png"))
+
+
+def table1_figure(directory):
+    """The paper_table1.png Figure of DIR/schemes.csv, not saved: grouped bars of parallel
+    efficiency per thread scheme, ours per (neighbour method, threads) against its own serial
+    (efficiency_own = T(serial, same neighbour method) / (threads x T)), the paper's Table 1 (12
+    threads, n-by-n loops, so against serial n-by-n) beside them; each bar's value above it (upright
+    where a level one would be wider than its bar). The caller closes it."""
     import pandas as pd
     s = pd.read_csv(os.path.join(directory, "schemes.csv"))
     for c in ("method", "neighbor", "shape"):
@@ -241,44 +310,59 @@ def _plot_paper_table1(directory):
     nser = len(groups) + 1
     w = 0.8 / nser
     x = np.arange(len(methods))
-    fig, ax = plt.subplots(figsize=(max(7.5, 1.3 * len(methods) + 2.5), 4.8))
+    fig, ax = plt.subplots(figsize=(WIDTH, 3.6))
+    _style(ax)
     top = 1.0
     nbname = {"allpairs": "all-pairs", "linkcell": "link-cell"}
+    values = []  # (x, value) of every bar with a value, for the numbers above them
     for k, (nb, t) in enumerate(groups):
         sub = thr[(thr["neighbor"] == nb) & (thr["threads"] == t)].drop_duplicates("method").set_index("method")
         vals = np.array([float(sub[metric].get(m, np.nan)) for m in methods])
         against = f"vs serial {nbname.get(nb, nb)}" if own else "vs serial all-pairs"
-        bars = ax.bar(x + (k - (nser - 1) / 2) * w, np.nan_to_num(vals), w, color=f"C{k}",
-                      label=f"ours, {nbname.get(nb, nb or '?')}, {int(t) if np.isfinite(t) else '?'} threads "
-                            f"({against})")
-        for b, v in zip(bars, vals):
-            if np.isfinite(v):
-                ax.text(b.get_x() + b.get_width() / 2, v, f"{v:.2f}", ha="center", va="bottom", fontsize=FONT - 1)
-                top = max(top, v)
+        xs = x + (k - (nser - 1) / 2) * w
+        ax.bar(xs, np.nan_to_num(vals), w, color=f"C{k}",
+               label=f"ours, {nbname.get(nb, nb or '?')}, {int(t) if np.isfinite(t) else '?'} threads ({against})")
+        values += [(xi, v) for xi, v in zip(xs, vals) if np.isfinite(v)]
     pv = np.array([paper.get(m, np.nan) for m in methods])
-    bars = ax.bar(x + (nser - 1 - (nser - 1) / 2) * w, np.nan_to_num(pv), w, color="0.55",
-                  label=f"paper Table 1, n-by-n, {PAPER_THREADS} threads (vs serial n-by-n)"
-                        + ("" if paper else " (table missing)"))
-    for b, v in zip(bars, pv):
-        if np.isfinite(v):
-            ax.text(b.get_x() + b.get_width() / 2, v, f"{v:.2f}", ha="center", va="bottom", fontsize=FONT - 1)
-            top = max(top, v)
+    xs = x + (nser - 1 - (nser - 1) / 2) * w
+    ax.bar(xs, np.nan_to_num(pv), w, color="0.55",
+           label=f"paper Table 1, n-by-n, {PAPER_THREADS} threads (vs serial n-by-n)" + ("" if paper else
+                                                                                          " (table missing)"))
+    values += [(xi, v) for xi, v in zip(xs, pv) if np.isfinite(v)]
+    top = max([top] + [v for _, v in values])
     ax.axhline(1.0, color="k", ls="--", lw=0.8, label="ideal: speedup = threads")
     ax.set_xticks(x)
-    ax.set_xticklabels(methods)
-    ax.set_ylim(0, 1.35 * top)
-    ax.set_xlabel("thread scheme of contact detection (neighbour estimate + contact resolution)")
+    ax.set_xticklabels(methods, fontsize=TICK)
+    ax.set_xlim(-0.6, max(len(methods), 1) - 0.4)
+    ax.set_ylim(0, 1.1 * top)
+    ax.set_xlabel("thread scheme of contact detection (neighbour estimate + contact resolution)", fontsize=LABEL)
     ax.set_ylabel("efficiency = speedup / threads\n" + ("(vs serial, same neighbour method)" if own else
-                                                        "(vs serial all-pairs detection)"))
+                                                        "(vs serial all-pairs detection)"), fontsize=LABEL)
     n = first_value(s, "particles") if len(s) else None
     shape = first_value(s, "shape") if len(s) else None
     ax.set_title(f"Contact-detection efficiency per thread scheme, ours vs paper Table 1\n"
                  f"ours: {int(n) if n is not None else '?'} packed {shape or 'particle'}s; paper: 2.5k packed "
-                 f"ellipsoids, dual Xeon X5690", fontsize=9)
+                 f"ellipsoids, dual Xeon X5690", fontsize=TITLE)
     if not methods:
         empty_axes(ax, "no threaded scheme in schemes.csv")
     ax.grid(True, axis="y", lw=0.4, alpha=0.5)
-    ax.legend(fontsize=FONT, loc="upper left", ncol=2, framealpha=0.9)
-    path = os.path.join(directory, "paper_table1.png")
-    finish_figure(fig, [])
-    return save_figure(fig, path)
+    ax.set_axisbelow(True)
+    layout_figure(fig, [ax], _legend_handles(ax), [], axes_h=3.6)
+    _upright_when_crowded([ax])
+    # the numbers above the bars: level where they fit on their bar, else upright; room above for them
+    renderer = fig.canvas.get_renderer()
+    px = fig.dpi / 72.0
+    bar_pt = abs(ax.transData.transform((w, 0))[0] - ax.transData.transform((0, 0))[0]) / px
+    texts = [f"{v:.2f}" for _, v in values]
+    probe = ax.text(0, 0, max(texts, key=len) if texts else "", fontsize=FONT)
+    text_w = probe.get_window_extent(renderer).width / px
+    probe.remove()
+    up = text_w + 1 > bar_pt
+    for (xi, v), txt in zip(values, texts):
+        ax.annotate(txt, (xi, v), xytext=(0, 1.0), textcoords="offset points", ha="center", va="bottom",
+                    fontsize=FONT, rotation=90 if up else 0)
+    head = (text_w if up else FONT * 1.25) + 3
+    h_pt = ax.get_window_extent(renderer).height / px
+    ax.set_ylim(0, max(1.1 * top, top / max(0.3, 1 - head / h_pt)))
+    relayout(fig)
+    return fig

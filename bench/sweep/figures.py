@@ -331,9 +331,10 @@ def save_figure(fig, path):
     from bench.run.records import atomic_write
     try:
         # the legends stand out of tight_layout (layout_figure): named here, or a figure without a
-        # foot note below them would be cropped above its legend
+        # foot note below them would be cropped above its legend; the figure's own texts (the foot
+        # note) named too, as extra artists replace the default ones that held them
         legends = [a.get_legend() for a in fig.axes if a.get_legend() is not None] + list(fig.legends)
-        kw = dict(bbox_inches="tight", pad_inches=0.03, bbox_extra_artists=legends)
+        kw = dict(bbox_inches="tight", pad_inches=0.03, bbox_extra_artists=legends + list(fig.texts))
         atomic_write(path, lambda fh: fig.savefig(fh, format="png", dpi=DPI, **kw), mode="wb")
         with matplotlib.rc_context({"pdf.fonttype": 42}):
             atomic_write(os.path.splitext(path)[0] + ".pdf", lambda fh: fig.savefig(fh, format="pdf", **kw),

@@ -29,7 +29,7 @@ import os
 
 import numpy as np
 
-from bench.sweep.figures import (FAMILY_STYLE, LABEL, TICK, TITLE, WIDTH, _style, done_rows, interval_bars,
+from bench.sweep.figures import (FAMILY_STYLE, FONT, LABEL, TICK, TITLE, WIDTH, _style, done_rows, interval_bars,
                                  layout_figure, note_lines, particle_counts, plt, save_figure, skipped_rows)
 from bench.sweep.records import read_runs
 
@@ -124,8 +124,10 @@ def granularity_figure(directory, paper=()):
     for c in crossings(curves):
         for a in (ax, axr):
             a.axvline(c["g"], color="0.4", ls=":", lw=0.9, zorder=1)
-        ax.annotate(f"{c['ahead_below']} ahead below,\n{c['ahead_above']} above {c['g']:.0f}", (c["g"], 1.02),
-                    xycoords=("data", "axes fraction"), ha="center", va="bottom", fontsize=7, color="0.3")
+        # inside the axes, in the room above the curves (ylim 1.18 x the top), not on the title
+        ax.annotate(f"{c['ahead_below']} ahead below,\n{c['ahead_above']} above {c['g']:.0f}", (c["g"], 0.98),
+                    xycoords=("data", "axes fraction"), ha="center", va="top", fontsize=FONT, color="0.3",
+                    bbox=dict(boxstyle="square,pad=0.1", fc="white", ec="none"), zorder=5)
     ax.axhline(1.0, color="k", ls="--", lw=0.8, label="ideal (E = 1)", zorder=1)
     axr.axhline(1.0, color="k", ls="--", lw=0.8, zorder=1)
     top = max([1.0] + [float(v) for f in curves.values() for v in f["efficiency"]])
@@ -152,9 +154,9 @@ def granularity_figure(directory, paper=()):
         handles.append(Line2D([], [], ls="none", marker=marker, mfc="none", mec="0.3", label=PAPER_LABELS[src]))
     skipped = skipped_rows(df)
     note = note_lines(skipped, WIDTH) if skipped else []
-    if len(loaded):
-        note = list(note) + ["Left out, measured beside foreign load: " +
-                             ", ".join(f"{r['mapping']} at {int(r['particles']):,}" for _, r in loaded.iterrows())]
+    if len(loaded):  # at most two lines, then "and N more" (note_lines)
+        note = list(note) + note_lines([f"{r['mapping']} at {int(r['particles']):,}" for _, r in loaded.iterrows()],
+                                       WIDTH, head="Left out, measured beside foreign load: ")
     layout_figure(fig, [ax, axr], handles, note, axes_h=5.0)
     return fig
 

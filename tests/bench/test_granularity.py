@@ -162,3 +162,22 @@ def test_paper_overlay_in_kind(tmp_path):
     assert max(p["relative"] for p in t4) == 1.0
     d, _ = _study(tmp_path)
     assert str(d / "granularity_paper.png") in plot_paper(str(d))
+
+
+def test_paper_overlay_readable_at_journal_width(tmp_path):
+    """granularity_paper.png of the synthetic study (a crossing at g = 316, the paper's Tables 3 and 4 on
+    the bottom axes, one loaded point in the foot note) as the sweep figures are drawn: 7 in wide, no
+    text below 7 pt, no two texts overlapping (the crossing's words stand inside the axes, under the
+    title), none leaving the figure (bench.sweep.figures' check, tests/bench/test_sweep_plots.py)."""
+    from bench.studies.paper_figures import paper_granularity_points
+    from tests.bench.test_sweep_plots import assert_readable
+    d, _ = _study(tmp_path, [_row("2-1-1-1-2", 2, 2, 2000, 0.95, flag="load")])
+    fig = granularity_figure(str(d), paper_granularity_points())
+    try:
+        assert fig.get_size_inches()[0] == pytest.approx(7.0)
+        assert_readable(fig, "granularity_paper.png")
+        words = [t for t in fig.axes[0].texts if "ahead below" in t.get_text()]
+        assert len(words) == 1
+    finally:
+        import matplotlib.pyplot as plt
+        plt.close(fig)

@@ -661,10 +661,27 @@ def test_figures_readable_at_journal_width(tmp_path, sweep):
             sweep_plots.plt.close(fig)
     paths = plot_sweep(d)
     assert_pngs(paths, SWEEP_PNGS)
+    assert_pdfs(paths)
+    assert_saved_whole(paths[0], metric_figure(d, "speedup"))
+
+
+def assert_pdfs(paths):
+    """A vector PDF beside every PNG."""
     for p in paths:
         pdf = os.path.splitext(p)[0] + ".pdf"
         with open(pdf, "rb") as fh:
             assert fh.read(5) == b"%PDF-", pdf
+
+
+def assert_saved_whole(path, fig):
+    """The PNG at path (save_figure) is as tall as the figure it was drawn from, fig (the same one
+    drawn again; closed here) less the crop's slack: its foot note below the legend was kept (extra
+    bbox artists once replaced the default ones and cropped it)."""
+    import matplotlib.image as mpimg
+    h_in = fig.get_size_inches()[1]
+    sweep_plots.plt.close(fig)
+    assert fig.texts, path  # a foot note to keep
+    assert mpimg.imread(path).shape[0] >= (h_in - 0.15) * sweep_plots.DPI, path
 
 
 def test_modules_figure_16_points_ticks_and_notes(tmp_path):
@@ -711,3 +728,81 @@ def test_modules_figure_draws_the_totalT_interval(tmp_path):
     assert "95 % interval" in fig.axes[0].get_legend().get_title().get_text()
     import matplotlib.pyplot as plt
     plt.close(fig)
+
+
+# --- the paper's figures (`bench plot --paper`) at the sweep figures' standard (issue 34) ---------------
+def two_counts(rows, n2=12000):
+    """The rows again at a second particle count n2 (a granularity study: granularity_paper.png), the
+    copies 2.5 times slower."""
+    more = []
+    for r in rows:
+        c = dict(r, particles=n2, point=f"{r['point']}-{n2}")
+        for k in ("totalT", "commuT", "migraT", "compuT", "neighborT", "resolveT"):
+            c[k] = 2.5 * r[k]
+        more.append(c)
+    return rows + more
+
+
+def paper_figures_of(d):
+    from bench.studies.paper_figures import paper_granularity_points, table1_figure, table4_figure
+    from bench.sweep.granularity import granularity_figure
+    return {"paper_table4.png": table4_figure(d), "paper_table1.png": table1_figure(d),
+            "granularity_paper.png": granularity_figure(d, paper_granularity_points())}
+
+
+@pytest.mark.parametrize("sweep", ["4_points", "16_points"])
+def test_paper_figures_readable_at_journal_width(tmp_path, sweep):
+    """Every figure of `bench plot --paper` (paper_table4.png, paper_table1.png, granularity_paper.png)
+    drawn as the sweep figures are, for the 4- and the 16-point sweep (every point flagged, points
+    not done) at two particle counts with a schemes.csv: 7 in wide, no text below 7 pt, no two texts
+    overlapping, none leaving the figure, legends no wider than their axes; paper_table4.png draws
+    ours at the count nearest the paper's 12k and its foot note gives the flags in one line and the
+    points not done in at most two. plot_paper writes the three PNGs with a PDF beside each, the foot
+    note kept in the PNG."""
+    rows = two_counts(sweep_4_points() if sweep == "4_points" else sweep_16_points())
+    d = write_runs(tmp_path, rows)
+    write_schemes(d)
+    figs = paper_figures_of(d)
+    try:
+        for name, fig in figs.items():
+            assert fig.get_size_inches()[0] == pytest.approx(7.0), name
+            assert_readable(fig, name)
+        ours = figs["paper_table4.png"].axes[0]
+        assert "12,000 particles" in ours.get_title()
+        assert len(ours.get_xticklabels()) == (2 if sweep == "4_points" else 5)
+        lines = "\n".join(t.get_text() for t in figs["paper_table4.png"].texts).split("\n")
+        assert sum("Flagged" in s for s in lines) == 1, lines
+        assert any("Not plotted" in s for s in lines) and len([s for s in lines if s.strip()]) <= 3, lines
+    finally:
+        for fig in figs.values():
+            sweep_plots.plt.close(fig)
+    paths = plot_paper(d)
+    assert_pngs(paths, ["paper_table4.png", "granularity_paper.png", "paper_table1.png"])
+    assert_pdfs(paths)
+    from bench.studies.paper_figures import table4_figure
+    assert_saved_whole(paths[0], table4_figure(d))
+
+
+def test_paper_figures_crowded_ticks_stand_upright(tmp_path):
+    """paper_table4.png of ten mappings on 48 cores and paper_table1.png of six thread counts per
+    scheme: the mapping ticks and the numbers above the bars stand upright where level ones would
+    touch, and still no text overlaps."""
+    from bench.studies.paper_figures import table1_figure, table4_figure
+    rows = [row("1-1-1-1-1", totalT=T1)]
+    for p in (1, 2, 3, 4, 6, 8, 12, 16, 24, 48):
+        rows.append(row(f"{p}-{p}-1-1-{48 // p}", "dynamic" if p < 48 else "", totalT=0.005 + 0.0001 * p,
+                        commu=0.0003 * (p > 1), migra=0.00003 * (p > 1)))
+    d = write_runs(tmp_path, rows)
+    write_schemes(d)
+    s = pd.read_csv(os.path.join(d, "schemes.csv"))
+    extra = s[s["family"] == "parallel"].assign(threads=8)
+    pd.concat([s, extra, extra.assign(threads=16)]).to_csv(os.path.join(d, "schemes.csv"), index=False)
+    fig4, fig1 = table4_figure(d), table1_figure(d)
+    try:
+        assert_readable(fig4, "paper_table4.png")
+        assert_readable(fig1, "paper_table1.png")
+        assert all(t.get_rotation() == 90 for t in fig4.axes[0].get_xticklabels())
+        assert all(t.get_rotation() == 90 for t in fig1.axes[0].texts)
+    finally:
+        sweep_plots.plt.close(fig4)
+        sweep_plots.plt.close(fig1)
