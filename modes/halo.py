@@ -66,6 +66,7 @@ from dem.state import HIST_LEN, bounding_radii, csr_rows
 from modes.base import call_entry
 from modes.decomposition import (DIRECTIONS, OPPOSITE, BlockGrid, border_lists, direction_of, face_bits,
                                  outside_block)
+from modes.wire import Traffic
 
 GHOST_SPHERE = ("gid", "material", "mass", "axes0", "inertia0", "pos", "vel", "angmom")
 GHOST_GENERAL = ("gid", "shape", "material", "mass", "axes", "inertia", "pos", "vel", "angmom", "quat")
@@ -290,25 +291,24 @@ class _Round:
     are called through their compiled entry points (modes.base.compiled_entry), found at their
     first call: until the next rebuild replaces the round, they see the same array types."""
 
-    def __init__(self, cart, dirs, ranks, send_lists, recv_counts, g0, width, wire):
+    def __init__(self, cart, dirs, ranks, send_lists, recv_counts, g0, width, links):
         self.g0 = g0
         self.kernels = {}
-        self.plan = (cart, dirs, ranks, send_lists, recv_counts, width, wire)
+        self.plan = (cart, dirs, ranks, send_lists, recv_counts, width, links)
         self.requests = None
 
     def prepare(self):
-        """Buffers, persistent requests and what one start sends (bytes, msgs, wire_s)."""
+        """Buffers, persistent requests and what one start sends (self.traffic: modes.wire.Traffic;
+        links: the halo's (wire model, ranks on another node))."""
         if self.requests is not None:
             return
-        cart, dirs, ranks, send_lists, recv_counts, width, wire = self.plan
+        cart, dirs, ranks, send_lists, recv_counts, width, links = self.plan
         self.send_idx = (np.concatenate(send_lists).astype(np.int64) if send_lists
                          else np.zeros(0, dtype=np.int64))
         self.send_buf = np.zeros((len(self.send_idx), width))
         self.recv_buf = np.zeros((int(sum(recv_counts)), width))
         self.requests = []
-        self.bytes = 0
-        self.msgs = 0
-        self.wire_s = 0.0
+        self.traffic = Traffic(*links)
         so = ro = 0
         for d, k in enumerate(dirs):
             r = ranks[k]
@@ -318,11 +318,7 @@ class _Round:
                                                     tag=FORWARD_TAG + int(OPPOSITE[k])))
             if ns:
                 self.requests.append(cart.Send_init(self.send_buf[so:so + ns], dest=r, tag=FORWARD_TAG + int(k)))
-                nbytes = 8 * ns * width
-                self.bytes += nbytes
-                self.msgs += 1
-                if wire is not None:
-                    self.wire_s += wire.cost(r, nbytes)
+                self.traffic.send(r, 8 * ns * width)
             so += ns
             ro += nr
 
@@ -341,9 +337,11 @@ class Halo:
 
     cart: MPI Cartesian communicator (not periodic); grid: BlockGrid; coords: this block; wire:
     a modes.wire.WireModel of the links to the neighbour ranks (or None), for the wire time of
-    what each step sends. bytes_sent, msgs_sent, wire_s accumulate until the caller resets them."""
+    what each step sends; remote: the neighbour ranks on another node. `traffic` (a
+    modes.wire.Traffic: bytes, messages and wire time, all and across nodes) accumulates what
+    this rank sends until the caller resets it."""
 
-    def __init__(self, cart, grid, coords, halo="26", wire=None):
+    def __init__(self, cart, grid, coords, halo="26", wire=None, remote=frozenset()):
         if halo not in ("26", "6"):
             raise ValueError(f"halo must be '26' or '6', got {halo!r}")
         self.halo = halo
@@ -359,7 +357,7 @@ class Halo:
         # only (a loop over all 26 directions in Python cost ~0.4 us a direction, each exchange)
         self.neighbours = [(k, r) for k, r in enumerate(self.ranks) if r is not None]
         self.faces = face_bits([k for k, _ in self.neighbours])  # the block's faces that have a neighbour
-        self.wire = wire
+        self.set_links(wire, remote)
         from mpi4py import MPI  # a halo exists only under MPI; the per-step calls are bound once
         self.startall = MPI.Prequest.Startall
         self.waitall = MPI.Request.Waitall
@@ -371,16 +369,20 @@ class Halo:
         self.store = {}        # the capacity arrays that hold the state's rows and its ghosts (_append)
         self.entries = {}      # the compiled entry points of the ghost records' kernels (their types are fixed)
         self.with_quat = True
-        self.reset_counters()
+
+    def set_links(self, wire, remote):
+        """The wire model of the links (or None) and the neighbour ranks on another node; the
+        counts start again."""
+        self.wire = wire
+        self.remote = frozenset(remote)
+        self.traffic = Traffic(wire, self.remote)
 
     def clone(self):
         """The same neighbours and grid, without a forward plan."""
-        return Halo(self.cart, self.grid, self.coords, halo=self.halo, wire=self.wire)
+        return Halo(self.cart, self.grid, self.coords, halo=self.halo, wire=self.wire, remote=self.remote)
 
     def reset_counters(self):
-        self.bytes_sent = 0
-        self.msgs_sent = 0
-        self.wire_s = 0.0
+        self.traffic.reset()
 
     def neighbour_ranks(self):
         """The distinct ranks of the neighbour blocks."""
@@ -391,11 +393,8 @@ class Halo:
         self.lo, self.hi = grid.bounds(self.coords)
 
     def account(self, rank, nbytes):
-        """Count one message of nbytes [B] sent to rank (bytes_sent, msgs_sent, wire_s)."""
-        self.bytes_sent += nbytes
-        self.msgs_sent += 1
-        if self.wire is not None:
-            self.wire_s += self.wire.cost(rank, nbytes)
+        """Count one message of nbytes [B] sent to rank (self.traffic)."""
+        self.traffic.send(rank, nbytes)
 
     def exchange(self, outgoing, widths, dirs=None):
         """Send outgoing[k] (a tuple of float64 arrays [rows_a, widths[a]], or None) to neighbour k
@@ -492,7 +491,7 @@ class Halo:
             incoming = self.exchange(outgoing, (ncol,), dirs=dirs)
             counts = [len(incoming[k][0]) for k in dirs]
             g0 = state.n
-            self.rounds.append(_Round(self.cart, dirs, self.ranks, lists, counts, g0, mwidth, self.wire))
+            self.rounds.append(_Round(self.cart, dirs, self.ranks, lists, counts, g0, mwidth, (self.wire, self.remote)))
             self._append(state, incoming, rec)
         # direct exchange: each ghost came from its owner, appended in direction order; after the
         # sweeps of --halo 6 an edge or corner ghost was forwarded, so its owner is found by place
@@ -503,9 +502,7 @@ class Halo:
         rd.prepare()
         rd.call(pack_moving, (rd.send_idx, state.pos, state.vel, state.angmom, state.quat, self.with_quat, rd.send_buf))
         self.startall(rd.requests)
-        self.bytes_sent += rd.bytes
-        self.msgs_sent += rd.msgs
-        self.wire_s += rd.wire_s
+        self.traffic.add(rd.traffic)
 
     def forward_start(self, state):
         """Pack the owned particles' moving fields for the first round of the next forward exchange

@@ -24,6 +24,7 @@ Timers use MPI.Wtime. Halo and migration live in halo.py, the reverse exchange o
 law in newton.py, the geometry of blocks in decomposition.py, the ping-pong wire model in wire.py;
 this module only orchestrates.
 """
+import socket
 from collections import deque
 
 import numpy as np
@@ -109,10 +110,14 @@ class _Blocks:
         mine = np.flatnonzero(np.all(self.grid.block_of(s.pos) == self.coords, axis=1))
         s.permute_keep(mine)
         self.halo = Halo(cart, self.grid, self.coords, halo=halo)
+        # where each rank runs (collective): the neighbours on another node are counted apart
+        self.hosts = cart.allgather(socket.gethostname())
+        me = cart.Get_rank()
+        self.remote = frozenset(r for r in self.halo.neighbour_ranks() if self.hosts[r] != self.hosts[me])
         # the wire under this halo: a ping-pong with the same neighbour ranks, in this run (collective)
         self.wire = WireModel(pingpong(cart, self.halo.neighbour_ranks(), sizes=WIRE_SIZES, time_per_size=1e-3)) \
             if wire else None
-        self.halo.wire = self.wire
+        self.halo.set_links(self.wire, self.remote)
         self.steps_done = 0
         self.grid_updates = 0
         self.decision = np.zeros(5)
@@ -258,7 +263,7 @@ class _Blocks:
             ghost_dir = ghost_owner_directions(self.grid, self.coords, s.pos[s.n_owned:s.n])
         self._free_plan()
         self.plan = NewtonPlan(self.cart, self.halo.ranks, cross_layout(p.pi, p.pj, s.gid, s.n_owned, ghost_dir),
-                               self.halo.wire)
+                               (self.halo.wire, self.halo.remote))
         self.counts_check = self.plan.count_checksum()  # summed in this step's allreduce (decide)
         self.plan.take_sent(p)
         super().split(self.plan.cross, self.plan.terms)
@@ -275,9 +280,7 @@ class _Blocks:
         t0 = self.clock()
         plan.exchange(s.n_owned, h.startall, h.waitall)
         self.reverse_time = self.clock() - t0
-        h.bytes_sent += plan.bytes
-        h.msgs_sent += plan.msgs
-        h.wire_s += plan.wire_s
+        h.traffic.add(plan.traffic)
         b = super().resolve()
         worst, worst_k = (a[2], int(plan.sent_idx[a[3]])) if a[2] > b[2] else (b[2], b[3])
         return a[0] + b[0], a[1] + b[1], worst, worst_k, a[4] + b[4]
@@ -315,9 +318,7 @@ class _Blocks:
         row["compuT"] -= rt + bt
         row["resolveT"] -= rt
         row["neighborT"] -= bt
-        row["bytes_sent"] = h.bytes_sent
-        row["msgs_sent"] = h.msgs_sent
-        row["wire_s"] = h.wire_s
+        row.update(h.traffic.row())
         row["syncT"] = self.sync_time
         h.reset_counters()
         if self.balance == "time":

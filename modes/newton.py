@@ -79,6 +79,7 @@ from dem.forces import PF_F, PF_LEN, PF_TI, PF_TJ, TERMS
 from dem.state import HIST_LEN
 from modes.base import call_entry
 from modes.decomposition import DIRECTIONS, OPPOSITE, direction_of
+from modes.wire import Traffic
 
 # tags of the per-step messages and of the rebuild's history (apart from the halo's)
 REVERSE_TAG = 400
@@ -213,9 +214,10 @@ class NewtonPlan:
     """The reverse exchange of one neighbour list (fixed at a rebuild): the sent pairs sent_idx
     [s] in groups per direction (sent [26]), the received pairs received_idx [r] likewise (received
     [26]) (cross_layout), buffers and persistent requests to the neighbour ranks (ranks [26], None
-    where there is none). bytes, msgs, wire_s: what one step sends."""
+    where there is none). traffic (modes.wire.Traffic, of the wire model and the neighbour ranks
+    on another node, `links`): what one step sends."""
 
-    def __init__(self, cart, ranks, layout, wire):
+    def __init__(self, cart, ranks, layout, links=(None, frozenset())):
         self.cart = cart
         self.ranks = ranks
         self.sent_idx, self.sent, self.received_idx, self.received = layout
@@ -233,9 +235,7 @@ class NewtonPlan:
         self.send_buf = np.zeros((self.m_sent, TERMS))
         self.recv_buf = np.zeros((self.m_recv, TERMS))
         self.requests = []
-        self.bytes = 0
-        self.msgs = 0
-        self.wire_s = 0.0
+        self.traffic = Traffic(*links)
         self.entries = {}
         # per neighbour that exists, in direction order: (direction, rank, pairs sent, received,
         # their first rows); the loops visit only these, a direction without a neighbour has none
@@ -251,10 +251,7 @@ class NewtonPlan:
                                                     tag=REVERSE_TAG + int(OPPOSITE[k])))
             if ns:
                 self.requests.append(cart.Send_init(self.send_buf[so:so + ns], dest=r, tag=REVERSE_TAG + k))
-                self.bytes += 8 * ns * TERMS
-                self.msgs += 1
-                if wire is not None:
-                    self.wire_s += wire.cost(r, 8 * ns * TERMS)
+                self.traffic.send(r, 8 * ns * TERMS)
             so += ns
             ro += nr
         if so != self.m_sent or ro != self.m_recv:

@@ -368,3 +368,53 @@ class WireModel:
         which WireModel reads back."""
         return {"partners": {str(p): {"latency_s": self.alpha[p], "bandwidth_Bps": self.beta[p]}
                              for p in self.partners}}
+
+
+class Traffic:
+    """What a rank sends, counted message by message and split by where the receiver runs (issue
+    37): bytes, msgs and wire_s [s] (the WireModel cost of each message on its own measured link;
+    0 without a model) of all messages, and bytes_internode, msgs_internode, wire_internode_s of
+    those to ranks on another node (`remote`: their ranks). Within the node = all less internode.
+
+    A plan fixed at a rebuild (a forward round, the reverse exchange) counts its messages once into
+    a Traffic of its own and adds it whole each step (add), so a step pays four additions, not a
+    loop over its messages."""
+
+    __slots__ = ("wire", "remote", "bytes", "msgs", "wire_s", "bytes_internode", "msgs_internode",
+                 "wire_internode_s")
+
+    def __init__(self, wire=None, remote=frozenset()):
+        self.wire = wire
+        self.remote = frozenset(remote)
+        self.reset()
+
+    def reset(self):
+        self.bytes = self.msgs = self.bytes_internode = self.msgs_internode = 0
+        self.wire_s = self.wire_internode_s = 0.0
+
+    def send(self, rank, nbytes):
+        """Count one message of nbytes [B] to rank."""
+        cost = self.wire.cost(rank, nbytes) if self.wire is not None else 0.0
+        self.bytes += nbytes
+        self.msgs += 1
+        self.wire_s += cost
+        if rank in self.remote:
+            self.bytes_internode += nbytes
+            self.msgs_internode += 1
+            self.wire_internode_s += cost
+
+    def add(self, other):
+        """Add another Traffic's counts (a plan's messages, sent once more)."""
+        self.bytes += other.bytes
+        self.msgs += other.msgs
+        self.wire_s += other.wire_s
+        if other.msgs_internode:
+            self.bytes_internode += other.bytes_internode
+            self.msgs_internode += other.msgs_internode
+            self.wire_internode_s += other.wire_internode_s
+
+    def row(self):
+        """The steps.csv columns of these counts."""
+        return {"bytes_sent": self.bytes, "msgs_sent": self.msgs, "wire_s": self.wire_s,
+                "bytes_internode": self.bytes_internode, "msgs_internode": self.msgs_internode,
+                "wire_internode_s": self.wire_internode_s}

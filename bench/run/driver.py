@@ -202,6 +202,12 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
         info["forward_bytes_per_ghost"] = 8 * sum(WIDTH[f] for f in moving_fields(mode.all_spheres))
         wires = comm.gather(mode.wire.as_dict() if mode.wire is not None else None, root=0)
         info["wire"] = {str(r): w for r, w in enumerate(wires)} if rank == 0 else None
+        # where each rank ran: its host, CPU set and block, and which neighbours sat on another node
+        places = comm.gather({"host": socket.gethostname(), "cpus": sorted(os.sched_getaffinity(0)),
+                              "block": [int(c) for c in mode.coords], "neighbours": mode.halo.neighbour_ranks(),
+                              "neighbours_internode": sorted(mode.remote)}, root=0)
+        info["placement"] = {str(r): p for r, p in enumerate(places)} if rank == 0 else None
+        info["nodes"] = sorted({p["host"] for p in places}) if rank == 0 else None
         info["block_particles"] = mode.block_counts.tolist()  # [px][py][pz], at the start
         info["block_box"] = [mode.grid.lo.tolist(), mode.grid.hi.tolist()]
         info["block_cuts"] = block_cuts(mode.grid)

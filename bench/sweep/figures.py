@@ -68,8 +68,10 @@ MODULES = (("compuT", "compuT: computation", "C0"), ("commuT", "commuT: communic
 WIRE_SPLIT = (("compuT", "compuT: computation", "C0", None),
               ("syncT", "syncT: allreduce + waiting for the slowest rank", "C4", None),
               ("wireT", "wireT: modelled wire time of the bytes sent", "0.35", None),
+              ("wire_internodeT", "wire_internodeT: the part of wireT sent to other nodes", "0.1", None),
               ("above_wireT", "above_wireT = commuT + migraT - syncT - wireT", "C3", "////"))
 ABOVE_WIRE_OLD = "above_wireT = commuT + migraT - wireT"  # no syncT recorded
+WIRE_WITHIN = "wireT within the node: modelled wire time of the bytes sent"  # its label beside wire_internodeT
 # sizes for a journal's double-column width, read at 100 %: no text below FONT points
 WIDTH = 7.0  # in
 FONT = 7  # pt: legends, notes, point labels, numbers on bars
@@ -739,7 +741,9 @@ def _modules_figure(done, skipped, ctx):
     first one draws); above_wireT < 0, better than the one-after-another model or a
     syncT above the rest, is drawn as 0 and marked '<0'. Bar containers are labelled by the runs.csv
     column they draw: 'compuT', 'commuT', 'migraT' (first bars), 'split compuT', 'syncT' (only the
-    points with a finite syncT; no container when none has), 'wireT', 'above_wireT' (second bars),
+    points with a finite syncT; no container when none has), 'wireT' (within the node when
+    runs.csv has wire_internodeT), 'wire_internodeT' (only the points that sent to other nodes:
+    issue 37), 'above_wireT' (second bars),
     in ms on the top axes and % of totalT below."""
     d = done[np.isfinite(done["cores"])].sort_values(["cores", "procs", "threads", "scheme", "neighbor"])
     n = len(d)
@@ -791,7 +795,10 @@ def _modules_figure(done, skipped, ctx):
     if nw:
         sync = np.where(hs, sync_all[has], 0.0)
         above = (commu + migra)[has] - sync - wire[has]
-        split = {"compuT": vals["compuT"][has], "syncT": np.clip(sync, 0, None), "wireT": np.clip(wire[has], 0, None),
+        inter = np.nan_to_num(d["wire_internodeT"].to_numpy(dtype=float)[has], nan=0.0) \
+            if "wire_internodeT" in d else np.zeros(nw)
+        split = {"compuT": vals["compuT"][has], "syncT": np.clip(sync, 0, None),
+                 "wireT": np.clip(wire[has] - inter, 0, None), "wire_internodeT": np.clip(inter, 0, None),
                  "above_wireT": np.clip(above, 0, None)}
         xw = x[has] + half / 2 + 0.01
         tot = np.where(np.isfinite(total[has]), total[has], 0.0)
@@ -800,7 +807,8 @@ def _modules_figure(done, skipped, ctx):
         bottom2 = np.zeros(nw)
         for key, _, color, hatch in WIRE_SPLIT:
             v = split[key]
-            on = hs if key == "syncT" else np.ones(nw, dtype=bool)  # syncT only where recorded (0 elsewhere)
+            # syncT only where recorded (0 elsewhere); the wire across nodes only where some was sent
+            on = hs if key == "syncT" else inter > 0 if key == "wire_internodeT" else np.ones(nw, dtype=bool)
             name = "split compuT" if key == "compuT" else key
             kw = dict(color=color, hatch=hatch, edgecolor="white" if hatch else None, lw=0.0)
             if on.any():
@@ -852,9 +860,11 @@ def _modules_figure(done, skipped, ctx):
             return first
         above = ABOVE_WIRE_OLD if not ns else WIRE_SPLIT[-1][1] + (
             "\n(without syncT: commuT + migraT - wireT)" if ns < nw else "")
-        second = [Patch(facecolor=c, hatch=h, edgecolor="white" if h else None, lw=0,
-                        label=above if key == "above_wireT" else lab)
-                  for key, lab, c, h in WIRE_SPLIT if key != "compuT" and (key != "syncT" or ns)]
+        internode = nw and "wire_internodeT" in d and bool((d["wire_internodeT"].fillna(0) > 0).any())
+        labels = {"above_wireT": above, "wireT": WIRE_WITHIN if internode else WIRE_SPLIT[2][1]}
+        second = [Patch(facecolor=c, hatch=h, edgecolor="white" if h else None, lw=0, label=labels.get(key, lab))
+                  for key, lab, c, h in WIRE_SPLIT
+                  if key != "compuT" and (key != "syncT" or ns) and (key != "wire_internodeT" or internode)]
         if ncol != len(first):
             return first + second  # (by columns: the first bar's modules, then the second bar's)
         # read by rows: the first bar's modules on the first row, the second bar's on the second

@@ -46,7 +46,7 @@ RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores"
                "err_rms", "stable", "wall_s", "load_before", "load_after", "contact_method",
                "skin", "preset", "binding", "foreign_cores", "foreign_cpu_s", "step_spread", "totalT_spread", "flag",
                "totalT_lo", "totalT_hi", "speedup_lo", "speedup_hi", "efficiency_lo", "efficiency_hi", "totalT_reps",
-               "resolved"]
+               "resolved", "nodes", "wire_internodeT"]
 
 
 TEXT_COLUMNS = ("point", "mapping", "scheme", "neighbor", "scene", "status", "reason", "stable", "contact_method",
@@ -92,7 +92,7 @@ def read_runs_rows(path):
 
 
 NUMERIC_COLUMNS = [c for c in RUN_COLUMNS if c not in TEXT_COLUMNS]
-INTEGER_COLUMNS = ("procs", "px", "py", "pz", "threads", "cores", "particles", "steps", "repeats")
+INTEGER_COLUMNS = ("procs", "px", "py", "pz", "threads", "cores", "particles", "steps", "repeats", "nodes")
 
 
 def read_runs(directory):
@@ -146,7 +146,8 @@ def module_times(steps):
     """Per-step module times of one run (DESIGN.md): dict of totalT, commuT, migraT, compuT,
     syncT (mean over steps of the per-rank mean of syncT [s], the allreduce inside commuT; NaN
     without a syncT column or with it empty, as serial and thread runs leave it), wireT (mean
-    over steps of the per-rank mean of wire_s [s]; NaN without a wire_s column), above_wireT =
+    over steps of the per-rank mean of wire_s [s]; NaN without a wire_s column), wire_internodeT
+    (the same of wire_internode_s, the part of wireT sent to other nodes), above_wireT =
     commuT + migraT - syncT - wireT [s] (the software above the wire in the exchanges; commuT +
     migraT - wireT when syncT is NaN; NaN when wireT is), neighborT, resolveT, rss_mb."""
     g = steps.groupby("step")
@@ -158,7 +159,7 @@ def module_times(steps):
     # the wire under commuT + migraT (issue 11): absent from older steps.csv files
     import pandas as pd
     # and the allreduce inside commuT (syncT): absent from older ones, empty without MPI
-    for col, key in (("wire_s", "wireT"), ("syncT", "syncT")):
+    for col, key in (("wire_s", "wireT"), ("syncT", "syncT"), ("wire_internode_s", "wire_internodeT")):
         v = pd.to_numeric(steps[col], errors="coerce") if col in steps else None
         if v is not None and v.notna().any():
             out[key] = float(v.groupby(steps["step"]).mean().mean())
@@ -207,12 +208,12 @@ def summarise(point, rep_dirs, ref_state, t1, statuses=None):
         spreads.append((info.get("step_time") or {}).get("spread"))
         bindings.append(binding_word(info.get("affinity")))
         row.update(particles=info["particles"], steps=info["steps"], stable=info["stable"], skin=info.get("skin"),
-                   preset=info.get("preset") or "")
+                   preset=info.get("preset") or "", nodes=len(info.get("nodes") or [info.get("host")]))
         state = dict(np.load(os.path.join(d, "state.npz")))
     for k in times[0]:
         row[k] = float(np.median([t[k] for t in times]))
     if m.procs == 1:  # no MPI, no wire, no allreduce (a serial steps.csv may carry wire_s = 0)
-        row["syncT"] = row["wireT"] = row["above_wireT"] = math.nan
+        row["syncT"] = row["wireT"] = row["above_wireT"] = row["wire_internodeT"] = math.nan
     row["totalT_lo"], row["totalT_hi"] = step_time_interval(series)
     row["totalT_reps"] = format_reps(t["totalT"] for t in times)
     row["wall_s"] = float(np.median(walls))

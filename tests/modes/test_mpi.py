@@ -196,6 +196,21 @@ def test_wire_time_is_the_measured_model_of_the_bytes_sent(tmp_path):
     assert ((steps["wire_s"] > 0) == (steps["msgs_sent"] > 0)).all() and (steps["msgs_sent"] > 0).mean() > 0.5
 
 
+def test_placement_recorded_and_one_node_sends_nothing_across_nodes(tmp_path):
+    """run.json `placement` names each rank's host, CPU set, block and neighbour ranks; on one host
+    no neighbour is on another node, so steps.csv's inter-node counts (issue 37) are 0 on every
+    step while the step's totals are not."""
+    _, steps, info = mpi_run(tmp_path, "gas", 40, "2-2-1-1-1")
+    place = info["placement"]
+    assert sorted(place) == ["0", "1"] and len(info["nodes"]) == 1
+    assert [place[r]["block"] for r in ("0", "1")] == [[0, 0, 0], [1, 0, 0]]
+    assert place["0"]["neighbours"] == [1] and place["1"]["neighbours"] == [0]
+    assert all(p["neighbours_internode"] == [] and p["host"] == info["nodes"][0] and p["cpus"] for p in place.values())
+    assert (steps["bytes_sent"] > 0).any()
+    for c in ("bytes_internode", "msgs_internode", "wire_internode_s"):
+        assert (steps[c] == 0).all(), c
+
+
 def test_default_skin_fits_narrow_blocks_explicit_one_refused(tmp_path):
     """Ghost layers are the largest bounding diameter plus the skin wide: on blocks too narrow for
     the default skin it shrinks to fit (run.json says by how much); an explicit skin that does not
