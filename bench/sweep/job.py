@@ -14,8 +14,11 @@ REP/status.json `running` with the job id, node, its CPU and the load average, r
 REP/stdout.txt and REP/stderr.txt (REP/cmd.txt: the command), and then its outcome (judged as the
 local launcher judges it: bench.sweep.status.judge). Past `--timeout` seconds it is stopped
 (`timeout`). When Slurm signals the job (SIGTERM: its time limit, or scancel), the outcome is
-`timeout` or `cancelled` as `scontrol` gives the job's reason (TimeLimit or not), written before
-Slurm's KillWait ends.
+`timeout` or `cancelled` as `scontrol` gives the job's reason (TimeLimit or not), or `failed`
+naming the node and its ranks when Slurm reports one of the job's nodes down or not responding (a
+node lost mid-run), written before Slurm's KillWait ends. A node lost while Slurm still waits for
+it (SlurmdTimeout) is found first by the run's own heartbeat watchdog (bench.run.supervise), whose
+line names the rank and its host.
 """
 import json
 import os
@@ -57,17 +60,50 @@ def node_info():
     return info
 
 
-def slurm_verdict():
-    """(status, reason) of this job being stopped by Slurm: timeout at its time limit, else cancelled."""
+def _scontrol(*args):
+    """The key=value fields of each line of `scontrol show ... -o` (empty where it cannot tell)."""
+    try:
+        out = subprocess.run(["scontrol", "show", *args, "-o"], capture_output=True, text=True, timeout=5).stdout
+    except (OSError, subprocess.TimeoutExpired):
+        return []
+    return [dict(kv.split("=", 1) for kv in line.split() if "=" in kv) for line in out.splitlines() if line.strip()]
+
+
+def lost_nodes(nodelist):
+    """[(node, state)] of the nodes of a Slurm node list that Slurm reports down or not responding
+    (State DOWN..., or a trailing '*' / NOT_RESPONDING): a node lost under a running job."""
+    lost = []
+    for node in _scontrol("node", nodelist) if nodelist else []:
+        state = node.get("State", "")
+        if state.startswith("DOWN") or "NOT_RESPONDING" in state or state.endswith("*"):
+            lost.append((node.get("NodeName", "?"), state))
+    return lost
+
+
+def _ranks_on(rep, node):
+    """The ranks run.json's placement puts on node (empty when not written yet)."""
+    try:
+        with open(os.path.join(rep, "run.json")) as fh:
+            place = json.load(fh).get("placement") or {}
+    except (OSError, ValueError):
+        return []
+    return sorted(int(r) for r, p in place.items() if p.get("host") == node)
+
+
+def slurm_verdict(rep=None):
+    """(status, reason) of this job being stopped by Slurm: failed when one of its nodes was lost
+    (Slurm says it is down or not responding: the reason names it and the ranks run.json placed
+    there), timeout at its time limit, else cancelled."""
     job = os.environ.get("SLURM_JOB_ID")
-    fields = {}
-    if job:
-        try:
-            out = subprocess.run(["scontrol", "show", "job", "-o", job], capture_output=True, text=True,
-                                 timeout=5).stdout
-            fields = dict(kv.split("=", 1) for kv in out.split() if "=" in kv)
-        except (OSError, subprocess.TimeoutExpired):
-            pass
+    fields = (_scontrol("job", job) or [{}])[0] if job else {}
+    # the allocation this script runs in (a requeued or ending job's NodeList may be gone already)
+    nodes = ",".join(x for x in (os.environ.get("SLURM_JOB_NODELIST"), fields.get("NodeList")) if x and x != "(null)")
+    lost = lost_nodes(nodes)
+    if lost or fields.get("JobState") == "NODE_FAIL":
+        node, state = lost[0] if lost else ("?", "NODE_FAIL")
+        ranks = _ranks_on(rep, node) if rep else []
+        on = f" with rank{'s' if len(ranks) > 1 else ''} {', '.join(map(str, ranks))}" if ranks else ""
+        return "failed", f"node {node}{on} lost mid-run (Slurm: {state}); the job was ended"
     if fields.get("Reason") == "TimeLimit" or fields.get("JobState") in ("TIMEOUT", "DEADLINE"):
         return "timeout", f"killed at Slurm's time limit ({fields.get('TimeLimit', '?')})"
     return "cancelled", f"cancelled (Slurm JobState={fields.get('JobState', '?')})"
@@ -85,7 +121,7 @@ def run_point(rep, timeout, cmd):
     proc = None
 
     def stopped(signum, frame):
-        status, reason = slurm_verdict()
+        status, reason = slurm_verdict(rep)
         _write(status_path, dict(base, status=status, reason=reason, load_after=os.getloadavg()[0],
                                  ended=time.strftime("%Y-%m-%dT%H:%M:%S%z")))
         if proc is not None:
@@ -111,7 +147,7 @@ def run_point(rep, timeout, cmd):
             rc = None
     status = judge(rep, rc, timeout)
     if rc is not None and rc < 0 and status["status"] == "failed":  # killed by a signal: Slurm's doing?
-        status = dict(zip(("status", "reason"), slurm_verdict()))
+        status = dict(zip(("status", "reason"), slurm_verdict(rep)))
     _write(status_path, dict(base, **status, load_after=os.getloadavg()[0],
                              ended=time.strftime("%Y-%m-%dT%H:%M:%S%z")))
     return 0 if status["status"] == "done" else 1

@@ -12,8 +12,13 @@ A sweep in DIR (absolute paths everywhere, so relative `--out` and `--scene` wor
   `python -m bench.sweep.job point REP -- <command>` (bench.sweep.job: status, node, time limit),
   the command being `srun --ntasks=1 --cpus-per-task=T --cpu-bind=cores python -m bench run ...`
   for one process, and for P > 1 `python -m bench run ... --mpi-starter 'srun --mpi=pmi2
-  --ntasks=P --cpus-per-task=T --cpu-bind=cores'` (or, with mpi = hydra, the Python's mpiexec
-  `-n P -bind-to core:T` inside the allocation, with SLURM_MPI_TYPE=none);
+  --ntasks=P --cpus-per-task=T --cpu-bind=cores --distribution=block:block'` (or, with mpi =
+  hydra, the Python's mpiexec `-n P -bind-to core:T` inside the allocation, with
+  SLURM_MPI_TYPE=none). Ranks placed by node (issue 37): the ranks number the blocks in
+  row-major order, x slowest (bench.run.rank: Create_cart without reordering), and block
+  distribution puts consecutive ranks on one node, so with `--nodes K` each node holds a
+  contiguous run of blocks (whole x slabs when K divides px): neighbouring blocks share a node
+  and only the slabs' faces cross the network (run.json `placement`);
 - `DIR/collect.sbatch`: `bench collect DIR` after every point (`afterany`), on a compute node;
 - `DIR/submit.sh`: submits the three in that order with `sbatch --parsable`, goes on when sbatch
   refuses a job, and records every job id (or the refusal) in `DIR/jobs.json`,
@@ -72,6 +77,9 @@ def _header(name, output, opts, chdir, point=True):
         if opts.get(key):
             lines.append(f"#SBATCH --{flag}={opts[key]}")
     if point:
+        # a repeat whose node was lost stays failed with its records (Slurm would requeue it into the
+        # same folder); --resume runs it again
+        lines.append("#SBATCH --no-requeue")
         if opts.get("exclusive"):
             lines.append("#SBATCH --exclusive")
         if opts.get("hint"):
@@ -113,7 +121,7 @@ def mpi_starter(mapping, mpi, mpiexec=None):
     if mpi == "hydra":
         return [mpiexec or "mpiexec", "-n", str(mapping.procs), "-bind-to", f"core:{mapping.threads}"]
     return ["srun", f"--mpi={mpi}", f"--ntasks={mapping.procs}", f"--cpus-per-task={mapping.threads}",
-            "--cpu-bind=cores"]
+            "--cpu-bind=cores", "--distribution=block:block"]
 
 
 def point_command(point, timeout, opts, python, mpiexec=None):
