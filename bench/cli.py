@@ -12,7 +12,7 @@ import os
 import sys
 
 from bench.run.options import (BALANCE, CONTACT_METHOD_CHOICES, NEIGHBOR_CHOICES, PRESETS, SHAPE_CHOICES,
-                               SWEEP_FALLBACK, add_run_arguments, apply_preset, nonneg_int, particle_counts,
+                               SWEEP_FALLBACK, add_run_arguments, apply_preset, host_list, nonneg_int, particle_counts,
                                positive_float, positive_int, precision_fraction, skin_fraction)
 from bench.run.threads_env import configure_threads
 from bench.sweep.precision import ROUNDS_CAP
@@ -81,6 +81,9 @@ def build_parser():
     sw.add_argument("--pin", action="store_true",
                     help="every point's ranks get T cores of their own and each thread one of them (bench run "
                          "--pin; runs.csv binding says whether it held)")
+    sw.add_argument("--hosts", type=host_list, default=None, metavar="H1,H2,...|@FILE",
+                    help="local launcher: run every MPI and hybrid point's ranks on these hosts (bench run --hosts: "
+                         "mpiexec -hosts, consecutive ranks a host); a comma list or @FILE, one host a line")
     sw.add_argument("--ceiling", action="store_true",
                     help="also measure the machine's efficiency ceiling at each core count W of the sweep (W "
                          "independent serial copies of the scene at N/W particles, alone, together and meeting "
@@ -318,7 +321,7 @@ def cmd_run(args):
 
 SWEEP_FIELDS = {"mappings": str, "schemes": str, "scene": str, "particles": int, "shape": str, "steps": int,
                 "warmup": int, "repeats": int, "neighbor": str, "contact_method": str, "halo": str, "update_grid": int,
-                "balance": str, "newton": str, "skin": float, "pin": bool, "preset": str,
+                "balance": str, "newton": str, "skin": float, "pin": bool, "preset": str, "hosts": str,
                 "ceiling": bool, "precision": float, "budget": float, "compare": str, "timeout": int,
                 "launcher": str, "out": str, "slurm": dict}
 
@@ -365,7 +368,7 @@ def _sweep_file(args):
             if args.particles is None:
                 args.particles = value
             continue
-        listed = key in ("mappings", "schemes")
+        listed = key in ("mappings", "schemes", "hosts")
         if SWEEP_FIELDS[key] is str and not (isinstance(value, str) or listed and isinstance(value, list)):
             raise UsageError(f"{key} in {args.file} must be a string{' or a list of strings' if listed else ''}, "
                              f"got {_short(value)}")
@@ -454,6 +457,14 @@ def cmd_sweep(args):
                          "after bench collect")
     if getattr(args, "compare", None) and not os.path.isfile(os.path.join(args.compare, "runs.csv")):
         raise UsageError(f"bench sweep: --compare {args.compare}: no runs.csv there (not a sweep folder)")
+    if getattr(args, "hosts", None):
+        if args.launcher != "local":
+            raise UsageError("bench sweep: --hosts places the ranks of the local launcher's mpiexec: with Slurm, "
+                             "--nodes K asks the allocation for K nodes")
+        try:
+            args.hosts = host_list(args.hosts)  # a sweep file's list, checked as the flag is
+        except argparse.ArgumentTypeError as e:
+            raise UsageError(f"bench sweep: hosts: {e}") from None
     args.slurm = _slurm_options(args)
     if args.launcher != "slurm" and (args.slurm or args.no_submit):
         given = ", ".join(sorted(args.slurm)) or "no_submit"

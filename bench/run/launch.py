@@ -19,7 +19,11 @@ before it starts the ranks, which an OMP_PROC_BIND in the environment would pin 
 the ranks would inherit it: its CPU set is restored after the warm-up, and the ranks get the count
 it had (DEM_BENCH_NODE_CPUS), against which they check their own. `--mpi-starter CMD` replaces `mpiexec -n P` (a Slurm job starts its ranks with
 `srun --mpi=pmi2 ...`, bench.sweep.slurm); the starter then places the ranks, possibly over
-several nodes, so the CPUs of this process are not compared with P x T.
+several nodes, so the CPUs of this process are not compared with P x T. `--hosts H1,...,HK`
+(issue 37) runs `mpiexec -n P -hosts H1,...,HK -ppn ceil(P/K)`: Hydra places consecutive ranks on
+a host, and the ranks number the blocks in row-major order, so each host holds a contiguous run of
+blocks (run.json `placement`); Hydra reaches the hosts by ssh, or by the launcher its
+HYDRA_LAUNCHER and HYDRA_LAUNCHER_EXEC name.
 """
 import copy
 import json
@@ -80,7 +84,15 @@ def launch_mpi(args, mapping, scene, out, ts):
                         f"dynamic): {scheme} stores every pair's forces and resolves each cross-border pair on "
                         f"both of its ranks")
     starter = getattr(args, "mpi_starter", None)
-    too_big = None if starter else check_size(str(mapping))
+    hosts = getattr(args, "hosts", None)
+    if hosts and starter:
+        raise ModeError("--hosts and --mpi-starter cannot be given together (the starter places the ranks)")
+    hosts = hosts.split(",") if hosts else []
+    if len(hosts) > mapping.procs:
+        raise ModeError(f"--hosts names {len(hosts)} hosts but mapping {mapping} has only {mapping.procs} ranks "
+                        f"(at least one a host)")
+    elsewhere = bool(starter or hosts)  # the ranks may run on other nodes: this one's CPUs do not bound them
+    too_big = None if elsewhere else check_size(str(mapping))
     if too_big:
         raise ModeError(too_big)
     if starter:
@@ -92,8 +104,12 @@ def launch_mpi(args, mapping, scene, out, ts):
         if exe is None:
             raise ModeError("mapping with P > 1 needs mpiexec (pip install mpich, or a system MPI)")
         cmd = [exe, "-n", str(mapping.procs)]
-        if args.pin:
+        if hosts:  # consecutive ranks on a host: contiguous blocks (row-major) share it
+            cmd += ["-hosts", ",".join(hosts), "-ppn", str(-(-mapping.procs // len(hosts)))]
+        if args.pin and not hosts:
             plan_binding(read_topology(os.sched_getaffinity(0)), mapping.procs, mapping.threads)  # or one line
+            cmd += ["-bind-to", f"core:{mapping.threads}"]
+        elif args.pin:  # the other hosts' CPUs are not known here: each rank binds itself there
             cmd += ["-bind-to", f"core:{mapping.threads}"]
     mine = os.sched_getaffinity(0)
     try:
@@ -102,9 +118,9 @@ def launch_mpi(args, mapping, scene, out, ts):
         os.sched_setaffinity(0, mine)  # what the ranks inherit (module docstring)
     env = transport_env(dict(os.environ, NUMBA_NUM_THREADS=str(mapping.threads)))
     cpus = usable_cpus()
-    if not starter:  # a starter may place the ranks on other nodes
+    if not elsewhere:  # a starter or --hosts may place the ranks on other nodes
         env[NODE_CPUS_ENV] = str(len(mine))
-    if not starter and mapping.procs * mapping.threads > cpus:
+    if not elsewhere and mapping.procs * mapping.threads > cpus:
         env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
         print(f"bench: warning: {mapping.procs} ranks x {mapping.threads} threads on {cpus} usable CPUs "
               f"oversubscribes them (MPI busy-polls): fine for correctness, not for timings", file=sys.stderr)

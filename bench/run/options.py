@@ -4,6 +4,7 @@ Every bad value ends as one line through the parser's error (bench.cli); the mod
 option it lacks (modes.base.ModeError).
 """
 import argparse
+import re
 
 from dem.contact import CONTACT_METHODS  # plain names: numba has not started yet
 
@@ -80,6 +81,29 @@ def overlap_fraction(text):
 def seconds(text):
     """A finite number of seconds >= 0."""
     return _number_in(text, lambda v: 0.0 <= v < 1e9, "seconds >= 0")
+
+
+HOST_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")  # a host name or address, as mpiexec -hosts takes it
+
+
+def host_list(text):
+    """--hosts: host names, comma-separated, or @FILE with one a line ('#' comments; a Hydra or Open
+    MPI host file's `host:slots` / `host slots=N` keep their host). Returns them joined by commas."""
+    if text.startswith("@"):
+        try:
+            with open(text[1:]) as fh:
+                names = [line.split("#", 1)[0].split()[0].split(":")[0] for line in fh if line.split("#", 1)[0].strip()]
+        except (OSError, UnicodeDecodeError) as e:
+            raise argparse.ArgumentTypeError(f"cannot read the host file {text[1:]!r}: "
+                                             f"{getattr(e, 'strerror', None) or e}") from None
+    else:
+        names = [h.strip() for h in text.split(",")]
+    bad = next((h for h in names if not HOST_NAME.fullmatch(h)), None)
+    if not names or bad is not None:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a list of host names (bad: {bad!r})")
+    if len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(f"{text!r} names a host twice")
+    return ",".join(names)
 
 
 def time_step_arg(text):
@@ -179,6 +203,10 @@ def add_run_arguments(r):
     r.add_argument("--hang-timeout", type=seconds, default=30.0, metavar="S",
                    help="P > 1: stop the run when a rank's heartbeat is S seconds old while a peer's is fresh "
                         "(a rank stopped or stuck; default 30, 0: off)")
+    r.add_argument("--hosts", type=host_list, default=None, metavar="H1,H2,...|@FILE",
+                   help="P > 1: run the ranks on these hosts (mpiexec -hosts, -ppn ceil(P/K) for K hosts: consecutive "
+                        "ranks, so neighbouring blocks, share a host); a comma list or @FILE, one host a line; "
+                        "mpiexec reaches them by ssh (or HYDRA_LAUNCHER / HYDRA_LAUNCHER_EXEC)")
     r.add_argument("--mpi-starter", default=None, metavar="CMD",
                    help="P > 1: the command that starts the P ranks instead of `mpiexec -n P`, the rank program "
                         "appended (inside a Slurm allocation: 'srun --mpi=pmi2 --ntasks=P --cpus-per-task=T "

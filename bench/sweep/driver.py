@@ -57,7 +57,7 @@ def sweep(args):
                          args.neighbor, args.shape, args.pin, args.halo, getattr(args, "contact_method", "exact"),
                          getattr(args, "update_grid", 0) or 0, getattr(args, "balance", "extent") or "extent",
                          getattr(args, "newton", "auto") or "auto", getattr(args, "skin", None),
-                         getattr(args, "preset", None))
+                         getattr(args, "preset", None), getattr(args, "hosts", None))
     out = args.out
     ceiling = _ceiling(args, launcher, points) if getattr(args, "ceiling", False) else None
     if args.dry_run:

@@ -32,6 +32,7 @@ class Point:
     newton: str = "auto"
     skin: float = None   # the neighbour-list skin fraction of every point (None: bench run's default)
     preset: str = ""     # bench run --preset of every point ("" none); its options are the fields above
+    hosts: str = ""      # bench run --hosts of the MPI and hybrid points ("" this host)
 
     @property
     def key(self):
@@ -49,6 +50,8 @@ class Point:
             del params["skin"]
         if not params["preset"]:
             del params["preset"]
+        if not params["hosts"]:
+            del params["hosts"]
         digest = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:8]
         return f"{self.mapping}{'-' + self.scheme if self.scheme else ''}-{digest}"
 
@@ -75,6 +78,8 @@ class Point:
                     args += ["--balance", self.balance]
             if self.newton != "auto":
                 args += ["--newton", self.newton]
+            if self.hosts:
+                args += ["--hosts", self.hosts]
         return args
 
 
@@ -85,7 +90,8 @@ def point_from_dict(d):
 
 
 def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, shape, pin, halo,
-                contact_method="exact", update_grid=0, balance="extent", newton="auto", skin=None, preset=None):
+                contact_method="exact", update_grid=0, balance="extent", newton="auto", skin=None, preset=None,
+                hosts=None):
     """Points of a sweep: the serial reference first, then each mapping (x each scheme when it has
     more than one thread), without duplicates, in the order given; particles: one count, None (the
     scene's own) or a list of counts (the granularity study, issue 36: the grid counts x mappings,
@@ -93,11 +99,18 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
     the order given, count by count); skin (a fraction, or None for
     bench run's default) goes to every point, the serial reference included. newton (auto, on, off) goes to
     the points with more than one process, except hybrid points under a scheme that stores every
-    pair's forces (frogleap, headtail: they resolve a pair across a border on both ranks)."""
+    pair's forces (frogleap, headtail: they resolve a pair across a border on both ranks). hosts
+    (bench run --hosts) goes to the points with more than one process; a mapping with fewer
+    ranks than hosts is refused (one line)."""
     for s in schemes:
         if s not in SCHEMES:
             raise ModeError(f"unknown scheme {s!r} (schemes: {', '.join(SCHEMES)})")
     parsed = [parse_mapping(m) for m in mappings]  # one clear line for a malformed mapping
+    nhosts = len(hosts.split(",")) if hosts else 0
+    small = next((m for m in parsed if 1 < m.procs < nhosts), None)
+    if small is not None:
+        raise ModeError(f"--hosts names {nhosts} hosts but mapping {small} has only {small.procs} ranks (at least "
+                        f"one a host)")
     if SERIAL not in [str(m) for m in parsed]:
         parsed.insert(0, parse_mapping(SERIAL))
     points = []
@@ -109,7 +122,8 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
                           contact_method, update_grid if m.procs > 1 else 0,
                           balance if m.procs > 1 and update_grid else "extent",
                           newton if m.procs > 1 and (m.threads == 1 or s in SPLIT_SCHEMES) else "auto",
-                          None if skin is None else float(skin), preset or "")
+                          None if skin is None else float(skin), preset or "",
+                          hosts if m.procs > 1 and hosts else "")
                 if p not in points:
                     points.append(p)
     points.sort(key=lambda p: p.mapping != SERIAL)  # the reference runs first

@@ -133,6 +133,18 @@ def test_bad_scene_one_line_exit_2(tmp_path, text, words):
     (["run", "--scene", "patch162", "--mapping", "2-2-1-1-1", "--balance", "load"], "--balance"),
     (["run", "--scene", "patch162", "--dt", "1.0", "--steps", "1"], "exceeds the critical step"),
     (["bogus"], "invalid choice"),
+    # --hosts (issue 37): names, a readable file, no more hosts than ranks, not with a starter or Slurm
+    (["run", "--scene", "patch162", "--mapping", "2-2-1-1-1", "--hosts", "a,,b"], "not a list of host names"),
+    (["run", "--scene", "patch162", "--mapping", "2-2-1-1-1", "--hosts", "a,a"], "names a host twice"),
+    (["run", "--scene", "patch162", "--mapping", "2-2-1-1-1", "--hosts", "@/nonexistent/hosts"],
+     "cannot read the host file"),
+    (["run", "--scene", "patch162", "--mapping", "2-2-1-1-1", "--hosts", "a,b,c"], "has only 2 ranks"),
+    (["run", "--scene", "patch162", "--mapping", "2-2-1-1-1", "--hosts", "a", "--mpi-starter", "srun"],
+     "cannot be given together"),
+    (["sweep", "--scene", "patch162", "--mappings", "2-2-1-1-1", "--hosts", "a,b,c", "--out", "x"],
+     "has only 2 ranks"),
+    (["sweep", "--scene", "patch162", "--mappings", "2-2-1-1-1", "--hosts", "a,b", "--launcher", "slurm",
+      "--out", "x"], "--nodes K"),
 ])
 def test_bad_options_one_line_exit_2(tmp_path, args, words):
     """Bad options, mappings and time steps: one clear line, exit 2 (items 6, 10, 11)."""

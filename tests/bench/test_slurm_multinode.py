@@ -289,6 +289,29 @@ def test_ranks_placed_by_node_and_traffic_split(node_sweeps):
             assert 0 < r["wire_internodeT"] <= r["wireT"], (mapping, r["wire_internodeT"], r["wireT"])
 
 
+def test_sweep_on_hosts_without_slurm(cluster, tmp_path):
+    """`bench sweep --hosts node1,node2` (the local launcher, mpiexec -hosts; issue 37 part 2):
+    Hydra reaches the nodes through tests/bench/slurm/nodessh (as ssh would), the 4-rank point runs
+    two consecutive ranks a node, x slab by slab, and ends bit-identical to the serial reference."""
+    import json
+    import numpy as np
+    env = dict(cluster["env"], MULTINODE_STATE=cluster["state"], HYDRA_LAUNCHER="ssh",
+               HYDRA_LAUNCHER_EXEC=os.path.join(os.path.dirname(SCRIPT), "nodessh"))
+    folder = str(tmp_path / "hosts")
+    res = run([sys.executable, "-m", "bench", "sweep", *SCENE, "--steps", "12", "--warmup", "2", "--mappings",
+               "4-2-2-1-1", "--hosts", "node1,node2", "--out", folder], env, timeout=600)
+    assert res.returncode == 0, res.stdout + res.stderr
+    points = _points(folder)
+    assert points["4-2-2-1-1"]["status"] == "done" and int(points["4-2-2-1-1"]["nodes"]) == 2
+    ref = np.load(os.path.join(folder, points["1-1-1-1-1"]["point"], "rep0", "state.npz"))
+    rep = os.path.join(folder, points["4-2-2-1-1"]["point"], "rep0")
+    got = np.load(os.path.join(rep, "state.npz"))
+    assert all(np.array_equal(ref[k], got[k]) for k in ref.files)
+    place = json.load(open(os.path.join(rep, "run.json")))["placement"]
+    assert [(place[str(q)]["host"], place[str(q)]["block"][0]) for q in range(4)] == \
+        [("node1", 0), ("node1", 0), ("node2", 1), ("node2", 1)]
+
+
 def test_a_lost_node_is_named(cluster, tmp_path):
     """A node lost mid-run: the slurmd of a node holding ranks of a running 4-rank point and every
     process on that node are killed (SIGKILL). The run ends with one line naming the node and its
