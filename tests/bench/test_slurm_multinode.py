@@ -289,6 +289,18 @@ def test_ranks_placed_by_node_and_traffic_split(node_sweeps):
             assert 0 < r["wire_internodeT"] <= r["wireT"], (mapping, r["wire_internodeT"], r["wireT"])
 
 
+def test_too_many_ranks_a_node_refused_before_submission(cluster, tmp_path):
+    """8 ranks on --nodes 2 is 4 a node, where sinfo says a node has 2 CPUs: refused in one line
+    before any job is submitted (no jobs.json), as is a 2-rank point on --nodes 4."""
+    for mappings, nodes, words in (("8-2-2-2-1", "2", "needs 4 CPUs on a node"), ("2-2-1-1-1", "4", "has only 2")):
+        folder = tmp_path / f"refused{nodes}"
+        res = bench(cluster, "sweep", *SCENE, "--steps", "5", "--mappings", mappings, "--launcher", "slurm",
+                    "--nodes", nodes, "--out", str(folder))
+        lines = res.stderr.strip().splitlines()
+        assert res.returncode == 2 and len(lines) == 1 and words in lines[0], res.stdout + res.stderr
+        assert not (folder / "jobs.json").exists()
+
+
 def test_sweep_on_hosts_without_slurm(cluster, tmp_path):
     """`bench sweep --hosts node1,node2` (the local launcher, mpiexec -hosts; issue 37 part 2):
     Hydra reaches the nodes through tests/bench/slurm/nodessh (as ssh would), the 4-rank point runs
