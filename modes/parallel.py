@@ -47,6 +47,7 @@ from dem.pairs import carry_history_rows_range, carry_history_sorted_range
 from dem.shapes import SPHERE
 
 SCHEMES = ("partition", "frogleap", "headtail", "static", "dynamic")
+DEFAULT_SCHEME = "dynamic"   # the scheme of a run with T > 1 threads when none is given
 # the schemes whose resolution runs over ranges of the gid-sorted list (SPLIT); the others store
 # every pair's forces for the gather
 SPLIT_SCHEMES = ("partition", "static", "dynamic")

@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from dem.contact.ellipsoid import OUT_LEN
-from dem.contact import CONTACT_METHODS
+from dem.contact import CONTACT_METHODS, DEFAULT_CONTACT_METHOD
 from dem.forces import (SUM, STORE, TAKEN, TERMS, body_arrays, finish_range, law_tables, resolve_range, scene_kind,
                         wall_arrays, wall_candidates)
 from dem.integrate import derive_all
@@ -44,7 +44,7 @@ class SerialMode:
     carry_sorted = None   # how a rebuild carries the history of a gid-sorted list (None: dem.pairs' merge)
     wall_list = staticmethod(wall_candidates)   # the rebuild's wall list (threads: their own loop)
 
-    def setup(self, scene, dt, neighbor="linkcell", skin=None, contact_method="exact", **options):
+    def setup(self, scene, dt, neighbor="linkcell", skin=None, contact_method=DEFAULT_CONTACT_METHOD, **options):
         if options:
             raise ModeError(f"unknown option(s) for the {self.name} mode: {', '.join(sorted(options))}")
         if contact_method not in CONTACT_METHODS:

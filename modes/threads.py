@@ -51,7 +51,7 @@ class ThreadsMode(SerialMode):
     deliver = STORE   # how the resolution hands on the pair forces (dem.forces; set by setup)
     no_mark = np.zeros(0, dtype=np.int8)
 
-    def setup(self, scene, dt, threads=2, scheme="dynamic", threaded="step", split=True, **kw):
+    def setup(self, scene, dt, threads=2, scheme=par.DEFAULT_SCHEME, threaded="step", split=True, **kw):
         if scheme not in par.SCHEMES:
             raise ModeError(f"unknown scheme {scheme!r} (schemes: {', '.join(par.SCHEMES)})")
         if threaded not in ("step", "detection"):

@@ -28,11 +28,12 @@ from bench.run.records import (RecordError, Reserve, StepWriter, environment, me
                                read_step_rows, write_json, write_state)
 from bench.run.snapshots import write_snapshot
 from bench.run.transport import transport_info
+from dem.contact import DEFAULT_CONTACT_METHOD
 from dem.scene import SceneError, load_scene
 from dem.timestep import TimeStep, choose_time_step
 from modes.base import ModeError, mode_for, parse_mapping
 from modes.halo import WIDTH, ghost_fields, moving_fields
-from modes.parallel import SCHEMES
+from modes.parallel import DEFAULT_SCHEME, SCHEMES
 
 
 def _threading_info():
@@ -52,7 +53,7 @@ def run(args):
     mode_cls = mode_for(mapping)
     if args.scheme is not None and mapping.threads == 1:
         raise ModeError(f"--scheme {args.scheme} needs a mapping with more than one thread")
-    scheme = args.scheme or ("dynamic" if mapping.threads > 1 else None)
+    scheme = args.scheme or (DEFAULT_SCHEME if mapping.threads > 1 else None)
     if scheme is not None:
         if scheme not in SCHEMES:
             raise ModeError(f"unknown scheme {scheme!r} (schemes: {', '.join(SCHEMES)})")
@@ -63,7 +64,7 @@ def run(args):
     else:
         if not args.scene:
             raise SceneError("bench run needs --scene NAME|FILE.toml (or --restart FILE)")
-        args.contact_method = args.contact_method or "exact"
+        args.contact_method = args.contact_method or DEFAULT_CONTACT_METHOD
         scene = load_scene(args.scene, particles=args.particles, shape=args.shape, seed=args.seed,
                            overlap_limit=args.guard_overlap)
         if scene.extras.get("build") and (args.dt if args.dt is not None else scene.dt) != "auto":
@@ -119,7 +120,7 @@ def load_restart(args):
             raise SceneError(f"--restart continues the checkpoint's scene and time step: --{name} cannot be given "
                              f"with it")
     scene, meta = load_checkpoint(args.restart)
-    args.contact_method = args.contact_method or meta.get("contact_method") or "exact"
+    args.contact_method = args.contact_method or meta.get("contact_method") or DEFAULT_CONTACT_METHOD
     return scene, TimeStep.from_dict(meta["time_step"])
 
 
@@ -175,7 +176,7 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
             "threaded": args.threaded if mapping.threads > 1 else None, "pin": args.pin,
             "threading": _threading_info(), "affinity": getattr(args, "affinity", None),
             "mpi_transport": transport_info(),
-            "neighbor": args.neighbor, "contact_method": getattr(args, "contact_method", "exact"),
+            "neighbor": args.neighbor, "contact_method": getattr(args, "contact_method", DEFAULT_CONTACT_METHOD),
             "preset": getattr(args, "preset", None), "preset_overrides": getattr(args, "preset_overrides", None) or None,
             "skin": mode.skin_fraction, "skin_m": mode.skin, "skin_requested": args.skin,
             "halo": args.halo if mapping.procs > 1 else None,
@@ -233,7 +234,7 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
         t = time.perf_counter()
         meta = {"step": step0 + k, "time": time0 + (warm + k) * dt, "warmup_total": warm0 + warm,
                 "steps_target": step0 + steps, "time_step": ts.as_dict(), "guard": guard.sums(),
-                "contact_method": args.contact_method or "exact", "neighbor": args.neighbor,
+                "contact_method": args.contact_method or DEFAULT_CONTACT_METHOD, "neighbor": args.neighbor,
                 "mapping": str(mapping), "scheme": scheme}
         ckpt["bytes"] = write_checkpoint(ckpt_path, mode, scene, meta, comm=comm)
         ckpt["seconds"] += time.perf_counter() - t

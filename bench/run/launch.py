@@ -38,11 +38,12 @@ from bench.run.binding import NODE_CPUS_ENV, plan_binding, read_topology
 from bench.run.lifeline import Interrupted, child_env, inherited_lock
 from bench.run.threads_env import check_size, usable_cpus
 from bench.run.transport import transport_env
+from dem.contact import DEFAULT_CONTACT_METHOD
 from modes.base import ModeError
 from modes.decomposition import BlockGrid, DecompositionError, border_width, fit_skin
 from modes.halo import compile_kernels
 from modes.newton import compile_kernels as compile_newton_kernels
-from modes.parallel import SPLIT_SCHEMES
+from modes.parallel import DEFAULT_SCHEME, SPLIT_SCHEMES
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 
@@ -59,10 +60,11 @@ def warm_cache(scene, mapping, args, dt):
     twin = copy.copy(scene)
     if mapping.threads > 1:
         ThreadsMode().setup(twin, dt=dt, neighbor=args.neighbor, threads=mapping.threads,
-                            scheme=args.scheme or "dynamic", threaded=args.threaded,
-                            contact_method=args.contact_method or "exact").warmup()
+                            scheme=args.scheme or DEFAULT_SCHEME, threaded=args.threaded,
+                            contact_method=args.contact_method or DEFAULT_CONTACT_METHOD).warmup()
     else:
-        SerialMode().setup(twin, dt=dt, neighbor=args.neighbor, contact_method=args.contact_method or "exact").warmup()
+        SerialMode().setup(twin, dt=dt, neighbor=args.neighbor,
+                           contact_method=args.contact_method or DEFAULT_CONTACT_METHOD).warmup()
     compile_kernels()
     compile_newton_kernels()
 
@@ -78,7 +80,7 @@ def launch_mpi(args, mapping, scene, out, ts):
             fit_skin(grid, width, args.skin * 2.0 * float(scene.state.rbound.max()), explicit=True)
     except DecompositionError as e:
         raise ModeError(str(e)) from None
-    scheme = args.scheme or "dynamic"
+    scheme = args.scheme or DEFAULT_SCHEME
     if mapping.threads > 1 and getattr(args, "newton", "auto") == "on" and scheme not in SPLIT_SCHEMES:
         raise ModeError(f"--newton on needs a scheme that sums over ranges of the pair list (partition, static, "
                         f"dynamic): {scheme} stores every pair's forces and resolves each cross-border pair on "
@@ -160,7 +162,7 @@ def _run_argv(args, out):
              "--snapshot-format", getattr(args, "snapshot_format", None) or "vtu", "--halo", args.halo,
              "--guard-overlap", str(args.guard_overlap), "--update-grid", str(args.update_grid),
              "--balance", args.balance, "--newton", getattr(args, "newton", "auto"),
-             "--contact-method", args.contact_method or "exact",
+             "--contact-method", args.contact_method or DEFAULT_CONTACT_METHOD,
              "--checkpoint-every", str(getattr(args, "checkpoint_every", 0) or 0)]
     for name in ("particles", "shape", "seed", "steps", "dt", "scheme", "warmup", "skin", "preset"):
         v = getattr(args, name)

@@ -6,7 +6,7 @@ option it lacks (modes.base.ModeError).
 import argparse
 import re
 
-from dem.contact import CONTACT_METHODS  # plain names: numba has not started yet
+from dem.contact import CONTACT_METHODS, DEFAULT_CONTACT_METHOD  # plain names: numba has not started yet
 
 # modes.mpi.BALANCE, named here because importing modes starts numba (tests/bench/test_cli.py
 # checks that they agree)
@@ -121,7 +121,7 @@ PRESETS = {"paper": {"contact_method": "sextic", "skin": 0.0, "neighbor": "allpa
 # what each option is when neither the preset nor the user sets it (bench run; bench sweep also
 # fills the contact method, which bench run leaves unset for a restart to take the checkpoint's)
 PRESET_FALLBACK = {"neighbor": "linkcell"}
-SWEEP_FALLBACK = dict(PRESET_FALLBACK, contact_method="exact")
+SWEEP_FALLBACK = dict(PRESET_FALLBACK, contact_method=DEFAULT_CONTACT_METHOD)
 
 
 def apply_preset(args, fallback=PRESET_FALLBACK):
@@ -218,7 +218,8 @@ def add_run_arguments(r):
 
 def mode_options(mapping, args, scheme):
     """The setup options of the mode that runs `mapping` (each mode refuses options it lacks)."""
-    opts = {"neighbor": args.neighbor, "skin": args.skin, "contact_method": args.contact_method or "exact"}
+    opts = {"neighbor": args.neighbor, "skin": args.skin,
+            "contact_method": args.contact_method or DEFAULT_CONTACT_METHOD}
     if mapping.threads > 1:
         opts.update(threads=mapping.threads, scheme=scheme, threaded=args.threaded)
     if mapping.procs > 1:

@@ -23,8 +23,10 @@ from bench.run.lifeline import PR_SET_PDEATHSIG, _prctl
 from bench.run.options import add_run_arguments, apply_preset, mode_options
 from bench.run.prepare import load_prepared
 from bench.run.records import RecordError
+from dem.contact import DEFAULT_CONTACT_METHOD
 from dem.timestep import TimeStep, choose_time_step
 from modes.base import mode_for, parse_mapping
+from modes.parallel import DEFAULT_SCHEME
 
 
 def _first_to_say(out):
@@ -61,14 +63,14 @@ def main(argv):
     if args.restart:  # every rank reads the checkpoint; the mode keeps the particles of its block
         scene, meta = load_checkpoint(args.restart)
         ts = TimeStep.from_dict(meta["time_step"])
-        args.contact_method = args.contact_method or meta.get("contact_method") or "exact"
+        args.contact_method = args.contact_method or meta.get("contact_method") or DEFAULT_CONTACT_METHOD
     else:
         scene = load_prepared(args.scene, particles=args.particles, shape=args.shape, seed=args.seed,
                               overlap_limit=args.guard_overlap)  # cached
         ts = TimeStep.from_dict(json.loads(args.time_step)) if args.time_step else choose_time_step(scene, args.dt)
     scene.extras["clock0"] = clock0
     scene.extras["load_s"] = time.perf_counter() - clock0
-    scheme = args.scheme or ("dynamic" if mapping.threads > 1 else None)
+    scheme = args.scheme or (DEFAULT_SCHEME if mapping.threads > 1 else None)
     mode = mode_for(mapping)().setup(scene, dt=ts.dt, cart=cart, **mode_options(mapping, args, scheme))
     beat.phase = "running"
     try:

@@ -20,6 +20,7 @@ import time
 import numpy as np
 
 from bench.run.lifeline import signals_deferred
+from bench.run.machine import cpu_facts
 
 
 FLUSH_ROWS = 100   # steps.csv rows kept in memory at most ...
@@ -40,21 +41,14 @@ STEP_COLUMNS = ["step", "rank", "totalT", "commuT", "migraT", "compuT", "neighbo
 def environment():
     """Versions and machine facts recorded with every run."""
     import numba
+    cpus = cpu_facts()
     info = {"python": sys.version.split()[0], "platform": platform.platform(),
-            "machine": platform.machine(), "cpu_count": os.cpu_count(), "numpy": np.__version__,
+            "machine": platform.machine(), "cpu_count": cpus["cpu_count"], "numpy": np.__version__,
             "numba": numba.__version__, "numba_threads": numba.config.NUMBA_NUM_THREADS}
-    try:
-        info["cpu_affinity"] = len(os.sched_getaffinity(0))
-    except AttributeError:
-        pass
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    info["cpu_model"] = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
+    if cpus["usable"] is not None:
+        info["cpu_affinity"] = cpus["usable"]
+    if cpus["cpu_model"] is not None:
+        info["cpu_model"] = cpus["cpu_model"]
     return info
 
 

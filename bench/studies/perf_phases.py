@@ -29,6 +29,7 @@ import numpy as np
 
 from bench.run.prepare import load_prepared
 from dem.timestep import choose_time_step
+from modes.parallel import DEFAULT_SCHEME
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 
@@ -66,7 +67,7 @@ def _modes(scene, dt, threads, scheme, skin):
     return serial, par
 
 
-def measure(particles, threads, steps, repeats, scheme="dynamic", log=print):
+def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print):
     """The report: per case, per phase, t1 and tT [s] (medians), speedup and Karp-Flatt e."""
     if threads < 2:
         raise ValueError("--what phases needs --threads T >= 2")

@@ -43,18 +43,21 @@ from bench.sweep.precision import MIN_ROUNDS, mark, next_round, unresolved, wide
 from bench.sweep.ranking import point_label, rank, ranking_lines
 from bench.sweep.records import (RUN_COLUMNS, RunsFileError, amdahl, flag_reference, manifest, merge_manifest,
                                  read_runs_rows, reference_key, summarise, with_speedup, write_runs)
+from dem.contact import DEFAULT_CONTACT_METHOD
 from modes.base import ModeError, parse_mapping
+from modes.parallel import DEFAULT_SCHEME
 
 
 def sweep(args):
     """The `bench sweep` command (args from bench.cli)."""
     mappings = [m.strip() for m in args.mappings.split(",") if m.strip()]
-    schemes = [s.strip() for s in (args.schemes or "dynamic").split(",") if s.strip()]
+    schemes = [s.strip() for s in (args.schemes or DEFAULT_SCHEME).split(",") if s.strip()]
     launcher = LAUNCHERS[getattr(args, "launcher", "local")].from_args(args)
     if launcher.batch and os.path.isfile(args.scene):  # the jobs run elsewhere, from another folder
         args.scene = os.path.abspath(args.scene)
     points = make_points(mappings, schemes, args.scene, args.particles, args.steps, args.warmup,
-                         args.neighbor, args.shape, args.pin, args.halo, getattr(args, "contact_method", "exact"),
+                         args.neighbor, args.shape, args.pin, args.halo,
+                         getattr(args, "contact_method", DEFAULT_CONTACT_METHOD),
                          getattr(args, "update_grid", 0) or 0, getattr(args, "balance", "extent") or "extent",
                          getattr(args, "newton", "auto") or "auto", getattr(args, "skin", None),
                          getattr(args, "preset", None), getattr(args, "hosts", None))

@@ -29,6 +29,8 @@ import subprocess
 import sys
 import time
 
+from bench.run.machine import cpu_facts
+
 
 def _write(path, obj):
     tmp = f"{path}.{os.getpid()}.tmp"
@@ -39,16 +41,11 @@ def _write(path, obj):
 
 def node_info():
     """The node this job runs on: host, CPU model, CPUs, the CPUs the job may use, Slurm's ids."""
-    info = {"node": os.environ.get("SLURMD_NODENAME") or socket.gethostname(), "cpu_count": os.cpu_count()}
-    try:
-        info["usable_cpus"] = len(os.sched_getaffinity(0))
-    except AttributeError:
-        pass
-    try:
-        with open("/proc/cpuinfo") as fh:
-            info["cpu_model"] = next((l.split(":", 1)[1].strip() for l in fh if l.startswith("model name")), None)
-    except OSError:
-        info["cpu_model"] = None
+    cpus = cpu_facts()
+    info = {"node": os.environ.get("SLURMD_NODENAME") or socket.gethostname(), "cpu_count": cpus["cpu_count"]}
+    if cpus["usable"] is not None:
+        info["usable_cpus"] = cpus["usable"]
+    info["cpu_model"] = cpus["cpu_model"]
     for key, var in (("job_id", "SLURM_JOB_ID"), ("array_job_id", "SLURM_ARRAY_JOB_ID"),
                      ("array_task_id", "SLURM_ARRAY_TASK_ID"), ("nodelist", "SLURM_JOB_NODELIST"),
                      ("cpus_on_node", "SLURM_CPUS_ON_NODE")):
@@ -169,6 +166,7 @@ def prepare(directory):
         from dem.timestep import choose_time_step
         from modes.base import parse_mapping
         from modes.decomposition import BlockGrid, DecompositionError, border_width
+        from modes.parallel import DEFAULT_SCHEME
         with open(os.path.join(directory, "manifest.json")) as fh:
             points = json.load(fh)["points"]
         scenes = {}
@@ -193,7 +191,7 @@ def prepare(directory):
                 except DecompositionError as e:
                     record["width_problems"].append({"point": p["key"], "reason": str(e)})
                     print(f"prepare: point {p['mapping']}: {e}", flush=True)
-            scheme = (p["scheme"] or "dynamic") if m.threads > 1 else ""
+            scheme = (p["scheme"] or DEFAULT_SCHEME) if m.threads > 1 else ""
             ckey = (m.threads, scheme, p["neighbor"], p["contact_method"])
             if ckey in done:
                 continue

@@ -7,6 +7,7 @@ import hashlib
 import json
 from dataclasses import asdict, dataclass, fields
 
+from dem.contact import DEFAULT_CONTACT_METHOD
 from modes.base import ModeError, parse_mapping
 from modes.parallel import SCHEMES, SPLIT_SCHEMES
 
@@ -26,7 +27,7 @@ class Point:
     shape: str
     pin: bool
     halo: str
-    contact_method: str = "exact"
+    contact_method: str = DEFAULT_CONTACT_METHOD
     update_grid: int = 0
     balance: str = "extent"
     newton: str = "auto"
@@ -64,7 +65,7 @@ class Point:
                 args += [flag, str(v)]
         if self.pin:
             args.append("--pin")
-        if self.contact_method != "exact":
+        if self.contact_method != DEFAULT_CONTACT_METHOD:
             args += ["--contact-method", self.contact_method]
         if self.skin is not None:
             args += ["--skin", repr(float(self.skin))]
@@ -90,8 +91,8 @@ def point_from_dict(d):
 
 
 def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, shape, pin, halo,
-                contact_method="exact", update_grid=0, balance="extent", newton="auto", skin=None, preset=None,
-                hosts=None):
+                contact_method=DEFAULT_CONTACT_METHOD, update_grid=0, balance="extent", newton="auto", skin=None,
+                preset=None, hosts=None):
     """Points of a sweep: the serial reference first, then each mapping (x each scheme when it has
     more than one thread), without duplicates, in the order given; particles: one count, None (the
     scene's own) or a list of counts (the granularity study, issue 36: the grid counts x mappings,

@@ -36,6 +36,7 @@ from dataclasses import asdict
 
 import numpy as np
 
+from bench.run.machine import cpu_facts
 from bench.sweep.intervals import format_reps, parse_reps, speedup_interval, step_time_interval
 from bench.sweep.intervals import number as _num
 from modes.base import parse_mapping
@@ -318,22 +319,17 @@ def write_runs(path, rows):
 def manifest(out, points):
     """DIR/manifest.json: versions, MPI library, numba threading layer, CPU, git commit."""
     import platform
-    info = {"python": sys.version.split()[0], "platform": platform.platform(), "cpu_count": os.cpu_count(),
+    cpus = cpu_facts()
+    info = {"python": sys.version.split()[0], "platform": platform.platform(), "cpu_count": cpus["cpu_count"],
             "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "points": [asdict(p) | {"key": p.key} for p in points]}
-    try:
-        info["usable_cpus"] = len(os.sched_getaffinity(0))
-    except AttributeError:
-        pass
+    if cpus["usable"] is not None:
+        info["usable_cpus"] = cpus["usable"]
     for mod in ("numpy", "numba", "mpi4py", "pandas", "matplotlib", "psutil", "llvmlite"):
         try:
             info[mod] = __import__(mod).__version__
         except Exception:  # noqa: BLE001  (a missing optional package is just not listed)
             info[mod] = None
-    try:
-        with open("/proc/cpuinfo") as fh:
-            info["cpu_model"] = next((l.split(":", 1)[1].strip() for l in fh if l.startswith("model name")), None)
-    except OSError:
-        info["cpu_model"] = None
+    info["cpu_model"] = cpus["cpu_model"]
     try:
         info["mpi_library"] = subprocess.run([sys.executable, "-c", "from mpi4py import MPI; "
                                               "print(MPI.Get_library_version().splitlines()[0])"],

@@ -2,7 +2,9 @@
 poly-ellipsoids (octant active set), the Hertz factor and the Hertz-Mindlin law.
 
 CONTACT_METHODS names the ellipsoid contact geometries, in the order of the code the kernels
-take (dem.forces): exact (PW + Newton on S^2), pw (Perram-Wertheim depth), sextic (Yan 2010).
-Plain names, importable before numba starts.
+take (dem.forces): exact (PW + Newton on S^2), pw (Perram-Wertheim depth), sextic (Yan 2010);
+DEFAULT_CONTACT_METHOD is the one a run takes when none is given. Plain names, importable before
+numba starts.
 """
 CONTACT_METHODS = ("exact", "pw", "sextic")
+DEFAULT_CONTACT_METHOD = "exact"
