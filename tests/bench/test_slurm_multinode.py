@@ -210,11 +210,12 @@ def wait_queue_empty(cl, folder, limit=600):
 @pytest.fixture(scope="module")
 def node_sweeps(cluster, tmp_path_factory):
     """Two sweeps through `bench sweep --launcher slurm --nodes K` (issue 37's CI target): on 2
-    nodes a 4-rank MPI point (4-2-2-1-1) and a hybrid point of 2 ranks x 2 threads (2-2-1-1-2),
+    nodes two 4-rank MPI points (4-2-2-1-1; 4-4-1-1-1, whose end blocks have no neighbour on the
+    other node) and a hybrid point of 2 ranks x 2 threads (2-2-1-1-2),
     on 4 nodes an 8-rank MPI point (8-2-2-2-1), each beside the serial reference the sweep adds."""
     base = tmp_path_factory.mktemp("node-sweeps")
     out = {}
-    for k, mappings in ((2, "4-2-2-1-1,2-2-1-1-2"), (4, "8-2-2-2-1")):
+    for k, mappings in ((2, "4-2-2-1-1,4-4-1-1-1,2-2-1-1-2"), (4, "8-2-2-2-1")):
         folder = str(base / f"nodes{k}")
         res = bench(cluster, "sweep", *SCENE, "--steps", "12", "--warmup", "2", "--mappings", mappings,
                     "--launcher", "slurm", "--nodes", str(k), "--out", folder)
@@ -276,6 +277,8 @@ def test_ranks_placed_by_node_and_traffic_split(node_sweeps):
             assert len(set(hosts)) == k
             if mapping == "4-2-2-1-1":
                 assert [place[str(q)]["block"][0] for q in range(4)] == [0, 0, 1, 1]
+            if mapping == "4-4-1-1-1":  # ranks 0 and 3 talk only within their node
+                assert [place[str(q)]["neighbours_internode"] for q in range(4)] == [[], [2], [1], []]
             steps = pd.read_csv(os.path.join(rep, "steps.csv"))
             sent = steps.groupby("rank")[["bytes_sent", "bytes_internode", "msgs_internode"]].sum()
             for q in range(procs):
