@@ -108,7 +108,8 @@ def build_parser():
     sw.add_argument("--out", help="sweep folder: runs.csv, manifest.json, figures and one folder a point")
     sw.add_argument("--status", metavar="DIR", help="the state of each point of the sweep in DIR (its files, and "
                                                      "Slurm's scontrol/sacct where Slurm runs)")
-    sw.add_argument("--cancel", metavar="DIR", help="scancel the jobs of the Slurm sweep in DIR still pending or running")
+    sw.add_argument("--cancel", metavar="DIR",
+                    help="scancel the jobs of the Slurm sweep in DIR still pending or running")
     sl = sw.add_argument_group("Slurm (--launcher slurm; a sweep file's [sweep.slurm] table holds the same)")
     sl.add_argument("--no-submit", action="store_true", help="write the job scripts and submit.sh, submit nothing")
     for name, (kind, text) in SLURM_FIELDS.items():
@@ -126,9 +127,11 @@ def build_parser():
     ac.add_argument("--particles", type=positive_int, help="particles of a generated scene (default the scene's)")
     ac.add_argument("--shape", choices=SHAPE_CHOICES, help="shape of a generated scene (default the scene's)")
     ac.add_argument("--seed", type=nonneg_int, help="generator seed of a generated scene (default the scene's)")
-    ac.add_argument("--steps", type=positive_int, help="steps at dt_base (sets the simulated time; default the scene's)")
+    ac.add_argument("--steps", type=positive_int,
+                    help="steps at dt_base (sets the simulated time; default the scene's)")
     ac.add_argument("--dt", type=float, help="dt_base [s] (default: the scene's, usually auto)")
-    ac.add_argument("--dt-factors", default="1,0.5,0.25", help="comma-separated multiples of dt_base (default 1,0.5,0.25)")
+    ac.add_argument("--dt-factors", default="1,0.5,0.25",
+                    help="comma-separated multiples of dt_base (default 1,0.5,0.25)")
     ac.add_argument("--methods", default=",".join(CONTACT_METHOD_CHOICES),
                     help="comma-separated contact methods (default all)")
     ac.add_argument("--ref-factor", type=float, default=None,
@@ -168,7 +171,8 @@ def build_parser():
     sc = sub.add_parser("schemes", help="Table 1 in kind: contact-detection speedup of each thread scheme")
     sc.add_argument("--particles", type=positive_int, default=2500,
                     help="rested packed particles (default 2500, the paper's Table 1)")
-    sc.add_argument("--threads", type=positive_int, default=2, help="threads of every scheme (default 2; the paper: 12)")
+    sc.add_argument("--threads", type=positive_int, default=2,
+                    help="threads of every scheme (default 2; the paper: 12)")
     sc.add_argument("--shape", choices=["sphere", "ellipsoid"], default="ellipsoid",
                     help="particle shape (default ellipsoid, the paper's)")
     sc.add_argument("--repeats", type=positive_int, default=41,
@@ -642,7 +646,8 @@ def cmd_node(args):
     if not args.out.strip():
         raise UsageError("--out must be a folder, got an empty string")
     if args.cores and args.cores > len(os.sched_getaffinity(0)):
-        raise UsageError(f"bench node: --cores {args.cores} is more than the {len(os.sched_getaffinity(0))} usable CPUs")
+        raise UsageError(f"bench node: --cores {args.cores} is more than the "
+                         f"{len(os.sched_getaffinity(0))} usable CPUs")
     from bench.studies.node import node_check
     return node_check(args)
 

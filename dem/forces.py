@@ -515,10 +515,10 @@ def resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, deliver, 
 def _wall_particle(p, walls, bodies, polys, dt, out, fx, fy, fz, tx, ty, tz):
     """Planar-wall contacts of particle p (walls in fixed order) added to its force (fx, fy, fz) and
     torque (tx, ty, tz); updates its per-wall history. Called only for a particle within reach of a
-    wall, and not inlined: the wall solvers would crowd the per-particle loop. Wall planes: m.x = d with m the unit normal
-    into the domain; body 1 is the particle, body 2 the fixed wall, the normal from particle into
-    wall is -m. Poly-ellipsoids use their octant geometry. Returns (force [3], torque [3], wall
-    contacts, largest depth ratio = depth over the smallest semi-axis)."""
+    wall, and not inlined: the wall solvers would crowd the per-particle loop. Wall planes: m.x = d
+    with m the unit normal into the domain; body 1 is the particle, body 2 the fixed wall, the
+    normal from particle into wall is -m. Poly-ellipsoids use their octant geometry. Returns
+    (force [3], torque [3], wall contacts, largest depth ratio = depth over the smallest semi-axis)."""
     wall_m, wall_d, estar_w, gstar_w, zeta_w, mu_w, wall_hist = walls
     pos, vel, _, _, mass, _, shape, axes, rbound, material, _, _, rot, omega = bodies
     _, oorg, orot, ax6 = polys

@@ -325,7 +325,8 @@ class _Blocks:
         self.sync_time = self.clock() - t
         self.migration_due = d[5] > 0.0
         if d[4] != 0.0:
-            raise RuntimeError(f"cross-border pair lists disagree between neighbour ranks at step {self.steps_done + 1} "
+            raise RuntimeError(f"cross-border pair lists disagree between neighbour ranks at step "
+                               f"{self.steps_done + 1} "
                                f"(the counts' checksum is {d[4]:g}, not 0: modes.newton count_checksum)")
         self.sums = (d[1], d[2], d[3])
         return bool(d[0] > 0.0) or self._refit_due(self.steps_done + 2)

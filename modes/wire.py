@@ -106,7 +106,8 @@ def _pairs(lists, size):
             elif r not in lists[p]:
                 bad.append(f"rank {r} lists rank {p} but rank {p} does not list rank {r}")
     if bad:
-        raise WireError("pingpong partners: " + "; ".join(bad[:5]) + (f"; and {len(bad) - 5} more" if len(bad) > 5 else ""))
+        raise WireError("pingpong partners: " + "; ".join(bad[:5])
+                        + (f"; and {len(bad) - 5} more" if len(bad) > 5 else ""))
     return sorted({(min(r, p), max(r, p)) for r, ps in enumerate(lists) for p in ps})
 
 

@@ -17,7 +17,8 @@ is asked for `-bind-to core:T` as well (Open MPI's equivalent is `--map-by slot:
 core`, Slurm's `srun --cpus-per-task=T --cpu-bind=cores`). This process runs a parallel warm-up
 before it starts the ranks, which an OMP_PROC_BIND in the environment would pin to one CPU, and
 the ranks would inherit it: its CPU set is restored after the warm-up, and the ranks get the count
-it had (DEM_BENCH_NODE_CPUS), against which they check their own. `--mpi-starter CMD` replaces `mpiexec -n P` (a Slurm job starts its ranks with
+it had (DEM_BENCH_NODE_CPUS), against which they check their own. `--mpi-starter CMD` replaces
+`mpiexec -n P` (a Slurm job starts its ranks with
 `srun --mpi=pmi2 ...`, bench.sweep.slurm); the starter then places the ranks, possibly over
 several nodes, so the CPUs of this process are not compared with P x T. `--hosts H1,...,HK`
 (issue 37) runs `mpiexec -n P -hosts H1,...,HK -ppn ceil(P/K)`: Hydra places consecutive ranks on

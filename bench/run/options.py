@@ -164,7 +164,8 @@ def add_run_arguments(r):
                                                   "dynamic (default dynamic; mappings with T > 1)")
     r.add_argument("--threaded", choices=["step", "detection"], default="step",
                    help="thread the whole step (default) or only contact detection (the paper's code)")
-    r.add_argument("--pin", action="store_true", help="give each rank T cores of its own and each thread one of them (bench.run.binding)")
+    r.add_argument("--pin", action="store_true",
+                   help="give each rank T cores of its own and each thread one of them (bench.run.binding)")
     r.add_argument("--neighbor", choices=NEIGHBOR_CHOICES, default=None,
                    help="neighbour estimate: linkcell (default) or allpairs (the n-by-n search)")
     r.add_argument("--preset", choices=sorted(PRESETS), default=None,
@@ -185,7 +186,8 @@ def add_run_arguments(r):
     r.add_argument("--plot", action="store_true", help="draw DIR/run.png (timings, contacts, energy)")
     r.add_argument("--out", default=None, help="output folder (default results/run-<scene>)")
     r.add_argument("--guard-overlap", type=overlap_fraction, default=0.05, metavar="F",
-                   help="stop when a contact overlaps more than F of the smaller body's smallest semi-axis (default 0.05)")
+                   help="stop when a contact overlaps more than F of the smaller body's smallest semi-axis "
+                        "(default 0.05)")
     r.add_argument("--halo", choices=["26", "6"], default="26",
                    help="ghost exchange: 26 direct messages (default, the paper's) or 3 sweeps of 6")
     r.add_argument("--update-grid", type=nonneg_int, default=0, metavar="K",

@@ -60,7 +60,7 @@ a field array), `*_surface.vtk`, no series file.
 
 write_snapshot(mode, folder, k, time, rank, fmt) writes step<k:08d>.vtu|.vtk and step<k:08d>.npz
 of a run's state.
-"""
+"""  # noqa: E501
 import os
 import xml.etree.ElementTree as ET
 import zlib
@@ -96,7 +96,8 @@ def write_vtk(path, snap, step=0, time=0.0):
     lines.append(f"POINT_DATA {n}")
     lines += ["SCALARS id long 1", "LOOKUP_TABLE default"] + [str(int(v)) for v in snap["id"]]
     lines += ["SCALARS shape int 1", "LOOKUP_TABLE default"] + [str(int(v)) for v in snap["shape"]]
-    lines += ["SCALARS quat double 4", "LOOKUP_TABLE default"] + [" ".join(f"{c:.17g}" for c in q) for q in snap["quat"]]
+    lines += ["SCALARS quat double 4", "LOOKUP_TABLE default"] + [" ".join(f"{c:.17g}" for c in q)
+                                                                  for q in snap["quat"]]
     lines += ["VECTORS axes double"] + [" ".join(f"{c:.17g}" for c in a) for a in axes3]
     for k, name in enumerate(("axis_x", "axis_y", "axis_z")):
         vec = rot[:, :, k] * axes3[:, k:k + 1]

@@ -142,7 +142,8 @@ def verdict(cores, unpinned, pinned, ceiling, schemes, steps=None, missing=()):
             share = float(ranks["efficiency"]) / step if step > 0 else math.nan
             lines.append(f"- {r_c} ({which}) efficiency over the in-step ceiling: {float(ranks['efficiency']):.3f} / "
                          f"{step:.3f}"
-                         f" = {share:.3f} (target >= {TARGET_CEILING:g}: {'met' if share >= TARGET_CEILING else 'NOT met'};"
+                         f" = {share:.3f} (target >= {TARGET_CEILING:g}: "
+                         f"{'met' if share >= TARGET_CEILING else 'NOT met'};"
                          f" free ceiling {float(c.iloc[0]['ceiling_free']):.3f})")
     for m in (t_c, mapping(4, cores // 4) if cores >= 8 else None):
         if m:

@@ -87,11 +87,14 @@ def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None):
                    "exchange_over_bound": (over - sync) / bound, "overhead_over_bound": over / bound,
                    "samples": {"serial": one, "two_ranks": two}}
             report["mpi"].append(row)
-            log(f"{scene} {n}, 2 ranks against serial: {row['two_ranks_ms']:.3f} against {row['serial_ms']:.3f} ms/step, "
+            log(f"{scene} {n}, 2 ranks against serial: {row['two_ranks_ms']:.3f} against "
+                f"{row['serial_ms']:.3f} ms/step, "
                 f"speedup {row['speedup']:.2f} (target {'>= ' if skin == 0 else '> '}{targets['mpi_speedup']:g}); "
                 f"per step: exchanges (commuT - syncT + migraT) {row['exchange_us']:.1f} us, wire "
-                f"{row['wire_us']:.1f} us: {row['exchange_over_bound']:.2f} of {targets['overhead_over_wire_factor']:g} "
-                f"wire + {targets['overhead_over_wire_add_us']:g} us (target <= 1); with syncT {row['sync_us']:.1f} us (the allreduce, waiting for the "
+                f"{row['wire_us']:.1f} us: {row['exchange_over_bound']:.2f} of "
+                f"{targets['overhead_over_wire_factor']:g} "
+                f"wire + {targets['overhead_over_wire_add_us']:g} us (target <= 1); with syncT {row['sync_us']:.1f} us "
+                f"(the allreduce, waiting for the "
                 f"slowest rank): {row['overhead_over_bound']:.2f}")
     report["load_end"] = os.getloadavg()
     log(f"load average {report['load_start'][0]:.2f} at the start, {report['load_end'][0]:.2f} at the end")

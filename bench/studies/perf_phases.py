@@ -93,7 +93,8 @@ def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print
         report["cases"][name] = rows
         log(f"# {name}: {scene.n} packed ellipsoids, {threads} threads ({scheme}) against serial, "
             f"{repeats} alternating rounds of {steps} steps, medians")
-        log(f"{'phase':12s} {'1 thread [ms]':>14s} {f'{threads} threads [ms]':>15s} {'speedup':>8s} {'Karp-Flatt':>10s}")
+        log(f"{'phase':12s} {'1 thread [ms]':>14s} {f'{threads} threads [ms]':>15s} {'speedup':>8s} "
+            f"{'Karp-Flatt':>10s}")
         for phase, r in rows.items():
             log(f"{phase:12s} {1e3 * r['t1_s']:14.4f} {1e3 * r['tT_s']:15.4f} {r['speedup']:8.3f} "
                 f"{r['karp_flatt']:10.3f}")

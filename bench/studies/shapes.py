@@ -537,7 +537,8 @@ def plot_shapes(directory):
 
     ax = axes[2]
     w = 0.2
-    series = [("ours, all-pairs", "allpairs", "nsf", "C0", None), ("paper, O(n^2)", "allpairs", "paper_nsf", "0.55", "//"),
+    series = [("ours, all-pairs", "allpairs", "nsf", "C0", None),
+              ("paper, O(n^2)", "allpairs", "paper_nsf", "0.55", "//"),
               ("ours, link-cell", "linkcell", "nsf", "C1", None), ("paper, O(n) link-cell", "linkcell", "paper_nsf",
                                                                   "0.8", "//")]
     for k, (label, nb, key, color, hatch) in enumerate(series):

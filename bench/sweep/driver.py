@@ -225,7 +225,8 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
                     break
                 widest_point, width = open_points[0]
                 print(f"round {r + 1}: {len(open_points)} point(s) not yet within +-{100 * precision:g} %, the widest "
-                      f"{widest_point} " + (f"+-{100 * width:.1f} %" if math.isfinite(width) else "without an interval"),
+                      f"{widest_point} " + (f"+-{100 * width:.1f} %" if math.isfinite(width)
+                                            else "without an interval"),
                       flush=True)
                 _add_round(info, everything, todo, points, r, out)
                 clock.add(len(points))
@@ -331,7 +332,8 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
     flagged = [r for r in rows.values() if isinstance(r.get("flag"), str) and r["flag"]]
     if flagged:
         print(f"flagged: {len(flagged)} point(s) measured under foreign load or with a wide spread (runs.csv "
-              f"flag): " + ", ".join(f"{r['mapping']}{' ' + r['scheme'] if isinstance(r['scheme'], str) and r['scheme'] else ''}"
+              f"flag): " + ", ".join(f"{r['mapping']}"
+                                      f"{' ' + r['scheme'] if isinstance(r['scheme'], str) and r['scheme'] else ''}"
                                       f" [{r['flag']}]" for r in flagged))
     failed_rows = [r for r in rows.values() if r["status"] != "done"]
     return 0 if not failed_rows else 4

@@ -178,7 +178,8 @@ def prepare(directory):
                 dt = choose_time_step(scene, None).dt
                 built = scene.extras.get("built") or {}
                 record["builds"].append({"scene": p["scene"], "particles": scene.n, "shape": skey[2],
-                                         "from_cache": bool(built.get("from_cache")), "seconds": time.perf_counter() - t})
+                                         "from_cache": bool(built.get("from_cache")),
+                                         "seconds": time.perf_counter() - t})
                 print(f"prepare: scene {p['scene']} ({scene.n} particles) "
                       f"{'loaded from the cache' if built.get('from_cache') else 'built'} "
                       f"in {time.perf_counter() - t:.1f} s", flush=True)

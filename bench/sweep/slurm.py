@@ -168,7 +168,7 @@ def point_script(point, out, reps, opts, timeout, python, env, mpiexec=None):
     lines += _exports(dict(env))
     if m.procs > 1 and mpi == "hydra":
         lines.append("export SLURM_MPI_TYPE=none  # Hydra starts its proxies with srun: no PMI plugin for them")
-    lines.append(f"# ranks x threads beyond the CPUs this node gave the job: OpenMP threads wait passively")
+    lines.append("# ranks x threads beyond the CPUs this node gave the job: OpenMP threads wait passively")
     lines.append(f'if [ $(({per_node} * {m.threads})) -gt "${{SLURM_CPUS_ON_NODE:-{per_node * m.threads}}}" ]; '
                  f"then export OMP_WAIT_POLICY=PASSIVE; fi")
     lines.append(f'REP={shlex.quote(pdir)}/rep"${{SLURM_ARRAY_TASK_ID:-0}}"')
@@ -254,7 +254,7 @@ submit prepare.sbatch
 record prepare/job.json
 prepare=$(cat prepare/job.json)
 dep=${{id:+afterany:$id}}
-"""
+"""  # noqa: E501
     for key, reps in plan:
         tasks = ", ".join(str(r) for r in reps)
         s += (f"\nsubmit {q(key + '/job.sbatch')} \"$dep\"\n"
@@ -279,7 +279,7 @@ collect=$(cat collect/job.json)
 rm -f "$errfile"
 echo "submitted the prepare job, ${#points[@]} point job(s) and the collect job of $PWD ($refused refused); ids in $PWD/jobs.json"
 [ "$refused" = 0 ] || exit 4
-"""
+"""  # noqa: E501
     return s
 
 

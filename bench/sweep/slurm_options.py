@@ -14,7 +14,7 @@ file). Every bad value is refused in one line naming the field (ValueError).
 | ntasks_per_node | --ntasks-per-node | points with P > 1: min(P, n) a node, --nodes = ceil(P / n) |
 | mpi | how the ranks start: `srun --mpi=<mpi>` (default pmi2: what the mpich wheel needs; pmix makes it abort, none starts P one-rank runs), or `hydra`: the Python's own mpiexec inside the allocation (SLURM_MPI_TYPE=none exported, so a pmix site default does not reach Hydra's proxies) | points with P > 1 |
 | extra | extra lines, each `#SBATCH ...` | every job |
-"""
+"""  # noqa: E501
 import re
 
 DEFAULT_MPI = "pmi2"

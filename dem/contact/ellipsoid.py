@@ -356,8 +356,9 @@ def pw_maximise(q1, q2, rx, ry, rz, lam):
 
     Safeguarded Newton with a bisection bracket from the sign of F' (the stop test is on the raw
     Newton step, before safeguarding; reference §1.5), early exit when some F(lam) > 1. Shared by
-    ellipsoid_contact and the PW-only method (dem/contact/methods.py). Returns (status, lam*, F, nu_x, nu_y, nu_z, iterations); status 0: separated (some
-    F(lam) > 1 or F >= 1), 1: overlap; nu = G(lam*)^-1 R.
+    ellipsoid_contact and the PW-only method (dem/contact/methods.py). Returns (status, lam*, F,
+    nu_x, nu_y, nu_z, iterations); status 0: separated (some F(lam) > 1 or F >= 1), 1: overlap;
+    nu = G(lam*)^-1 R.
     """
     d00 = q2[0] - q1[0]
     d01 = q2[1] - q1[1]

@@ -27,8 +27,8 @@ body -> world.  Method (reference notes contact-mechanics.md §1.4-1.6, §2.2):
       semi-axes (a lower bound of every octant's smallest curvature radius): Blaschke's rolling
       ball theorem (as in ellipsoid.py) puts R inside the Minkowski body, and phi is the global PD;
   (b) otherwise (fallback answers in deep overlap, outside the DEM regime) a witness point strictly inside both
-      bodies: p1 inside body 2, p2 inside body 1 or the midpoint x_c inside both; the depth is then phi at the best normal (an upper
-      bound of PD, equal to it at a stationary point).
+      bodies: p1 inside body 2, p2 inside body 1 or the midpoint x_c inside both; the depth is then
+      phi at the best normal (an upper bound of PD, equal to it at a stationary point).
 * Hertz curvature: the active octant ellipsoid's curvature tensor at each support point
   (discontinuous across the octant planes: R_e jumps there, reference §2.2 last bullet).
 

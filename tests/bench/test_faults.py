@@ -209,8 +209,9 @@ vel = [-50.0, 0.0, 0.0]
 
 def test_guard_names_an_impact_too_fast_for_the_material(tmp_path):
     """Two 1 mm spheres of a 10 MPa material meeting at 100 m/s with dt = auto (AUTO_FRACTION = 0.1
-    of the critical step, dem/timestep.py): the overlap crosses 5 % during the impact, and the line blames the impact, not
-    the time step: Hertz's peak overlap at ~100 m/s is (15 m* v^2 / (16 E* sqrt(R*)))^(2/5) = 2.85 mm,
+    of the critical step, dem/timestep.py): the overlap crosses 5 % during the impact, and the line
+    blames the impact, not the time step: Hertz's peak overlap at ~100 m/s is
+    (15 m* v^2 / (16 E* sqrt(R*)))^(2/5) = 2.85 mm,
     2.85 radii (m* = 5.55e-6 kg, E* = 5.33 MPa, R* = 0.5 mm), and it stays under 5 % below about
     0.64 m/s."""
     out = tmp_path / "imp"
@@ -714,7 +715,8 @@ def test_foreign_load_is_measured_and_flagged(tmp_path):
     at least half of it is counted as it shares the CPUs with the run) and runs.csv flags the
     point `load`, with `[FLAG load` in its progress line."""
     out = tmp_path / "ld"
-    spin = subprocess.Popen([sys.executable, "-c", "import time\nend = time.time() + 300\nwhile time.time() < end: pass"])
+    spin = subprocess.Popen([sys.executable, "-c",
+                             "import time\nend = time.time() + 300\nwhile time.time() < end: pass"])
     try:
         res = bench("sweep", "--scene", "pluviation", "--particles", "200", "--steps", "80000",
                     "--mappings", "1-1-1-1-1", "--out", str(out), timeout=600)

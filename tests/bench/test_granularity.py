@@ -5,7 +5,6 @@ the figure's logic, one short real sweep end to end."""
 import json
 import math
 
-import numpy as np
 import pytest
 
 from bench.sweep.granularity import crossing_lines, crossings, family_curves, granularity_figure, plot_granularity

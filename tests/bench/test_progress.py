@@ -4,7 +4,6 @@ while a run or a sweep goes on, and how good its estimate of the time left is (i
 481 s left where 71 s remained)."""
 import io
 import json
-import os
 
 import pytest
 

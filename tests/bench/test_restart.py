@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tests.helpers import FIELDS, GOOD, assert_same, bench, one_line_error, write
+from tests.helpers import GOOD, assert_same, bench, one_line_error, write
 
 HAS_MPI = bool(os.path.exists(os.path.join(os.path.dirname(os.sys.executable), "mpiexec"))
                or __import__("shutil").which("mpiexec"))

@@ -8,7 +8,8 @@ import sys
 
 from tests.helpers import ROOT
 
-PAPER = os.path.join(ROOT, "bench", "studies", "paper", "table1_thread_schemes.csv")  # the paper's Table 1, package data
+PAPER = os.path.join(ROOT, "bench", "studies", "paper",
+                     "table1_thread_schemes.csv")  # the paper's Table 1, package data
 SCHEMES = ("partition", "frogleap", "headtail", "static", "dynamic")
 N, T = 300, 2
 

@@ -214,7 +214,8 @@ def test_resume_submits_only_the_new_repeats(sweeps):
     task 1), repeat 0 keeps its files; after its collect job every point has 2 repeats done; a
     second --resume submits nothing."""
     a = sweeps["base"] / "A"
-    before = {k: (a / k / "rep0" / "status.json").read_text() for k in json.loads((a / "jobs.json").read_text())["points"]}
+    before = {k: (a / k / "rep0" / "status.json").read_text()
+              for k in json.loads((a / "jobs.json").read_text())["points"]}
     args = [*SCENE, "--steps", "10", "--warmup", "2", "--mappings", "1-1-1-1-2,2-2-1-1-1", "--launcher", "slurm",
             "--time", "10", "--repeats", "2", "--resume", "--out", str(a)]
     res = bench("sweep", *args)
@@ -260,7 +261,8 @@ def test_submit_goes_on_past_a_refused_job(slurm_cluster, tmp_path):
     assert not (d / "jobs.json").exists()
     serial = next(p for p in os.listdir(d) if p.startswith("1-1-1-1-1-"))
     script = d / serial / "job.sbatch"
-    script.write_text(script.read_text().replace("#SBATCH --time=5\n", "#SBATCH --time=5\n#SBATCH --partition=nosuch\n"))
+    script.write_text(script.read_text().replace("#SBATCH --time=5\n",
+                                                 "#SBATCH --time=5\n#SBATCH --partition=nosuch\n"))
     sub = subprocess.run(["bash", str(d / "submit.sh")], capture_output=True, text=True, timeout=120)
     assert sub.returncode == 4, sub.stdout + sub.stderr
     assert f"sbatch refused {serial}/job.sbatch" in sub.stderr and "(1 refused)" in sub.stdout

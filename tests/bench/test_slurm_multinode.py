@@ -330,7 +330,8 @@ def test_sweep_on_hosts_without_slurm(cluster, tmp_path):
 def test_a_lost_node_is_named(cluster, tmp_path):
     """A node lost mid-run: the slurmd of a node holding ranks of a running 4-rank point and every
     process on that node are killed (SIGKILL). The run ends with one line naming the node and its
-    ranks (2 and 3: consecutive ranks share a node); the point reads `failed` with that reason; the steps already written are kept.
+    ranks (2 and 3: consecutive ranks share a node); the point reads `failed` with that reason; the
+    steps already written are kept.
     (Runs last but one: the node stays down until the cluster stops.)"""
     folder = str(tmp_path / "lost")
     res = bench(cluster, "sweep", *SCENE, "--steps", "40000", "--warmup", "2", "--mappings", "4-2-2-1-1",

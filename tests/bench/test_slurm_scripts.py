@@ -100,7 +100,8 @@ def test_sweep_file_options_reach_every_job(tmp_path):
     assert "export NUMBA_NUM_THREADS=2" in threads and "export OMP_NUM_THREADS=2" in threads
     assert "srun --ntasks=1 --cpus-per-task=2 --cpu-bind=cores" in threads and "--scheme frogleap" in threads
     assert "srun --ntasks=1 --cpus-per-task=1 --cpu-bind=cores" in serial
-    assert "--mpi-starter 'srun --mpi=pmi2 --ntasks=2 --cpus-per-task=1 --cpu-bind=cores --distribution=block:block'" in mpi
+    assert ("--mpi-starter 'srun --mpi=pmi2 --ntasks=2 --cpus-per-task=1 --cpu-bind=cores "
+            "--distribution=block:block'" in mpi)
     assert "-m bench.sweep.job point \"$REP\" --timeout 1800 --" in mpi
     # the prepare job compiles for the largest thread count, passively waiting
     prep = (out / "prepare.sbatch").read_text()
@@ -155,7 +156,8 @@ def test_hybrid_point_job(tmp_path):
     assert sorted(jobs) == ["1-1-1-1-1", "1-1-1-1-2-dynamic", "4-2-2-1-3-dynamic"]
     hybrid = jobs["4-2-2-1-3-dynamic"]
     assert "#SBATCH --ntasks=4" in hybrid and "#SBATCH --cpus-per-task=3" in hybrid and "#SBATCH --nodes=1" in hybrid
-    assert "--mpi-starter 'srun --mpi=pmi2 --ntasks=4 --cpus-per-task=3 --cpu-bind=cores --distribution=block:block'" in hybrid
+    assert ("--mpi-starter 'srun --mpi=pmi2 --ntasks=4 --cpus-per-task=3 --cpu-bind=cores "
+            "--distribution=block:block'" in hybrid)
     for line in ("export NUMBA_NUM_THREADS=3", "export OMP_NUM_THREADS=3"):
         assert line in hybrid.splitlines()
     assert "OMP_PROC_BIND" not in hybrid and "OMP_PLACES" not in hybrid
@@ -166,7 +168,8 @@ def test_hybrid_point_job(tmp_path):
 
 @pytest.mark.parametrize("mpi,starter", [
     ("hydra", "--mpi-starter '{bin}/mpiexec -n 2 -bind-to core:1'"),
-    ("pmix", "--mpi-starter 'srun --mpi=pmix --ntasks=2 --cpus-per-task=1 --cpu-bind=cores --distribution=block:block'"),
+    ("pmix", "--mpi-starter 'srun --mpi=pmix --ntasks=2 --cpus-per-task=1 --cpu-bind=cores "
+             "--distribution=block:block'"),
 ])
 def test_mpi_choice(tmp_path, mpi, starter):
     """--mpi hydra: the Python's own mpiexec inside the allocation, with SLURM_MPI_TYPE=none
@@ -195,7 +198,8 @@ def test_dry_run_prints_every_script_and_writes_none(tmp_path):
     (["--mappings", "2-2-1-1-1", "--partition", "a b"], "slurm.partition in --partition must be one word"),
     (["--mappings", "2-2-1-1-1", "--mpi", "PMI 2"], "slurm.mpi in --mpi must be an srun --mpi type"),
     (["--mappings", "2-2-1-1-1", "--launcher", "pbs"], "unknown launcher 'pbs' (launchers: local, slurm)"),
-    (["--mappings", "2-2-1-1-1", "--launcher", "local", "--partition", "x"], "Slurm options (partition) need --launcher slurm"),
+    (["--mappings", "2-2-1-1-1", "--launcher", "local", "--partition", "x"],
+     "Slurm options (partition) need --launcher slurm"),
 ])
 def test_refused_at_generation_one_line_nothing_lost(tmp_path, args, words):
     """Refused before anything is written (one line, exit 2): blocks too narrow for the border
@@ -268,8 +272,10 @@ def test_scontrol_records_and_array_tasks():
     assert sched.lookup("6_0").state == "completed" and sched.lookup("6_3").state == "pending"
     assert sched.lookup("6_3").reason == "Dependency" and sched.lookup("6_1") is None
     t = sched.lookup("9")
-    assert t.state == "timeout" and t.text() == "Slurm JobState=TIMEOUT Reason=TimeLimit ExitCode=0:15 TimeLimit=00:01:00"
-    assert Record({"JobState": "NODE_FAIL"}).state == "failed" and Record({"JobState": "CANCELLED"}).state == "cancelled"
+    assert (t.state == "timeout"
+            and t.text() == "Slurm JobState=TIMEOUT Reason=TimeLimit ExitCode=0:15 TimeLimit=00:01:00")
+    assert (Record({"JobState": "NODE_FAIL"}).state == "failed"
+            and Record({"JobState": "CANCELLED"}).state == "cancelled")
 
 
 def test_outcome_rules(tmp_path):

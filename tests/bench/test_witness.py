@@ -100,7 +100,8 @@ STARTER = textwrap.dedent("""
     import json, os, signal, subprocess, sys, time
     out, race = sys.argv[1], sys.argv[2] == "race"
     rank = ("import sys, time; from bench.run.heartbeat import Heartbeat; "
-            "b = Heartbeat(sys.argv[1], int(sys.argv[2])); b.phase = 'running'; b.step = 7; b._write(); time.sleep(120)")
+            "b = Heartbeat(sys.argv[1], int(sys.argv[2])); b.phase = 'running'; b.step = 7; b._write(); "
+            "time.sleep(120)")
     ws = [subprocess.Popen([sys.executable, "-m", "bench.run.witness", "--out", out, "--", sys.executable, "-c",
                             rank, out, str(r)], env=dict(os.environ, PMI_RANK=str(r))) for r in range(2)]
     pids = {}
@@ -148,7 +149,8 @@ def test_supervisor_names_the_rank_that_died_first(tmp_path, race):
     lines = [l for l in p.stderr.splitlines() if l.strip()]
     assert len(lines) == 1, p.stderr
     pid1 = json.loads((out / ".ranks" / "rank1.json").read_text())["pid"]
-    assert lines[0].startswith(f"bench: error: rank 1 (pid {pid1} on ") and "died at step 7: Killed (signal 9)" in lines[0]
+    assert (lines[0].startswith(f"bench: error: rank 1 (pid {pid1} on ")
+            and "died at step 7: Killed (signal 9)" in lines[0])
     assert took < 30, f"took {took:.1f} s"
     run = json.loads((out / "run.json").read_text())
     assert run["status"] == "failed" and f"rank 1 (pid {pid1}" in run["reason"]

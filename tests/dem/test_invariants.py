@@ -117,5 +117,6 @@ def test_two_ellipsoid_collision_conserves_momenta():
     assert touched > 20
     p1, j1 = momenta()
     assert np.max(np.abs(p1 - p0)) <= 1e-12 * np.linalg.norm(p0)
-    scale = np.linalg.norm(s.mass[:, None] * np.cross(s.pos, s.vel), axis=1).sum() + np.linalg.norm(s.angmom, axis=1).sum()
+    scale = (np.linalg.norm(s.mass[:, None] * np.cross(s.pos, s.vel), axis=1).sum()
+             + np.linalg.norm(s.angmom, axis=1).sum())
     assert np.max(np.abs(j1 - j0)) <= 1e-12 * scale

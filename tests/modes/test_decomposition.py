@@ -9,7 +9,7 @@ from modes.decomposition import (DIRECTIONS, OPPOSITE, BlockGrid, DecompositionE
                                  block_counts, border_width, direction_of, extent_grid, face_bits, fit_skin,
                                  load_profiles, border_lists)
 from modes.halo import (GHOST_GENERAL, GHOST_POLY, GHOST_SPHERE, PER_PARTICLE, REC_GENERAL, REC_POLY, REC_SPHERE, WIDTH,
-                        Halo, _columns, _split, drop_ghosts, pack_ghost_rows, pack_moving, unpack_moving)
+                        Halo, _columns, _split, drop_ghosts, pack_moving, unpack_moving)
 
 UNIT = ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
 

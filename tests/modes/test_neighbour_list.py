@@ -303,13 +303,16 @@ def wrappers(*kernels):  # numba wraps each array argument of a kernel that uses
 sc = load_prepared("packed", particles=300)
 out = []
 for mode, opts, kernels in ((SerialMode, {}, (resolve_range, finish_range)),
-                            (ThreadsMode, {"threads": 2, "scheme": "dynamic"}, (par.resolve_threads, par.finish_threads)),
-                            (ThreadsMode, {"threads": 2, "scheme": "static"}, (par.resolve_threads, par.finish_threads))):
+                            (ThreadsMode, {"threads": 2, "scheme": "dynamic"},
+                             (par.resolve_threads, par.finish_threads)),
+                            (ThreadsMode, {"threads": 2, "scheme": "static"},
+                             (par.resolve_threads, par.finish_threads))):
     m = mode().setup(sc, dt=choose_time_step(sc).dt, skin=0.1, **opts)
     m.warmup()
     m.step()  # the first build
     s, p = m.state, m.pairs
-    keep = lambda: [s.pos, s.vel, s.quat, s.angmom, s.force, s.wall_hist, p.pi, p.hist, p.on, p.pf, p.adj_items, m.rot, m.omega]
+    keep = lambda: [s.pos, s.vel, s.quat, s.angmom, s.force, s.wall_hist, p.pi, p.hist, p.on, p.pf, p.adj_items,
+                    m.rot, m.omega]
     arrays = keep()
     before = rtsys.get_allocation_stats().alloc
     rebuilt = sum(m.step()["neighbor_rebuilt"] for _ in range(20))

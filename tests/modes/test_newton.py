@@ -108,7 +108,8 @@ def test_terms_pack_and_unpack_exactly():
     assert np.array_equal(buf[0, 3:6], spf[0, PF_TJ:PF_TJ + 3]) and np.array_equal(buf[1, 3:6], spf[1, PF_TI:PF_TI + 3])
     assert np.array_equal(buf[2, 3:6], spf[2, PF_TJ:PF_TJ + 3])
     assert np.array_equal(terms[[2, 0, 3], :3], spf[:, PF_F:PF_F + 3]) and terms[[2, 0, 3], 6].tolist() == [1, 0, 1]
-    assert np.array_equal(terms[2, 3:6], spf[0, PF_TI:PF_TI + 3]) and np.array_equal(terms[0, 3:6], spf[1, PF_TJ:PF_TJ + 3])
+    assert (np.array_equal(terms[2, 3:6], spf[0, PF_TI:PF_TI + 3])
+            and np.array_equal(terms[0, 3:6], spf[1, PF_TJ:PF_TJ + 3]))
     assert np.array_equal(terms[3, 3:6], spf[2, PF_TI:PF_TI + 3]) and np.all(terms[1] == 7.0)
     got = np.full((4, TERMS), 9.0)
     unpack_received(buf, np.array([1, 2, 0]), got)

@@ -399,7 +399,8 @@ def _mixed_particles():
     rng = np.random.default_rng(42)
     from dem.quaternion import random_quaternions
     kinds = [("sphere", [0.8e-3]), ("polyellipsoid", [1.0e-3, 0.6e-3, 0.7e-3, 0.4e-3, 0.5e-3, 0.5e-3]),
-             ("ellipsoid", [1.0e-3, 0.8e-3, 0.6e-3]), ("polyellipsoid", [0.8e-3, 0.5e-3, 0.6e-3, 0.6e-3, 0.3e-3, 0.45e-3]),
+             ("ellipsoid", [1.0e-3, 0.8e-3, 0.6e-3]),
+             ("polyellipsoid", [0.8e-3, 0.5e-3, 0.6e-3, 0.6e-3, 0.3e-3, 0.45e-3]),
              ("polyellipsoid", [0.9e-3, 0.7e-3, 0.5e-3, 0.5e-3, 0.4e-3, 0.3e-3]), ("sphere", [0.6e-3]),
              ("ellipsoid", [0.9e-3, 0.7e-3, 0.5e-3])]
     quats = random_quaternions(len(kinds), rng)
