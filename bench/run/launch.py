@@ -37,6 +37,7 @@ import sys
 
 from bench.run.binding import NODE_CPUS_ENV, plan_binding, read_topology
 from bench.run.lifeline import Interrupted, child_env, inherited_lock
+from bench.run.options import too_few_ranks
 from bench.run.threads_env import check_size, usable_cpus
 from bench.run.transport import transport_env
 from dem.contact import DEFAULT_CONTACT_METHOD
@@ -91,9 +92,8 @@ def launch_mpi(args, mapping, scene, out, ts):
     if hosts and starter:
         raise ModeError("--hosts and --mpi-starter cannot be given together (the starter places the ranks)")
     hosts = hosts.split(",") if hosts else []
-    if len(hosts) > mapping.procs:
-        raise ModeError(f"--hosts names {len(hosts)} hosts but mapping {mapping} has only {mapping.procs} ranks "
-                        f"(at least one a host)")
+    if too_few_ranks(hosts, mapping):
+        raise ModeError(too_few_ranks(hosts, mapping))
     elsewhere = bool(starter or hosts)  # the ranks may run on other nodes: this one's CPUs do not bound them
     too_big = None if elsewhere else check_size(str(mapping))
     if too_big:
@@ -109,10 +109,9 @@ def launch_mpi(args, mapping, scene, out, ts):
         cmd = [exe, "-n", str(mapping.procs)]
         if hosts:  # consecutive ranks on a host: contiguous blocks (row-major) share it
             cmd += ["-hosts", ",".join(hosts), "-ppn", str(-(-mapping.procs // len(hosts)))]
-        if args.pin and not hosts:
-            plan_binding(read_topology(os.sched_getaffinity(0)), mapping.procs, mapping.threads)  # or one line
-            cmd += ["-bind-to", f"core:{mapping.threads}"]
-        elif args.pin:  # the other hosts' CPUs are not known here: each rank binds itself there
+        if args.pin:
+            if not hosts:  # the other hosts' CPUs are not known here: each rank binds itself there
+                plan_binding(read_topology(os.sched_getaffinity(0)), mapping.procs, mapping.threads)  # or one line
             cmd += ["-bind-to", f"core:{mapping.threads}"]
     mine = os.sched_getaffinity(0)
     try:

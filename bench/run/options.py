@@ -106,6 +106,15 @@ def host_list(text):
     return ",".join(names)
 
 
+def too_few_ranks(hosts, mapping):
+    """The one-line refusal of a mapping (modes.base.Mapping) with fewer ranks than the hosts [K]
+    of --hosts (at least one a host), or None when it fits or runs on one process."""
+    if 1 < mapping.procs < len(hosts):
+        return (f"--hosts names {len(hosts)} hosts but mapping {mapping} has only {mapping.procs} ranks "
+                f"(at least one a host)")
+    return None
+
+
 def time_step_arg(text):
     """--dt: a positive finite number of seconds."""
     return _number_in(text, lambda v: 0.0 < v < 1e30, "a finite time step [s] > 0")

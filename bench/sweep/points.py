@@ -7,6 +7,7 @@ import hashlib
 import json
 from dataclasses import asdict, dataclass, fields
 
+from bench.run.options import too_few_ranks
 from dem.contact import DEFAULT_CONTACT_METHOD
 from modes.base import ModeError, parse_mapping
 from modes.parallel import SCHEMES, SPLIT_SCHEMES
@@ -107,11 +108,9 @@ def make_points(mappings, schemes, scene, particles, steps, warmup, neighbor, sh
         if s not in SCHEMES:
             raise ModeError(f"unknown scheme {s!r} (schemes: {', '.join(SCHEMES)})")
     parsed = [parse_mapping(m) for m in mappings]  # one clear line for a malformed mapping
-    nhosts = len(hosts.split(",")) if hosts else 0
-    small = next((m for m in parsed if 1 < m.procs < nhosts), None)
-    if small is not None:
-        raise ModeError(f"--hosts names {nhosts} hosts but mapping {small} has only {small.procs} ranks (at least "
-                        f"one a host)")
+    refusal = next(filter(None, (too_few_ranks(hosts.split(",") if hosts else [], m) for m in parsed)), None)
+    if refusal:
+        raise ModeError(refusal)
     if SERIAL not in [str(m) for m in parsed]:
         parsed.insert(0, parse_mapping(SERIAL))
     points = []
