@@ -58,14 +58,17 @@ packed by one numba call and written in place after the owned rows of capacity a
 keeps (Halo._append); the owned rows are copied only when a migration replaced the arrays or
 they are full.
 """
+import functools
+import operator
+
 import numpy as np
 from numba import njit
 
 from dem.shapes import POLY_LEN, SPHERE
 from dem.state import HIST_LEN, bounding_radii, csr_rows
 from modes.base import call_entry
-from modes.decomposition import (DIRECTIONS, OPPOSITE, BlockGrid, border_lists, direction_of, face_bits,
-                                 outside_block)
+from modes.decomposition import (DIRECTIONS, NEEDS, OPPOSITE, BlockGrid, border_lists, border_lists_kernel,
+                                 direction_of, face_bits)
 from modes.wire import Traffic
 
 GHOST_SPHERE = ("gid", "material", "mass", "axes0", "inertia0", "pos", "vel", "angmom")
@@ -260,6 +263,57 @@ def write_ghost_rows(n, rows, gids, rec, gid, shape, axes, rbound, mass, inertia
             poly[p, a] = rows[u, c + a] if rec == REC_POLY else 0.0
 
 
+@njit(cache=True)
+def pack_border_messages(n, lo, hi, width, needs, faces, nbr_dirs, rec, ncol, gid_bits, shape, material, mass,
+                         axes, inertia, pos, vel, angmom, quat, poly):
+    """The ghost choice's messages of the direct exchange in one pass over the owned rows 0..n-1:
+    for each neighbour i (direction nbr_dirs[i], ascending) its message, buf[offs[i]:offs[i + 1]]
+    = [row count, the records (pack_ghost_rows, ncol doubles each) of the particles within width of
+    the block faces on its side] (border_lists' test and order), and those rows, send_idx
+    [sum counts] in neighbour order (the forward exchange's index lists). Returns (buf, offs
+    [nd + 1], send_idx, counts [nd]). One numba call instead of border_lists, a record packing
+    and the exchange's copy into a message per neighbour (border_lists' kernel, then
+    pack_ghost_rows per message)."""
+    start, items = border_lists_kernel(pos[:n], lo, hi, width, needs, faces)
+    nd = nbr_dirs.shape[0]
+    counts = np.zeros(nd, dtype=np.int64)
+    offs = np.zeros(nd + 1, dtype=np.int64)
+    first = np.zeros(nd + 1, dtype=np.int64)
+    for i in range(nd):
+        k = nbr_dirs[i]
+        counts[i] = start[k + 1] - start[k]
+        offs[i + 1] = offs[i] + 1 + counts[i] * ncol
+        first[i + 1] = first[i] + counts[i]
+    buf = np.empty(offs[nd])
+    send_idx = np.empty(first[nd], dtype=np.int64)
+    for i in range(nd):
+        k = nbr_dirs[i]
+        send_idx[first[i]:first[i + 1]] = items[start[k]:start[k + 1]]
+        buf[offs[i]] = counts[i]
+        rows = buf[offs[i] + 1:offs[i + 1]].reshape((counts[i], ncol))
+        pack_ghost_rows(send_idx[first[i]:first[i + 1]], rec, gid_bits, shape, material, mass, axes, inertia, pos, vel,
+                        angmom, quat, poly, rows)
+    return buf, offs, send_idx, counts
+
+
+@njit(cache=True, _nrt=False)
+def write_border_messages(n, recv, recv_bits, offs, nbr_dirs, ncol, rec, ghost_dirs, counts, gid, shape, axes, rbound,
+                          mass, inertia, material, pos, vel, quat, angmom, force, torque, poly):
+    """The received ghost-choice messages (recv, neighbour i's at recv[offs[i]:offs[i + 1]], as
+    pack_border_messages packs them; recv_bits the same buffer viewed as int64) into rows n.. of
+    the per-particle arrays, in neighbour order; ghost_dirs [ghosts] takes each
+    ghost's owner's direction, counts [nd] the rows of each message (write_ghost_rows per message)."""
+    p = n
+    for i in range(nbr_dirs.shape[0]):
+        m = np.int64(recv[offs[i]])
+        counts[i] = m
+        rows = recv[offs[i] + 1:offs[i + 1]].reshape((m, ncol))
+        write_ghost_rows(p, rows, recv_bits[offs[i] + 1:offs[i + 1]:ncol], rec, gid, shape, axes, rbound, mass,
+                         inertia, material, pos, vel, quat, angmom, force, torque, poly)
+        ghost_dirs[p - n:p - n + m] = nbr_dirs[i]
+        p += m
+
+
 def compile_kernels():
     """Compile (into numba's cache) the pack and unpack kernels and the border and direction tests
     of the ghost choice and migration, so that ranks do not compile at once."""
@@ -274,12 +328,17 @@ def compile_kernels():
     for poly in (np.zeros((1, 0)), np.zeros((1, POLY_LEN))):
         pack_ghost_rows(idx, REC_POLY, one, i8, i32, one, a, a, a, a, a, q, poly, rows)
         write_ghost_rows(0, rows, idx, REC_POLY, idx, i8, a, one, one, a, i32, a, a, q, a, a, a, poly)
+        buf, offs, _, counts = pack_border_messages(1, np.zeros(3), np.ones(3), 0.1, NEEDS, 63, idx, REC_POLY, 41, one,
+                                                    i8, i32, one, a, a, a, a, a, q, poly)
+        write_border_messages(0, buf, buf.view(np.int64), offs, idx, 41, REC_POLY, idx, counts, idx, i8, a, one, one, a,
+                              i32, a, a, q, a, a, a, poly)
     border_lists(a, np.zeros(3), np.ones(3), 0.1)
-    BlockGrid(((0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), (2, 1, 1)).block_of(a)
-    BlockGrid(((0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), (2, 1, 1), cuts=([0.5], [], [])).block_of(a)
+    for cuts in (None, ([0.5], [], [])):
+        grid = BlockGrid(((0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), (2, 1, 1), cuts=cuts)
+        grid.block_of(a)
+        grid.leavers(a, np.zeros(3, dtype=np.int64))
     csr_rows(np.zeros(2, dtype=np.int64), idx)
     direction_of(np.zeros(3, dtype=np.int64), np.zeros((1, 3), dtype=np.int64))
-    outside_block(np.zeros((1, 3), dtype=np.int64), np.zeros(3, dtype=np.int64))
 
 
 class _Round:
@@ -291,10 +350,11 @@ class _Round:
     are called through their compiled entry points (modes.base.compiled_entry), found at their
     first call: until the next rebuild replaces the round, they see the same array types."""
 
-    def __init__(self, cart, dirs, ranks, send_lists, recv_counts, g0, width, links):
+    def __init__(self, cart, dirs, ranks, send_idx, send_counts, recv_counts, g0, width, links):
         self.g0 = g0
         self.kernels = {}
-        self.plan = (cart, dirs, ranks, send_lists, recv_counts, width, links)
+        self.send_idx = send_idx
+        self.plan = (cart, dirs, ranks, send_counts, recv_counts, width, links)
         self.requests = None
 
     def prepare(self):
@@ -302,9 +362,7 @@ class _Round:
         links: the halo's (wire model, ranks on another node))."""
         if self.requests is not None:
             return
-        cart, dirs, ranks, send_lists, recv_counts, width, links = self.plan
-        self.send_idx = (np.concatenate(send_lists).astype(np.int64) if send_lists
-                         else np.zeros(0, dtype=np.int64))
+        cart, dirs, ranks, send_counts, recv_counts, width, links = self.plan
         self.send_buf = np.zeros((len(self.send_idx), width))
         self.recv_buf = np.zeros((int(sum(recv_counts)), width))
         self.requests = []
@@ -312,7 +370,7 @@ class _Round:
         so = ro = 0
         for d, k in enumerate(dirs):
             r = ranks[k]
-            ns, nr = len(send_lists[d]), int(recv_counts[d])
+            ns, nr = int(send_counts[d]), int(recv_counts[d])
             if nr:
                 self.requests.append(cart.Recv_init(self.recv_buf[ro:ro + nr], source=r,
                                                     tag=FORWARD_TAG + int(OPPOSITE[k])))
@@ -356,6 +414,8 @@ class Halo:
         # the (direction, rank) of the neighbours that exist: the loops of a rebuild visit these
         # only (a loop over all 26 directions in Python cost ~0.4 us a direction, each exchange)
         self.neighbours = [(k, r) for k, r in enumerate(self.ranks) if r is not None]
+        self.neighbour_list = [k for k, _ in self.neighbours]
+        self.neighbour_dirs = np.array(self.neighbour_list, dtype=np.int64)
         self.faces = face_bits([k for k, _ in self.neighbours])  # the block's faces that have a neighbour
         self.set_links(wire, remote)
         from mpi4py import MPI  # a halo exists only under MPI; the per-step calls are bound once
@@ -367,6 +427,7 @@ class Halo:
         self.ghost_dirs = None  # the direction of each ghost's owner [n_ghost] (direct exchange), or None
         self.started = False   # the first forward round's messages are on their way (forward_start)
         self.store = {}        # the capacity arrays that hold the state's rows and its ghosts (_append)
+        self.held = None       # the same, in PER_PARTICLE order
         self.entries = {}      # the compiled entry points of the ghost records' kernels (their types are fixed)
         self.with_quat = True
 
@@ -457,46 +518,87 @@ class Halo:
         """Choose the ghosts (a neighbour-rebuild step): drop old ghosts, send the particles within
         `width` of the block faces to the neighbours that need them with their full records,
         append the received ones after the owned particles, and fix the forward exchange's plan
-        (index lists, buffers, persistent requests) until the next rebuild. Returns the number of
-        ghosts."""
+        (index lists; its buffers and persistent requests at its first use) until the next
+        rebuild. Returns the number of ghosts."""
         self.free()
         drop_ghosts(state)
-        n = state.n_owned
         rec = ghost_record(all_spheres, state.has_poly)
-        ncol = sum(WIDTH[f] for f in ghost_fields(all_spheres, state.has_poly))
+        ncol, mwidth = self.record_widths(rec)
         self.with_quat = not all_spheres
-        mwidth = sum(WIDTH[f] for f in moving_fields(all_spheres))
+        if self.halo == "26":
+            return self._build_direct(state, width, rec, ncol, mwidth)
+        n = state.n_owned
         for dirs in self._round_dirs():
+            # a sweep along one axis forwards the ghosts of the earlier sweeps too, so edge and
+            # corner neighbours are served in two or three hops (the same particles as the
+            # direct exchange: the faces crossed are the same planes)
             outgoing = [None] * len(DIRECTIONS)
-            if self.halo == "26":
-                # direct: each border particle goes straight to every neighbour that needs it (the
-                # records of all directions packed in one call, in direction order)
-                start, items = border_lists(state.pos[:n], self.lo, self.hi, width, self.faces)
-                lists = [items[start[k]:start[k + 1]] for k in dirs]
-                records = self._records(state, rec, items, ncol)
-                for k in dirs:
-                    outgoing[k] = (records[start[k]:start[k + 1]],)
-            else:
-                # a sweep along one axis forwards the ghosts of the earlier sweeps too, so edge and
-                # corner neighbours are served in two or three hops (the same particles as the
-                # direct exchange: the faces crossed are the same planes)
-                lists = []
-                for k in dirs:
-                    axis = int(np.flatnonzero(DIRECTIONS[k])[0])
-                    x = state.pos[:, axis]
-                    near = (x - self.lo[axis] < width) if DIRECTIONS[k][axis] < 0 else (self.hi[axis] - x < width)
-                    lists.append(np.flatnonzero(near))
-                for k, idx in zip(dirs, lists):
-                    outgoing[k] = (self._records(state, rec, idx, ncol),)
+            lists = []
+            for k in dirs:
+                axis = int(np.flatnonzero(DIRECTIONS[k])[0])
+                x = state.pos[:, axis]
+                near = (x - self.lo[axis] < width) if DIRECTIONS[k][axis] < 0 else (self.hi[axis] - x < width)
+                lists.append(np.flatnonzero(near))
+            for k, idx in zip(dirs, lists):
+                outgoing[k] = (self._records(state, rec, idx, ncol),)
             incoming = self.exchange(outgoing, (ncol,), dirs=dirs)
             counts = [len(incoming[k][0]) for k in dirs]
-            g0 = state.n
-            self.rounds.append(_Round(self.cart, dirs, self.ranks, lists, counts, g0, mwidth, (self.wire, self.remote)))
+            send_idx = np.concatenate(lists).astype(np.int64) if lists else np.zeros(0, dtype=np.int64)
+            self.rounds.append(_Round(self.cart, dirs, self.ranks, send_idx, [len(x) for x in lists], counts, state.n,
+                                      mwidth, (self.wire, self.remote)))
             self._append(state, incoming, rec)
-        # direct exchange: each ghost came from its owner, appended in direction order; after the
-        # sweeps of --halo 6 an edge or corner ghost was forwarded, so its owner is found by place
-        self.ghost_dirs = np.repeat(np.asarray(dirs, dtype=np.int64), counts) if self.halo == "26" else None
+        # after the sweeps an edge or corner ghost was forwarded: its owner is found by place
+        self.ghost_dirs = None
         return state.n - n
+
+    @staticmethod
+    @functools.lru_cache(maxsize=None)
+    def record_widths(rec):
+        """The widths [doubles] of a ghost record (REC_*) and of a forward exchange's row."""
+        fields = (GHOST_SPHERE, GHOST_GENERAL, GHOST_POLY)[rec]
+        return (sum(WIDTH[f] for f in fields), sum(WIDTH[f] for f in moving_fields(rec == REC_SPHERE)))
+
+    def _build_direct(self, state, width, rec, ncol, mwidth):
+        """The direct exchange's ghost choice (--halo 26) in two numba calls and one message each
+        way per neighbour: pack_border_messages selects the border particles and packs their
+        records into the messages, write_border_messages writes the received ones after the owned
+        rows of the halo's capacity arrays (_grow). Measured on 2 ranks, 1521 falling ellipsoids,
+        --skin 0 (every step a rebuild; in-process timers, medians of 300 steps, two rounds
+        alternating with the code before): 37-40 us a build against 56 us through border_lists,
+        a record packing, the exchange's copy into a message and the append."""
+        n = state.n_owned
+        nbr_dirs = self.neighbour_dirs
+        send, offs, send_idx, send_counts = call_entry(self.entries, pack_border_messages, (
+            n, self.lo, self.hi, float(width), NEEDS, self.faces, nbr_dirs, rec, ncol, state.gid.view(np.float64),
+            state.shape, state.material, state.mass, state.axes, state.inertia, state.pos, state.vel, state.angmom,
+            state.quat, state.poly))
+        cart, status, double = self.cart, self.status, self.double
+        reqs = []
+        for i, (k, r) in enumerate(self.neighbours):
+            msg = send[offs[i]:offs[i + 1]]
+            reqs.append(cart.Isend(msg, dest=r, tag=EXCHANGE_TAG + k))
+            self.account(r, msg.nbytes)
+        probed = []
+        roffs = np.zeros(len(nbr_dirs) + 1, dtype=np.int64)
+        for i, (k, r) in enumerate(self.neighbours):
+            # what neighbour k sent towards me travelled in the opposite direction
+            probed.append(cart.Mprobe(source=r, tag=EXCHANGE_TAG + int(OPPOSITE[k]), status=status))
+            roffs[i + 1] = roffs[i] + status.Get_count(double)
+        recv = np.empty(int(roffs[-1]))
+        for i, msg in enumerate(probed):
+            msg.Recv(recv[roffs[i]:roffs[i + 1]])
+        self.waitall(reqs)
+        m = (len(recv) - len(nbr_dirs)) // ncol
+        self.ghost_dirs = np.empty(m, dtype=np.int64)
+        recv_counts = np.zeros(len(nbr_dirs), dtype=np.int64)
+        if m:
+            view = self._grow(state, m)
+            call_entry(self.entries, write_border_messages, (n, recv, recv.view(np.int64), roffs, nbr_dirs, ncol, rec,
+                                                             self.ghost_dirs, recv_counts, *view))
+            self._finish_append(state, view, rec)
+        self.rounds.append(_Round(cart, self.neighbour_list, self.ranks, send_idx, send_counts, recv_counts, n, mwidth,
+                                  (self.wire, self.remote)))
+        return m
 
     def _start(self, rd, state):
         rd.prepare()
@@ -547,42 +649,56 @@ class Halo:
 
     def _append(self, state, incoming, rec):
         """Append the ghosts of the incoming records (pack_ghost_rows') after the state's rows, in
-        place: the per-particle arrays are the first rows of capacity arrays this halo keeps
-        (self.store), grown by a quarter when they are too small or no longer the state's (a
-        migration replaced them); the owned rows are then copied once. Against a concatenation
-        per field (31 us a rebuild at 127 ghosts, 2 ranks, 1521 falling ellipsoids), and the
-        records' split into fields before it (13 us), ~3 us."""
+        place (_grow, write_ghost_rows). Against a concatenation per field (31 us a rebuild at 127
+        ghosts, 2 ranks, 1521 falling ellipsoids), and the records' split into fields before it
+        (13 us), ~3 us."""
         parts = [m[0] for m in incoming if m is not None and len(m[0])]
         if not parts:
             return
         rows = np.concatenate(parts) if len(parts) > 1 else parts[0]
-        n, m = state.n, len(rows)
-        store = self.store
-        if not all(len(store.get(f, ())) >= n + m and getattr(state, f).base is store[f] for f in PER_PARTICLE):
+        view = self._grow(state, len(rows))
+        gids = np.ascontiguousarray(rows[:, 0]).view(np.int64)
+        call_entry(self.entries, write_ghost_rows, (state.n, rows, gids, rec, *view))
+        self._finish_append(state, view, rec)
+
+    def _grow(self, state, m):
+        """The per-particle arrays (PER_PARTICLE order) with room for m rows after the state's n:
+        views [n + m] of capacity arrays this halo keeps (self.store), grown by a quarter when they
+        are too small or no longer the state's (a migration replaced them); the state's rows are
+        then copied once."""
+        n = state.n
+        held = self.held
+        if held is None or len(held[0]) < n + m or not all(map(operator.is_, [a.base for a in _PER_PARTICLE_OF(state)],
+                                                                 held)):
             cap = (n + m) * 5 // 4 + 16
+            store = self.store
             for f in PER_PARTICLE:
                 old = getattr(state, f)
                 store[f] = np.empty((cap,) + old.shape[1:], dtype=old.dtype)
                 store[f][:n] = old[:n]
-        view = [store[f][:n + m] for f in PER_PARTICLE]
-        gids = np.ascontiguousarray(rows[:, 0]).view(np.int64)
-        call_entry(self.entries, write_ghost_rows, (n, rows, gids, rec, *view))
+            held = self.held = tuple(store[f] for f in PER_PARTICLE)
+        return [a[:n + m] for a in held]
+
+    @staticmethod
+    def _finish_append(state, view, rec):
+        """The state's arrays become the views; a poly-ellipsoid's bounding sphere holds its octant
+        origin's offset too."""
+        n = state.n
         for f, a in zip(PER_PARTICLE, view):
             setattr(state, f, a)
-        if rec == REC_POLY:  # a poly-ellipsoid's bounding sphere holds its octant origin's offset too
+        if rec == REC_POLY:
             state.rbound[n:] = bounding_radii(state.axes[n:], state.shape[n:], state.poly[n:])
 
     # --- migration ----------------------------------------------------------------------------
     def migrate(self, state, found=None):
         """Move owned particles whose centre left this block to the neighbour block that holds
         it, with their whole state and contact history (a neighbour-rebuild step; ghosts are
-        dropped first; found: (their blocks [n_owned, 3], outside_block's marks [n_owned]) when
+        dropped first; found: BlockGrid.leavers' (blocks [n_owned, 3], outside marks [n_owned], count) when
         already found). Returns (sent, received)."""
         drop_ghosts(state)
         n = state.n_owned
         if found is None or len(found[0]) != n:
-            target = self.grid.block_of(state.pos[:n])
-            found = (target, outside_block(target, self.coords))
+            found = self.grid.leavers(state.pos[:n], self.coords)
         target = found[0]
         leaving = np.flatnonzero(found[1])
         if not len(leaving):  # nobody leaves: one message each way, of empty headers, says so
@@ -674,6 +790,7 @@ def redistribute(cart, grid, state, coords):
 
 PER_PARTICLE = ("gid", "shape", "axes", "rbound", "mass", "inertia", "material", "pos", "vel", "quat",
                 "angmom", "force", "torque", "poly")
+_PER_PARTICLE_OF = operator.attrgetter(*PER_PARTICLE)  # a state's per-particle arrays, in one call
 
 
 def drop_ghosts(state):
@@ -681,8 +798,8 @@ def drop_ghosts(state):
     n = state.n_owned
     if state.n == n:
         return
-    for f in PER_PARTICLE:
-        setattr(state, f, getattr(state, f)[:n])  # a view: appending ghosts makes new arrays anyway
+    for f, a in zip(PER_PARTICLE, _PER_PARTICLE_OF(state)):
+        setattr(state, f, a[:n])  # a view: appending ghosts makes new arrays anyway
 
 
 def append_ghosts(state, g):

@@ -107,6 +107,12 @@ def test_block_of_and_border_lists_are_their_formulas(rng):
     c = BlockGrid(UNIT, (3, 2, 4), cuts=cuts)
     want = np.stack([np.searchsorted(cuts[a], pos[:, a], side="right") for a in range(3)], axis=1)
     assert np.array_equal(c.block_of(pos), want)
+    # leavers: block_of, the marks of the centres outside one block and their count, in one call
+    for grid in (g, c):
+        target, marks, count = grid.leavers(pos, (1, 0, 2))
+        assert np.array_equal(target, grid.block_of(pos))
+        assert np.array_equal(marks, np.any(target != (1, 0, 2), axis=1).astype(np.int8))
+        assert count == np.count_nonzero(marks) and 0 < count < len(pos)
     lo, hi, w = np.array([0.2, 0.1, 0.3]), np.array([0.7, 0.8, 0.6]), 0.12
     start, items = border_lists(pos, lo, hi, w)
     for k, d in enumerate(DIRECTIONS):
@@ -244,7 +250,7 @@ def test_ghost_records_in_place_equal_the_fields(rng, rec):
     fields = {REC_SPHERE: GHOST_SPHERE, REC_GENERAL: GHOST_GENERAL, REC_POLY: GHOST_POLY}[rec]
     idx = np.array([3, 0, 39, 17, 17, 21])
     halo = Halo.__new__(Halo)
-    halo.store, halo.entries = {}, {}
+    halo.store, halo.entries, halo.held = {}, {}, None
     records = halo._records(s, rec, idx, sum(WIDTH[f] for f in fields))
     assert np.array_equal(records.view(np.int64), _columns(s, fields, idx).view(np.int64))
     owned = {f: getattr(s, f).copy() for f in PER_PARTICLE}
@@ -260,6 +266,53 @@ def test_ghost_records_in_place_equal_the_fields(rng, rec):
             if rec == REC_SPHERE and f == "quat":
                 want[40:] = (1.0, 0.0, 0.0, 0.0)
             assert np.array_equal(getattr(s, f), want), f
+
+
+@pytest.mark.parametrize("rec", [REC_SPHERE, REC_GENERAL, REC_POLY])
+def test_border_messages_are_the_border_lists_records(rng, rec):
+    """The direct exchange's fused ghost choice: pack_border_messages' message to each neighbour
+    that exists is [count, the records pack_ghost_rows writes of border_lists' particles in that
+    direction] and its send_idx those particles in neighbour order, bit for bit; the messages
+    written back by write_border_messages after 40 owned rows give every per-particle array the
+    rows write_ghost_rows gives, and each ghost its message's direction."""
+    from dem.shapes import POLY, POLY_LEN
+    from dem.state import bounding_radii
+    from modes.decomposition import NEEDS
+    from modes.halo import pack_border_messages, pack_ghost_rows, write_border_messages, write_ghost_rows
+    s = _state(rng, 60, rec == REC_SPHERE)
+    s.pos = rng.uniform(0.0, 1.0, (60, 3))
+    if rec == REC_POLY:
+        s.shape[::3] = POLY
+        s.poly = rng.random((60, POLY_LEN))
+        s.rbound = bounding_radii(s.axes, s.shape, s.poly)
+    ncol = sum(WIDTH[f] for f in {REC_SPHERE: GHOST_SPHERE, REC_GENERAL: GHOST_GENERAL, REC_POLY: GHOST_POLY}[rec])
+    lo, hi, w = np.zeros(3), np.ones(3), 0.3
+    dirs = np.array([k for k, d in enumerate(DIRECTIONS) if d[2] == 0 and d[1] >= 0], dtype=np.int64)
+    faces = face_bits(dirs)
+    fields = (s.gid.view(np.float64), s.shape, s.material, s.mass, s.axes, s.inertia, s.pos, s.vel, s.angmom, s.quat,
+              s.poly)
+    buf, offs, send_idx, counts = pack_border_messages(40, lo, hi, w, NEEDS, faces, dirs, rec, ncol, *fields)
+    start, items = border_lists(s.pos[:40], lo, hi, w, faces)
+    want_idx = []
+    for i, k in enumerate(dirs):
+        idx = items[start[k]:start[k + 1]]
+        want_idx.append(idx)
+        rows = np.empty((len(idx), ncol))
+        pack_ghost_rows(idx, rec, *fields[:10], s.poly, rows)
+        assert counts[i] == len(idx) and buf[offs[i]] == len(idx)
+        assert np.array_equal(buf[offs[i] + 1:offs[i + 1]].view(np.int64), rows.reshape(-1).view(np.int64)), k
+    assert np.array_equal(send_idx, np.concatenate(want_idx)) and counts.sum() > 10
+    m = int(counts.sum())
+    # the first 20 rows of every per-particle array, then room for the m ghosts
+    a, b = ([np.concatenate([getattr(s, f)[:20], np.zeros((m,) + getattr(s, f).shape[1:], getattr(s, f).dtype)])
+             for f in PER_PARTICLE] for _ in range(2))
+    ghost_dirs, got_counts = np.empty(m, dtype=np.int64), np.empty(len(dirs), dtype=np.int64)
+    write_border_messages(20, buf, buf.view(np.int64), offs, dirs, ncol, rec, ghost_dirs, got_counts, *a)
+    every = np.concatenate([buf[offs[i] + 1:offs[i + 1]].reshape(-1, ncol) for i in range(len(dirs))])
+    write_ghost_rows(20, every, np.ascontiguousarray(every[:, 0]).view(np.int64), rec, *b)
+    for f, x, y in zip(PER_PARTICLE, a, b):
+        assert np.array_equal(x, y), f
+    assert np.array_equal(got_counts, counts) and np.array_equal(ghost_dirs, np.repeat(dirs, counts))
 
 
 @pytest.mark.parametrize("with_quat", [True, False])
