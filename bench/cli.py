@@ -12,10 +12,10 @@ import os
 import sys
 
 from bench.run.options import (BALANCE, CONTACT_METHOD_CHOICES, NEIGHBOR_CHOICES, PRESETS, SHAPE_CHOICES,
-                               SWEEP_FALLBACK, add_run_arguments, apply_preset, host_list, nonneg_int, particle_counts,
-                               positive_float, positive_int, precision_fraction, skin_fraction)
+                               SWEEP_FALLBACK, apply_preset, host_list, nonneg_int, particle_counts, positive_int,
+                               skin_fraction)
+from bench.run.spec import add_arguments, fields, file_type
 from bench.run.threads_env import configure_threads
-from bench.sweep.precision import ROUNDS_CAP
 from bench.sweep.slurm_options import FIELDS as SLURM_FIELDS
 from bench.sweep.slurm_options import check_field, check_options
 
@@ -36,80 +36,15 @@ def build_parser():
     sub = p.add_subparsers(dest="command", parser_class=_Parser)
     sub.required = True
 
-    add_run_arguments(sub.add_parser("run", help="run one scene with one mapping"))
+    add_arguments(sub.add_parser("run", help="run one scene with one mapping"), "run")
 
     c = sub.add_parser("contacts", help="print the contacts of a configuration as JSON")
     c.add_argument("scene", help="scene .toml file (or built-in name)")
 
     sub.add_parser("scenes", help="list built-in scenes")
 
-    sw = sub.add_parser("sweep", help="run a scene under many mappings; records, metrics, figures")
-    sw.add_argument("--mappings", help="comma-separated P-px-py-pz-T list (1-1-1-1-1 is added when missing)")
-    sw.add_argument("--file", help="sweep file (TOML, a [sweep] table with the same fields) instead of options")
-    sw.add_argument("--schemes", help="comma-separated thread schemes for mappings with T > 1 (default dynamic)")
-    sw.add_argument("--scene", help="built-in scene name (bench scenes) or a .toml file, the same for every point")
-    sw.add_argument("--particles", type=particle_counts,
-                    help="particles of a generated scene (default the scene's); a list (2000,12000,50000) runs "
-                         "every mapping at each count, each with its own serial reference, and draws "
-                         "granularity.png (efficiency against particles per core)")
-    sw.add_argument("--shape", choices=SHAPE_CHOICES, help="shape of a generated scene's particles (default the "
-                                                           "scene's)")
-    sw.add_argument("--steps", type=positive_int, help="timed steps of every point (default the scene's)")
-    sw.add_argument("--warmup", type=nonneg_int, default=0, help="untimed steps before the timed ones")
-    sw.add_argument("--repeats", type=positive_int, default=1, help="runs per point (medians recorded)")
-    sw.add_argument("--neighbor", choices=NEIGHBOR_CHOICES, default=None, help="linkcell (default) or allpairs")
-    sw.add_argument("--preset", choices=sorted(PRESETS), default=None,
-                    help="a named configuration for every point: paper = --contact-method sextic --skin 0 "
-                         "--neighbor allpairs (options given with it win)")
-    sw.add_argument("--contact-method", choices=CONTACT_METHOD_CHOICES, default=None,
-                    help="ellipsoid contact geometry of every point (default exact)")
-    sw.add_argument("--halo", choices=["26", "6"], default="26",
-                    help="MPI points: ghosts in 26 direct messages (default, the paper's) or 3 sweeps of 6")
-    sw.add_argument("--update-grid", type=nonneg_int, default=0, metavar="K",
-                    help="MPI points fit their block grid to the particles at the start and every K steps (the "
-                         "paper's updateGrid; default 0: blocks divide the box)")
-    sw.add_argument("--balance", choices=BALANCE, default="extent",
-                    help="how --update-grid fits the grid: extent (default, the paper's), count (equal particle "
-                         "counts) or time (equal measured compute time)")
-    sw.add_argument("--newton", choices=["auto", "on", "off"], default="auto",
-                    help="MPI and hybrid points: resolve each pair across a border on one rank (on) or on both "
-                         "(off); default auto (on); hybrid points under frogleap or headtail always resolve it on "
-                         "both")
-    sw.add_argument("--skin", type=skin_fraction, default=None, metavar="F",
-                    help="neighbour-list skin of every point, fraction of the largest bounding diameter (default "
-                         "bench run's, 0.1; 0: neighbours estimated every step, the paper's way)")
-    sw.add_argument("--pin", action="store_true",
-                    help="every point's ranks get T cores of their own and each thread one of them (bench run "
-                         "--pin; runs.csv binding says whether it held)")
-    sw.add_argument("--hosts", type=host_list, default=None, metavar="H1,H2,...|@FILE",
-                    help="local launcher: run every MPI and hybrid point's ranks on these hosts (bench run --hosts: "
-                         "mpiexec -hosts, consecutive ranks a host); a comma list or @FILE, one host a line")
-    sw.add_argument("--ceiling", action="store_true",
-                    help="also measure the machine's efficiency ceiling at each core count W of the sweep (W "
-                         "independent serial copies of the scene at N/W particles, alone, together and meeting "
-                         "every step, a round after each round of repeats): OUT/ceiling.csv, drawn on "
-                         "efficiency.png (local launcher)")
-    sw.add_argument("--precision", type=precision_fraction, default=None, metavar="F",
-                    help="after --repeats rounds (at least 2), more interleaved rounds of every point until each "
-                         "point's 95 %% interval of its step time is within F of its median (e.g. 0.05), the "
-                         f"--budget is spent or {ROUNDS_CAP} rounds are run; runs.csv `resolved` says which")
-    sw.add_argument("--budget", type=positive_float, default=None, metavar="SECONDS",
-                    help="with --precision: start no further round once the sweep has run this long or the next "
-                         "round would not fit")
-    sw.add_argument("--compare", metavar="DIR",
-                    help="after the sweep, each point against the same point of the earlier sweep in DIR: faster, "
-                         "slower or the same, with the 95 %% interval of the ratio (bench compare DIR OUT)")
-    sw.add_argument("--timeout", type=positive_int, default=1800, help="seconds per point run")
-    sw.add_argument("--launcher", default="local", help="local (default: each point here, one after another) or "
-                                                         "slurm (a prepare job, a job array a point, a collect job)")
-    sw.add_argument("--dry-run", action="store_true", help="print every command and environment, run nothing")
-    sw.add_argument("--resume", action="store_true", help="skip the points already done in OUT/runs.csv (slurm: the "
-                                                          "repeats done, pending or running)")
-    sw.add_argument("--out", help="sweep folder: runs.csv, manifest.json, figures and one folder a point")
-    sw.add_argument("--status", metavar="DIR", help="the state of each point of the sweep in DIR (its files, and "
-                                                     "Slurm's scontrol/sacct where Slurm runs)")
-    sw.add_argument("--cancel", metavar="DIR",
-                    help="scancel the jobs of the Slurm sweep in DIR still pending or running")
+    sw = add_arguments(sub.add_parser("sweep", help="run a scene under many mappings; records, metrics, figures"),
+                       "sweep")
     sl = sw.add_argument_group("Slurm (--launcher slurm; a sweep file's [sweep.slurm] table holds the same)")
     sl.add_argument("--no-submit", action="store_true", help="write the job scripts and submit.sh, submit nothing")
     for name, (kind, text) in SLURM_FIELDS.items():
@@ -323,15 +258,9 @@ def cmd_run(args):
     return run(args)
 
 
-SWEEP_FIELDS = {"mappings": str, "schemes": str, "scene": str, "particles": int, "shape": str, "steps": int,
-                "warmup": int, "repeats": int, "neighbor": str, "contact_method": str, "halo": str, "update_grid": int,
-                "balance": str, "newton": str, "skin": float, "pin": bool, "preset": str, "hosts": str,
-                "ceiling": bool, "precision": float, "budget": float, "compare": str, "timeout": int,
-                "launcher": str, "out": str, "slurm": dict}
-
-# the sweep file's numbers that are not skin fractions: their checks and what they expect
-FLOAT_FIELDS = {"precision": (precision_fraction, "a fraction in (0, 1)"),
-                "budget": (positive_float, "a number of seconds > 0")}
+# the keys of a sweep file and what their values are (bench.run.spec), then its [sweep.slurm] table
+FILE_FIELDS = {f.name: f for f in fields("file")}
+SWEEP_FIELDS = dict({name: file_type(f) for name, f in FILE_FIELDS.items()}, slurm=dict)
 
 
 def _sweep_file(args):
@@ -362,17 +291,18 @@ def _sweep_file(args):
             except ValueError as e:
                 raise UsageError(str(e)) from None
             continue
-        if key == "particles" and isinstance(value, list):  # the granularity study's counts
+        field = FILE_FIELDS[key]
+        if field.sweep_type is particle_counts and isinstance(value, list):  # the granularity study's counts
             try:
                 value = particle_counts(",".join(str(v) if isinstance(v, int) and not isinstance(v, bool) else "x"
                                                  for v in value))
             except argparse.ArgumentTypeError:
-                raise UsageError(f"particles in {args.file} must be a positive integer or a list of distinct "
+                raise UsageError(f"{key} in {args.file} must be a positive integer or a list of distinct "
                                  f"ones, got {_short(value)}") from None
-            if args.particles is None:
-                args.particles = value
+            if getattr(args, key) is None:
+                setattr(args, key, value)
             continue
-        listed = key in ("mappings", "schemes", "hosts")
+        listed = field.listed
         if SWEEP_FIELDS[key] is str and not (isinstance(value, str) or listed and isinstance(value, list)):
             raise UsageError(f"{key} in {args.file} must be a string{' or a list of strings' if listed else ''}, "
                              f"got {_short(value)}")
@@ -381,13 +311,13 @@ def _sweep_file(args):
                 raise UsageError(f"{key} in {args.file} must be a list of strings, got {_short(value)}")
             value = ",".join(value)
         want = SWEEP_FIELDS[key]
-        zero_ok = key in ("warmup", "update_grid")
+        zero_ok = field.sweep_type is nonneg_int
         if want is int and (isinstance(value, bool) or not isinstance(value, int) or value < 0 or
                             value == 0 and not zero_ok or value > 2**62):
             raise UsageError(f"{key} in {args.file} must be a {'non-negative' if zero_ok else 'positive'} "
                              f"integer, got {_short(value)}")
         if want is float:
-            check, expected = FLOAT_FIELDS.get(key, (skin_fraction, "a fraction in [0, 10]"))
+            check, expected = field.sweep_type, field.expects
             try:
                 if isinstance(value, bool) or not isinstance(value, (int, float)):
                     raise argparse.ArgumentTypeError(expected)

@@ -27,6 +27,7 @@ from bench.run.progress import Progress, build_log
 from bench.run.records import (RecordError, Reserve, StepWriter, environment, merge_step_files, prepare_output,
                                read_step_rows, write_json, write_state)
 from bench.run.snapshots import write_snapshot
+from bench.run.spec import recorded
 from bench.run.transport import transport_info
 from dem.contact import DEFAULT_CONTACT_METHOD
 from dem.scene import SceneError, load_scene
@@ -173,15 +174,11 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
             "particles": n_total, "steps": steps, "mapping": str(mapping), "mode": mapping.kind,
             "procs": mapping.procs, "px": mapping.px, "py": mapping.py, "pz": mapping.pz,
             "threads": mapping.threads, "scheme": scheme,
-            "threaded": args.threaded if mapping.threads > 1 else None, "pin": args.pin,
             "threading": _threading_info(), "affinity": getattr(args, "affinity", None),
             "mpi_transport": transport_info(),
-            "neighbor": args.neighbor, "contact_method": getattr(args, "contact_method", DEFAULT_CONTACT_METHOD),
-            "preset": getattr(args, "preset", None),
+            **recorded(args, mapping, "run.json"),  # threaded, pin, neighbor, preset, contact_method, halo, ...
             "preset_overrides": getattr(args, "preset_overrides", None) or None,
             "skin": mode.skin_fraction, "skin_m": mode.skin, "skin_requested": args.skin,
-            "halo": args.halo if mapping.procs > 1 else None,
-            "update_grid": args.update_grid if mapping.procs > 1 else None,
             "newton": mode.newton if mapping.procs > 1 else None,
             "balance": args.balance if mapping.procs > 1 and args.update_grid else None,
             "dt": dt, "dt_auto": ts.auto,
@@ -237,8 +234,7 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
         t = time.perf_counter()
         meta = {"step": step0 + k, "time": time0 + (warm + k) * dt, "warmup_total": warm0 + warm,
                 "steps_target": step0 + steps, "time_step": ts.as_dict(), "guard": guard.sums(),
-                "contact_method": args.contact_method or DEFAULT_CONTACT_METHOD, "neighbor": args.neighbor,
-                "mapping": str(mapping), "scheme": scheme}
+                **recorded(args, mapping, "checkpoint"), "mapping": str(mapping), "scheme": scheme}
         ckpt["bytes"] = write_checkpoint(ckpt_path, mode, scene, meta, comm=comm)
         ckpt["seconds"] += time.perf_counter() - t
         ckpt["written"] += 1

@@ -37,11 +37,11 @@ import sys
 
 from bench.run.binding import NODE_CPUS_ENV, plan_binding, read_topology
 from bench.run.lifeline import Interrupted, child_env, inherited_lock
-from bench.run.options import too_few_ranks
+from bench.run.options import mode_options, too_few_ranks
+from bench.run.spec import rank_argv
 from bench.run.threads_env import check_size, usable_cpus
 from bench.run.transport import transport_env
-from dem.contact import DEFAULT_CONTACT_METHOD
-from modes.base import ModeError
+from modes.base import ModeError, parse_mapping
 from modes.decomposition import BlockGrid, DecompositionError, border_width, fit_skin
 from modes.halo import compile_kernels
 from modes.newton import compile_kernels as compile_newton_kernels
@@ -58,15 +58,12 @@ def mpiexec_path():
 def warm_cache(scene, mapping, args, dt):
     """Compile (and cache on disk) every kernel the ranks will run. The mode's warm-up steps a twin
     of the state (a compact piece of a large one), never the state itself (tests/modes/test_warmup.py),
-    so the scene is not copied (a 1M-particle scene: 2 GB)."""
+    so the scene is not copied (a 1M-particle scene: 2 GB). The twin runs in one process with the
+    mapping's threads and the run's mode options (bench.run.options mode_options)."""
     twin = copy.copy(scene)
-    if mapping.threads > 1:
-        ThreadsMode().setup(twin, dt=dt, neighbor=args.neighbor, threads=mapping.threads,
-                            scheme=args.scheme or DEFAULT_SCHEME, threaded=args.threaded,
-                            contact_method=args.contact_method or DEFAULT_CONTACT_METHOD).warmup()
-    else:
-        SerialMode().setup(twin, dt=dt, neighbor=args.neighbor,
-                           contact_method=args.contact_method or DEFAULT_CONTACT_METHOD).warmup()
+    alone = parse_mapping(f"1-1-1-1-{mapping.threads}")
+    mode = ThreadsMode if mapping.threads > 1 else SerialMode
+    mode().setup(twin, dt=dt, **mode_options(alone, args, args.scheme or DEFAULT_SCHEME)).warmup()
     compile_kernels()
     compile_newton_kernels()
 
@@ -155,20 +152,6 @@ def launch_mpi(args, mapping, scene, out, ts):
 
 
 def _run_argv(args, out):
-    """The bench-run options the ranks need (the same run, with the resolved output folder)."""
-    argv = (["--restart", os.path.abspath(args.restart)] if args.restart else ["--scene", args.scene])
-    argv += ["--mapping", args.mapping, "--neighbor", args.neighbor, "--out", out,
-             "--threaded", args.threaded, "--snapshot-every", str(args.snapshot_every),
-             "--snapshot-format", getattr(args, "snapshot_format", None) or "vtu", "--halo", args.halo,
-             "--guard-overlap", str(args.guard_overlap), "--update-grid", str(args.update_grid),
-             "--balance", args.balance, "--newton", getattr(args, "newton", "auto"),
-             "--contact-method", args.contact_method or DEFAULT_CONTACT_METHOD,
-             "--checkpoint-every", str(getattr(args, "checkpoint_every", 0) or 0)]
-    for name in ("particles", "shape", "seed", "steps", "dt", "scheme", "warmup", "skin", "preset"):
-        v = getattr(args, name)
-        if v is not None:
-            argv += [f"--{name}", str(v)]
-    for flag in ("plot", "quiet", "pin"):
-        if getattr(args, flag):
-            argv.append(f"--{flag}")
-    return argv
+    """The bench-run options the ranks need (bench.run.spec rank_argv: the same run, with the resolved
+    output folder and the checkpoint's absolute path)."""
+    return rank_argv(args, out=out, restart=os.path.abspath(args.restart) if args.restart else None)

@@ -1,4 +1,5 @@
-"""The options of one run (`bench run` and each MPI rank of it) and the mode options they give.
+"""The values of the options of a run (`bench run` and each MPI rank of it; declared in
+bench.run.spec): their checks, the presets, and the mode options they give.
 
 Every bad value ends as one line through the parser's error (bench.cli); the mode refuses an
 option it lacks (modes.base.ModeError).
@@ -152,84 +153,9 @@ def apply_preset(args, fallback=PRESET_FALLBACK):
     return args
 
 
-def add_run_arguments(r):
-    """The `bench run` options on parser r."""
-    r.add_argument("--scene", help="built-in scene name or a .toml file (required unless --restart)")
-    r.add_argument("--restart", metavar="FILE", default=None,
-                   help="continue the run saved in checkpoint FILE (--checkpoint-every) in this mapping: its "
-                        "scene, state, time step and energy balance; --steps N more steps (default: the rest of "
-                        "the run that wrote it)")
-    r.add_argument("--checkpoint-every", type=nonneg_int, default=0, metavar="K",
-                   help="write DIR/checkpoint.npz (atomically) every K steps and after the last step")
-    r.add_argument("--particles", type=positive_int, help="override the generated particle count")
-    r.add_argument("--shape", choices=SHAPE_CHOICES, help="override the generated shape")
-    r.add_argument("--seed", type=nonneg_int, help="override the generator seed")
-    r.add_argument("--steps", type=nonneg_int, help="override the scene's step count")
-    r.add_argument("--warmup", type=nonneg_int, default=0, metavar="W",
-                   help="untimed steps before the timed ones (after JIT compilation, which is never timed)")
-    r.add_argument("--dt", type=time_step_arg, help="time step [s] (default: the scene's, usually auto)")
-    r.add_argument("--mapping", default="1-1-1-1-1", help="P-px-py-pz-T (default 1-1-1-1-1)")
-    r.add_argument("--scheme", default=None, help="thread scheme: partition, frogleap, headtail, static, "
-                                                  "dynamic (default dynamic; mappings with T > 1)")
-    r.add_argument("--threaded", choices=["step", "detection"], default="step",
-                   help="thread the whole step (default) or only contact detection (the paper's code)")
-    r.add_argument("--pin", action="store_true",
-                   help="give each rank T cores of its own and each thread one of them (bench.run.binding)")
-    r.add_argument("--neighbor", choices=NEIGHBOR_CHOICES, default=None,
-                   help="neighbour estimate: linkcell (default) or allpairs (the n-by-n search)")
-    r.add_argument("--preset", choices=sorted(PRESETS), default=None,
-                   help="a named configuration: paper = --contact-method sextic --skin 0 --neighbor allpairs "
-                        "(Yan & Regueiro's own; options given with it win)")
-    r.add_argument("--contact-method", choices=CONTACT_METHOD_CHOICES, default=None,
-                   help="ellipsoid contact geometry: exact (PW + Newton, default; a restart: the checkpoint's), "
-                        "pw (Perram-Wertheim depth, error O(depth/size)), sextic (the paper's Yan 2010 method, a "
-                        "known error)")
-    r.add_argument("--skin", type=skin_fraction, default=None, metavar="F",
-                   help="neighbour-list skin, fraction of the largest bounding diameter (default 0.1; "
-                        "0: estimate neighbours every step, the paper's way)")
-    r.add_argument("--snapshot-every", type=nonneg_int, default=0, metavar="K",
-                   help="write DIR/snapshots/step<8-digit step>.vtu (or .vtk) + .npz every K steps")
-    r.add_argument("--snapshot-format", choices=["vtu", "vtk"], default="vtu",
-                   help="snapshot format: vtu (default: binary VTK XML, a snapshots.pvd time series for "
-                        "ParaView, read by meshio) or vtk (legacy ASCII polydata)")
-    r.add_argument("--plot", action="store_true", help="draw DIR/run.png (timings, contacts, energy)")
-    r.add_argument("--out", default=None, help="output folder (default results/run-<scene>)")
-    r.add_argument("--guard-overlap", type=overlap_fraction, default=0.05, metavar="F",
-                   help="stop when a contact overlaps more than F of the smaller body's smallest semi-axis "
-                        "(default 0.05)")
-    r.add_argument("--halo", choices=["26", "6"], default="26",
-                   help="ghost exchange: 26 direct messages (default, the paper's) or 3 sweeps of 6")
-    r.add_argument("--update-grid", type=nonneg_int, default=0, metavar="K",
-                   help="fit the block grid to the particles at the start and every K steps (the paper's "
-                        "updateGrid; default 0: blocks divide the box)")
-    r.add_argument("--balance", choices=BALANCE, default="extent",
-                   help="how --update-grid fits the grid: extent (default, the paper's: equal blocks over the "
-                        "particles' extent), count (cut planes at equal particle counts) or time (cut planes at "
-                        "equal measured compute time, LAMMPS's weight time)")
-    r.add_argument("--newton", choices=["auto", "on", "off"], default="auto",
-                   help="P > 1: resolve each cross-border pair on one rank and send its other end's terms back "
-                        "(on; LAMMPS's newton on) or on both ranks (off); default auto: on, except under the thread "
-                        "schemes that store every pair's forces (frogleap, headtail), where on is refused")
-    r.add_argument("--timeout", type=positive_int, default=3600, help="seconds before MPI ranks are killed")
-    r.add_argument("--hang-timeout", type=seconds, default=30.0, metavar="S",
-                   help="P > 1: stop the run when a rank's heartbeat is S seconds old while a peer's is fresh "
-                        "(a rank stopped or stuck; default 30, 0: off)")
-    r.add_argument("--hosts", type=host_list, default=None, metavar="H1,H2,...|@FILE",
-                   help="P > 1: run the ranks on these hosts (mpiexec -hosts, -ppn ceil(P/K) for K hosts: consecutive "
-                        "ranks, so neighbouring blocks, share a host); a comma list or @FILE, one host a line; "
-                        "mpiexec reaches them by ssh (or HYDRA_LAUNCHER / HYDRA_LAUNCHER_EXEC)")
-    r.add_argument("--mpi-starter", default=None, metavar="CMD",
-                   help="P > 1: the command that starts the P ranks instead of `mpiexec -n P`, the rank program "
-                        "appended (inside a Slurm allocation: 'srun --mpi=pmi2 --ntasks=P --cpus-per-task=T "
-                        "--cpu-bind=cores'; `bench sweep --launcher slurm` writes it)")
-    r.add_argument("--quiet", action="store_true", help="no summary line at the end (warnings and errors still)")
-
-    return r
-
-
 def mode_options(mapping, args, scheme):
     """The setup options of the mode that runs `mapping` (each mode refuses options it lacks)."""
-    opts = {"neighbor": args.neighbor, "skin": args.skin,
+    opts = {"neighbor": args.neighbor, "skin": getattr(args, "skin", None),
             "contact_method": args.contact_method or DEFAULT_CONTACT_METHOD}
     if mapping.threads > 1:
         opts.update(threads=mapping.threads, scheme=scheme, threaded=args.threaded)

@@ -20,9 +20,10 @@ from bench.run.checkpoint import load_checkpoint
 from bench.run.driver import execute
 from bench.run.heartbeat import Heartbeat, ranks_dir
 from bench.run.lifeline import PR_SET_PDEATHSIG, _prctl
-from bench.run.options import add_run_arguments, apply_preset, mode_options
+from bench.run.options import apply_preset, mode_options
 from bench.run.prepare import load_prepared
 from bench.run.records import RecordError
+from bench.run.spec import add_run_arguments
 from dem.contact import DEFAULT_CONTACT_METHOD
 from dem.timestep import TimeStep, choose_time_step
 from modes.base import mode_for, parse_mapping

@@ -38,12 +38,11 @@ from bench.sweep.figures import plot_sweep
 from bench.sweep.granularity import plot_granularity
 from bench.sweep.launchers import LAUNCHERS
 from bench.sweep.lock import SweepLock
-from bench.sweep.points import SERIAL, make_points, point_from_dict
+from bench.sweep.points import SERIAL, make_points, point_from_dict, point_options
 from bench.sweep.precision import MIN_ROUNDS, mark, next_round, unresolved, widest_text
 from bench.sweep.ranking import point_label, rank, ranking_lines
 from bench.sweep.records import (RUN_COLUMNS, RunsFileError, amdahl, flag_reference, manifest, merge_manifest,
                                  read_runs_rows, reference_key, summarise, with_speedup, write_runs)
-from dem.contact import DEFAULT_CONTACT_METHOD
 from modes.base import ModeError, parse_mapping
 from modes.parallel import DEFAULT_SCHEME
 
@@ -55,12 +54,7 @@ def sweep(args):
     launcher = LAUNCHERS[getattr(args, "launcher", "local")].from_args(args)
     if launcher.batch and os.path.isfile(args.scene):  # the jobs run elsewhere, from another folder
         args.scene = os.path.abspath(args.scene)
-    points = make_points(mappings, schemes, args.scene, args.particles, args.steps, args.warmup,
-                         args.neighbor, args.shape, args.pin, args.halo,
-                         getattr(args, "contact_method", DEFAULT_CONTACT_METHOD),
-                         getattr(args, "update_grid", 0) or 0, getattr(args, "balance", "extent") or "extent",
-                         getattr(args, "newton", "auto") or "auto", getattr(args, "skin", None),
-                         getattr(args, "preset", None), getattr(args, "hosts", None))
+    points = make_points(mappings, schemes, **point_options(args))
     out = args.out
     ceiling = _ceiling(args, launcher, points) if getattr(args, "ceiling", False) else None
     if args.dry_run:

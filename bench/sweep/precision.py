@@ -17,11 +17,11 @@ says for each point: `yes`, `no: budget spent` or `no: ROUNDS_CAP rounds`.
 """
 import math
 
+from bench.run.spec import ROUNDS_CAP  # declared with --precision, whose help states it
 from bench.sweep.intervals import number as _num
 from bench.sweep.ranking import point_label as label
 
 MIN_ROUNDS = 2
-ROUNDS_CAP = 20
 
 RESOLVED = "yes"
 STOPPED_BUDGET = "no: budget spent"

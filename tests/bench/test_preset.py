@@ -8,7 +8,8 @@ import json
 import numpy as np
 import pandas as pd
 
-from bench.run.options import PRESETS, add_run_arguments, apply_preset
+from bench.run.options import PRESETS, apply_preset
+from bench.run.spec import add_run_arguments
 from tests.helpers import bench, one_line_error
 
 

@@ -260,7 +260,8 @@ def write_point(d, mapping, steps):
     import json
     import numpy as np
     from bench.sweep.points import Point
-    p = Point(mapping, "", "gas", 4, int(steps["step"].max()), 0, "linkcell", "", False, "26")
+    p = Point(mapping=mapping, scheme="", scene="gas", particles=4, steps=int(steps["step"].max()), warmup=0,
+              neighbor="linkcell", shape="", pin=False, halo="26")
     rep = os.path.join(d, p.key, "rep0")
     os.makedirs(rep)
     steps.to_csv(os.path.join(rep, "steps.csv"), index=False)
