@@ -1,12 +1,20 @@
-"""Execution modes: a registry of step drivers behind one small interface.
+"""Execution modes: a registry of step drivers behind one contract.
 
 A mode owns how a step is executed (loops, threads, ranks) and its per-step timers; the
-physics it runs is dem/'s. Interface: ``setup(scene, options)``, ``step() -> dict`` of phase
-times and counters, ``snapshot() -> dict`` of the final state sorted by global id, and
-``warmup()`` which compiles every kernel on a throw-away copy so no JIT time is ever timed.
+physics it runs is dem/'s. Mode (below) states everything the harness (bench/) may ask of one:
+``setup(scene, dt, **options)``, ``step() -> dict`` of phase times and counters, ``snapshot() ->
+dict`` of the final state sorted by global id, ``warmup()`` which compiles every kernel on a
+throw-away copy so no JIT time is ever timed, ``run_info()`` (its part of run.json), and the few
+attributes the stability guard and the records read. A mode joins the registry with
+``@register(name)`` and says which mappings it runs with ``accepts(mapping)``; mode_for asks each.
 """
 import re
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
+
+if TYPE_CHECKING:  # annotations only
+    from dem.scene import Scene
+    from dem.state import State
 
 REGISTRY = {}
 
@@ -51,24 +59,97 @@ def compiled_entry(kernel, args):
     return entry
 
 
-def call_entry(entries, kernel, args):
+def fingerprint(args):
+    """The type fingerprint numba's dispatcher computes (in C, ~1 us for a step kernel's arguments)
+    of the tuple args, or None where it has none."""
+    if compute_fingerprint is None:
+        return None
+    try:
+        return compute_fingerprint(args)
+    except (TypeError, ValueError, NotImplementedError):
+        return None
+
+
+def call_entry(entries, kernel, args, check=False):
     """kernel(*args): the first call through its dispatcher (which compiles where needed), later
     ones through the compiled entry point it leaves in entries (a dict per owner of a fixed set
-    of arrays: their types cannot change until the owner is replaced)."""
-    entry = entries.get(kernel)
-    if entry is None:
-        result = kernel(*args)
-        entries[kernel] = compiled_entry(kernel, args)
-        return result
-    return entry(*args)
+    of arrays: their types cannot change until the owner is replaced). check: the arrays may have
+    been replaced since (a rebuild): the entry is used when the arguments' fingerprint is the one
+    it was found for (fingerprint, 1 us), else the dispatcher finds another."""
+    hit = entries.get(kernel)
+    if hit is not None:
+        if not check:
+            return hit[1](*args)
+        fp = fingerprint(args)
+        if fp is not None and fp == hit[0]:
+            return hit[1](*args)
+    result = kernel(*args)
+    entries[kernel] = (fingerprint(args), compiled_entry(kernel, args))
+    return result
 
 
 def register(name):
+    """Class decorator: put the mode class in REGISTRY under `name` (its `name`); mode_for then offers
+    it every mapping, and it runs those its accepts(mapping) takes."""
     def deco(cls):
+        if not callable(getattr(cls, "accepts", None)):
+            raise TypeError(f"mode {name!r}: {cls.__name__} has no accepts(mapping) classmethod")
         REGISTRY[name] = cls
         cls.name = name
         return cls
     return deco
+
+
+@runtime_checkable
+class Mode(Protocol):
+    """Everything the harness (bench/run: the driver, the ranks, guard, checkpoints, snapshots, the
+    cache warm-up; the studies that step a mode) may ask of a set-up mode. SerialMode implements it;
+    the other modes subclass it (docs/ARCHITECTURE.md, Adding a mode). A study of one mode's
+    internals (bench/studies: schemes, perf_phases) sets up that class itself and reads more."""
+
+    name: str
+    """The mode's registry name (set by register): serial, threads, mpi, hybrid."""
+    scene: "Scene"
+    """The scene it runs: walls [planes], materials, gravity [m/s^2] (the guard reads them)."""
+    state: "State"
+    """The particles: arrays [n, ...], the first n_owned this process's own, then its ghosts."""
+    max_overlap_ratio: float
+    """The largest overlap of the run so far, over the smallest semi-axis of the bodies in contact."""
+    guard_overlap: float
+    """The overlap ratio above which a step flags itself for the guard (the guard sets it)."""
+    sums: tuple
+    """(flagged, kinetic energy [J], gravity work [J]) of the last step, over every rank."""
+
+    @classmethod
+    def accepts(cls, mapping: "Mapping") -> bool:
+        """Whether this mode runs `mapping` (P-px-py-pz-T); mode_for asks every registered mode."""
+
+    def setup(self, scene: "Scene", dt: float, **options) -> "Mode":
+        """Take the scene (its state, which the mode now owns) and time step [s]; returns self.
+        options: those of bench.run.options mode_options (ModeError for one it lacks), cart under MPI."""
+
+    def warmup(self) -> None:
+        """Compile every kernel on a throw-away twin of the state (collective under MPI)."""
+
+    def step(self) -> dict:
+        """One time step; returns its row of steps.csv: phase times [s] and counters (DESIGN.md)."""
+
+    def snapshot(self) -> "dict | None":
+        """The owned particles' fields [n, ...] sorted by global id (every rank's on rank 0; None on others)."""
+
+    def sync_history(self) -> None:
+        """Write the contact history of the pair list into the state's per-particle rows (checkpoints)."""
+
+    def release(self) -> None:
+        """Free what the mode holds outside Python (MPI requests); before a snapshot and MPI_Finalize."""
+
+    @property
+    def worst_contact(self) -> "tuple | None":
+        """The deepest contact of the last step by global ids: (i, j), (i, "wall") or None."""
+
+    def run_info(self, end: bool = False) -> dict:
+        """The mode's part of run.json (JSON values): its set-up at the start (collective under MPI:
+        every rank calls it, the gathered values are rank 0's), what the run did at the end (end=True)."""
 
 
 @dataclass(frozen=True)
@@ -105,9 +186,12 @@ def parse_mapping(text):
 
 
 def mode_for(mapping):
-    """The registered mode class that runs `mapping`, or ModeError if none does yet."""
-    kind = mapping.kind
-    if kind not in REGISTRY:
-        raise ModeError(f"mapping {mapping} needs the {kind} mode, which is not available yet "
+    """The registered mode class that runs `mapping`: the one whose accepts(mapping) is true, or
+    ModeError if none is (or, a registration mistake, several are)."""
+    found = [cls for cls in REGISTRY.values() if cls.accepts(mapping)]
+    if not found:
+        raise ModeError(f"mapping {mapping} needs the {mapping.kind} mode, which is not available yet "
                         f"(available: {', '.join(sorted(REGISTRY))})")
-    return REGISTRY[kind]
+    if len(found) > 1:
+        raise ModeError(f"mapping {mapping} is accepted by several modes: {', '.join(c.name for c in found)}")
+    return found[0]

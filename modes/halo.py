@@ -347,12 +347,14 @@ class _Round:
     their buffers and persistent requests. The buffers and requests are made at the round's first
     start (prepare): with --skin 0 every step rebuilds and no forward exchange ever runs (making
     them took 9 us of each 2-rank rebuild of 1521 falling ellipsoids). The pack and unpack kernels
-    are called through their compiled entry points (modes.base.compiled_entry), found at their
-    first call: until the next rebuild replaces the round, they see the same array types."""
+    are called through their compiled entry points (modes.base call_entry), kept in the halo's
+    kernels dict across rounds: a round's first call checks its arrays' types against them, later
+    ones see the same arrays until the next rebuild replaces the round."""
 
-    def __init__(self, cart, dirs, ranks, send_idx, send_counts, recv_counts, g0, width, links):
+    def __init__(self, cart, dirs, ranks, send_idx, send_counts, recv_counts, g0, width, links, kernels):
         self.g0 = g0
-        self.kernels = {}
+        self.kernels = kernels
+        self.checked = set()  # the kernels whose entry this round's arrays were checked against
         self.send_idx = send_idx
         self.plan = (cart, dirs, ranks, send_counts, recv_counts, width, links)
         self.requests = None
@@ -381,8 +383,11 @@ class _Round:
             ro += nr
 
     def call(self, kernel, args):
-        """kernel(*args), through its entry point after the first call."""
-        call_entry(self.kernels, kernel, args)
+        """kernel(*args), through its entry point (checked at the round's first call of it)."""
+        check = kernel not in self.checked
+        if check:
+            self.checked.add(kernel)
+        call_entry(self.kernels, kernel, args, check)
 
     def free(self):
         for req in self.requests or ():
@@ -545,7 +550,7 @@ class Halo:
             counts = [len(incoming[k][0]) for k in dirs]
             send_idx = np.concatenate(lists).astype(np.int64) if lists else np.zeros(0, dtype=np.int64)
             self.rounds.append(_Round(self.cart, dirs, self.ranks, send_idx, [len(x) for x in lists], counts, state.n,
-                                      mwidth, (self.wire, self.remote)))
+                                      mwidth, (self.wire, self.remote), self.entries))
             self._append(state, incoming, rec)
         # after the sweeps an edge or corner ghost was forwarded: its owner is found by place
         self.ghost_dirs = None
@@ -597,7 +602,7 @@ class Halo:
                                                              self.ghost_dirs, recv_counts, *view))
             self._finish_append(state, view, rec)
         self.rounds.append(_Round(cart, self.neighbour_list, self.ranks, send_idx, send_counts, recv_counts, n, mwidth,
-                                  (self.wire, self.remote)))
+                                  (self.wire, self.remote), self.entries))
         return m
 
     def _start(self, rd, state):

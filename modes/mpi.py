@@ -276,7 +276,7 @@ class _Blocks:
             ghost_dir = ghost_owner_directions(self.grid, self.coords, s.pos[s.n_owned:s.n])
         self._free_plan()
         self.plan = NewtonPlan(self.cart, self.halo.ranks, cross_layout(p.pi, p.pj, s.gid, s.n_owned, ghost_dir),
-                               (self.halo.wire, self.halo.remote))
+                               (self.halo.wire, self.halo.remote), entries=self.halo.entries)
         self.counts_check = self.plan.count_checksum()  # summed in this step's allreduce (decide)
         self.plan.take_sent(p)
         super().split(self.plan.cross, self.plan.terms)
@@ -361,12 +361,54 @@ class _Blocks:
         order = np.argsort(snap["id"], kind="stable")
         return {k: v[order] for k, v in snap.items()}
 
+    def run_info(self, end=False):
+        """The base mode's part of run.json, with the decomposition's (collective: every rank calls
+        it; the gathered values are rank 0's, None elsewhere). At the start: newton, balance (with
+        update_grid), the MPI library, the ghosts' fields and bytes, each rank's wire model and place
+        (host, CPUs, block, neighbours, those on another node), the nodes, the particles of each
+        block [px][py][pz] and the grid's box and inner cuts [m]. At the end: grid updates and cuts."""
+        import os
+        from modes.halo import WIDTH, ghost_fields, moving_fields
+        info = super().run_info(end)
+        cuts = [c.tolist() for c in self.grid.inner_cuts()]
+        if end:
+            info.update(grid_updates=self.grid_updates, block_cuts_final=cuts)
+            return info
+        cart, root = self.cart, self.cart.Get_rank() == 0
+        info.update(newton=self.newton, balance=self.balance if self.update_grid else None)
+        info["mpi_library"] = self.mpi.Get_library_version().strip().splitlines()[0]
+        fields = ghost_fields(self.all_spheres, self.state.has_poly)
+        info["ghost_fields"] = list(fields)
+        info["ghost_bytes_per_particle"] = 8 * sum(WIDTH[f] for f in fields)  # the paper: 624 per ellipsoid
+        info["forward_bytes_per_ghost"] = 8 * sum(WIDTH[f] for f in moving_fields(self.all_spheres))
+        wires = cart.gather(self.wire.as_dict() if self.wire is not None else None, root=0)
+        info["wire"] = {str(r): w for r, w in enumerate(wires)} if root else None
+        places = cart.gather({"host": socket.gethostname(), "cpus": sorted(os.sched_getaffinity(0)),
+                              "block": [int(c) for c in self.coords], "neighbours": self.halo.neighbour_ranks(),
+                              "neighbours_internode": sorted(self.remote)}, root=0)
+        info["placement"] = {str(r): p for r, p in enumerate(places)} if root else None
+        info["nodes"] = sorted({p["host"] for p in places}) if root else None
+        info["block_particles"] = self.block_counts.tolist()  # [px][py][pz], at the start
+        info["block_box"] = [self.grid.lo.tolist(), self.grid.hi.tolist()]
+        info["block_cuts"] = cuts
+        return info
+
 
 @register("mpi")
 class MpiMode(_Blocks, SerialMode):
     """P processes, one thread each."""
 
+    @classmethod
+    def accepts(cls, mapping):
+        """More than one process, one thread each (P-px-py-pz-1)."""
+        return mapping.procs > 1 and mapping.threads == 1
+
 
 @register("hybrid")
 class HybridMode(_Blocks, ThreadsMode):
     """P processes x T threads (any scheme) each."""
+
+    @classmethod
+    def accepts(cls, mapping):
+        """More than one process, more than one thread each (P-px-py-pz-T)."""
+        return mapping.procs > 1 and mapping.threads > 1

@@ -217,7 +217,7 @@ class NewtonPlan:
     where there is none). traffic (modes.wire.Traffic, of the wire model and the neighbour ranks
     on another node, `links`): what one step sends."""
 
-    def __init__(self, cart, ranks, layout, links=(None, frozenset())):
+    def __init__(self, cart, ranks, layout, links=(None, frozenset()), entries=None):
         self.cart = cart
         self.ranks = ranks
         self.sent_idx, self.sent, self.received_idx, self.received = layout
@@ -236,7 +236,10 @@ class NewtonPlan:
         self.recv_buf = np.zeros((self.m_recv, TERMS))
         self.requests = []
         self.traffic = Traffic(*links)
-        self.entries = {}
+        # the pack and unpack kernels' entry points (modes.base call_entry), shared by the plans of a
+        # run when the caller passes its dict: a plan's first exchange checks its arrays' types
+        self.entries = {} if entries is None else entries
+        self.checked = False
         # per neighbour that exists, in direction order: (direction, rank, pairs sent, received,
         # their first rows); the loops visit only these, a direction without a neighbour has none
         self.slots = []
@@ -295,10 +298,12 @@ class NewtonPlan:
     def exchange(self, n_owned, startall, waitall):
         """Pack the sent pairs' terms (for the neighbours and for the in-order pass), start the
         messages, wait for the neighbours' and put them in the in-order pass's terms."""
-        call_entry(self.entries, pack_sent, (self.list, self.pos_sent, n_owned, self.send_buf, self.terms))
+        check = not self.checked
+        call_entry(self.entries, pack_sent, (self.list, self.pos_sent, n_owned, self.send_buf, self.terms), check)
         startall(self.requests)
         waitall(self.requests)
-        call_entry(self.entries, unpack_received, (self.recv_buf, self.pos_recv, self.terms))
+        call_entry(self.entries, unpack_received, (self.recv_buf, self.pos_recv, self.terms), check)
+        self.checked = True
 
     def send_history(self, hist, account):
         """The sent pairs' history rows of hist [m, HIST_LEN] (at their resolution's end) into the

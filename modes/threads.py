@@ -285,3 +285,15 @@ class ThreadsMode(SerialMode):
             self.window_n += 1
             self.rebalance()
         return row
+
+    @classmethod
+    def accepts(cls, mapping):
+        """One process, more than one thread (1-1-1-1-T)."""
+        return mapping.procs == 1 and mapping.threads > 1
+
+    def run_info(self, end=False):
+        """SerialMode's, with the re-cuts of the dynamic scheme's ranges at the end (thread_recuts)."""
+        info = super().run_info(end)
+        if end:
+            info["thread_recuts"] = self.recuts
+        return info

@@ -14,6 +14,8 @@ import socket
 import sys
 import time
 
+import numpy as np
+
 from bench.run.binding import establish, recheck
 from bench.run.checkpoint import load_checkpoint, write_checkpoint
 from bench.run.figure import plot_run
@@ -21,7 +23,7 @@ from bench.run.guard import StabilityGuard
 from bench.run.launch import launch_mpi
 from bench.run.lifeline import Interrupted, die_with_parent, raise_on_signals, signal_name
 from bench.run.load import LoadMeter, step_spread
-from bench.run.options import mode_options
+from bench.run.options import run_scheme, setup_mode
 from bench.run.prepare import prepare
 from bench.run.progress import Progress, build_log
 from bench.run.records import (RecordError, Reserve, StepWriter, environment, merge_step_files, prepare_output,
@@ -33,8 +35,7 @@ from dem.contact import DEFAULT_CONTACT_METHOD
 from dem.scene import SceneError, load_scene
 from dem.timestep import TimeStep, choose_time_step
 from modes.base import ModeError, mode_for, parse_mapping
-from modes.halo import WIDTH, ghost_fields, moving_fields
-from modes.parallel import DEFAULT_SCHEME, SCHEMES
+from modes.parallel import SCHEMES
 
 
 def _threading_info():
@@ -51,10 +52,10 @@ def run(args):
     die_with_parent()  # started by a launcher: end with it
     raise_on_signals()  # SIGTERM, SIGHUP: stop like Ctrl-C, records kept
     mapping = parse_mapping(args.mapping)
-    mode_cls = mode_for(mapping)
+    mode_for(mapping)  # a mapping no registered mode accepts is refused before anything is built
     if args.scheme is not None and mapping.threads == 1:
         raise ModeError(f"--scheme {args.scheme} needs a mapping with more than one thread")
-    scheme = args.scheme or (DEFAULT_SCHEME if mapping.threads > 1 else None)
+    scheme = run_scheme(mapping, args)
     if scheme is not None:
         if scheme not in SCHEMES:
             raise ModeError(f"unknown scheme {scheme!r} (schemes: {', '.join(SCHEMES)})")
@@ -86,7 +87,7 @@ def run(args):
         return launch_mpi(args, mapping, scene, out, ts)
     # bound (--pin) and recorded before the mode allocates (first touch) and before any timing
     args.affinity = establish(mapping.threads, args.pin)
-    mode = mode_cls().setup(scene, dt=ts.dt, **mode_options(mapping, args, scheme))
+    mode = setup_mode(mapping, args, scene, ts.dt)
     return execute(args, scene, mapping, scheme, mode, out, ts)
 
 
@@ -125,172 +126,86 @@ def load_restart(args):
     return scene, TimeStep.from_dict(meta["time_step"])
 
 
+class RunSpan:
+    """Where the timed steps of one process's run lie in the simulation: from a checkpoint's step and
+    time (--restart) or from 0, this run's warm-up steps (untimed; they advance the state) and timed
+    steps."""
+
+    def __init__(self, args, scene, dt):
+        self.resume = scene.extras.get("restart")  # a checkpoint's meta (bench.run.checkpoint), or None
+        resume = self.resume
+        self.step0 = int(resume["step"]) if resume else 0            # the records' step number reached so far
+        self.time0 = float(resume["time"]) if resume else 0.0        # simulated time [s] so far
+        self.warm0 = int(resume.get("warmup_total", 0)) if resume else 0  # the runs before's warm-up steps
+        if args.steps is not None:
+            self.steps = args.steps
+        else:
+            self.steps = max(0, int(resume["steps_target"]) - self.step0) if resume else scene.steps
+        self.warm = getattr(args, "warmup", 0) or 0
+        self.dt = dt
+
+    def time(self, k):
+        """The simulated time [s] after timed step k of this run (k = 0: after its warm-up)."""
+        return self.time0 + (self.warm + k) * self.dt
+
+
 def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
     """The timed run loop of one process, or of every rank (comm given): warm-up, steps, records.
 
     Rank 0 writes run.json, state.npz and (merged) steps.csv; each rank writes its own rows.
     Decisions that end the loop are taken collectively so that no rank waits for a dead one.
     beat: the rank's bench.run.heartbeat.Heartbeat (its step is set as the loop goes)."""
-    dt = ts.dt
     rank = comm.Get_rank() if comm is not None else 0
-    resume = scene.extras.get("restart")  # a checkpoint's meta (bench.run.checkpoint), or None
-    step0 = int(resume["step"]) if resume else 0            # the records' step number reached so far
-    time0 = float(resume["time"]) if resume else 0.0        # simulated time [s] so far
-    warm0 = int(resume.get("warmup_total", 0)) if resume else 0
-    if args.steps is not None:
-        steps = args.steps
-    else:
-        steps = max(0, int(resume["steps_target"]) - step0) if resume else scene.steps
-    every = getattr(args, "checkpoint_every", 0) or 0
+    span = RunSpan(args, scene, ts.dt)
     t_compile = time.perf_counter()
     mode.warmup()
     t_ready = time.perf_counter()
     t_compile = t_ready - t_compile
     # the guard watches the warm-up steps too (untimed, unrecorded: the state advances), so that the
     # first step it checks resolves the starting positions (an overlap there was in the scene)
-    guard = StabilityGuard(mode, dt, ts.critical, scene.gravity, comm=comm,
-                           overlap=getattr(args, "guard_overlap", 0.05), resume=resume["guard"] if resume else None)
-    ke0 = guard.ke0
+    guard = StabilityGuard(mode, ts.dt, ts.critical, scene.gravity, comm=comm,
+                           overlap=getattr(args, "guard_overlap", 0.05),
+                           resume=span.resume["guard"] if span.resume else None)
     reason = None
-    warm = getattr(args, "warmup", 0) or 0
-    for w in range(1, warm + 1):
+    for w in range(1, span.warm + 1):
         reason = guard.check(f"{w} of the warm-up", mode.step())
         if reason:
             break
     t_warm_steps = time.perf_counter() - t_ready
-    clock0 = scene.extras.get("clock0")
-    try:
-        import numba
-        layer = numba.threading_layer()
-    except ValueError:  # no parallel region has run (serial mode)
-        layer = None
-
-    def total(x):
-        return comm.allreduce(x) if comm is not None else x
-
-    n_total = total(mode.state.n_owned)
-    info = {"command": "bench " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("bench") else None,
-            "argv": sys.argv, "scene": scene.name, "scene_source": scene.source,
-            "particles": n_total, "steps": steps, "mapping": str(mapping), "mode": mapping.kind,
-            "procs": mapping.procs, "px": mapping.px, "py": mapping.py, "pz": mapping.pz,
-            "threads": mapping.threads, "scheme": scheme,
-            "threading": _threading_info(), "affinity": getattr(args, "affinity", None),
-            "mpi_transport": transport_info(),
-            **recorded(args, mapping, "run.json"),  # threaded, pin, neighbor, preset, contact_method, halo, ...
-            "preset_overrides": getattr(args, "preset_overrides", None) or None,
-            "skin": mode.skin_fraction, "skin_m": mode.skin, "skin_requested": args.skin,
-            "newton": mode.newton if mapping.procs > 1 else None,
-            "balance": args.balance if mapping.procs > 1 and args.update_grid else None,
-            "dt": dt, "dt_auto": ts.auto,
-            "dt_critical": ts.critical, "dt_details": ts.details, "walls": scene.walls,
-            "gravity": scene.gravity.tolist(),
-            "materials": [m.__dict__ for m in scene.materials.materials],
-            "environment": environment(), "warmup_s": t_compile, "warmup_steps": getattr(args, "warmup", 0),
-            "threading_layer": layer,
-            "build": scene.extras.get("built"), "stable": None, "max_overlap_ratio": 0.0, "status": "running",
-            "pid": os.getpid(), "host": socket.gethostname(),
-            "restart": ({"from": resume["path"], "step": step0, "time": time0, "written_by": resume.get("mapping")}
-                        if resume else None),
-            "checkpoint_every": every or None, "step_first": step0 + 1, "step_last": step0 + steps,
-            "snapshot_format": (getattr(args, "snapshot_format", None) or "vtu") if args.snapshot_every else None,
-            "time_start": time0 + warm * dt}
-    if comm is not None:
-        from mpi4py import MPI  # here, not at the top: importing it starts MPI
-        info["mpi_library"] = MPI.Get_library_version().strip().splitlines()[0]
-        fields = ghost_fields(mode.all_spheres, mode.state.has_poly)
-        info["ghost_fields"] = list(fields)
-        info["ghost_bytes_per_particle"] = 8 * sum(WIDTH[f] for f in fields)  # the paper: 624 per ellipsoid
-        info["forward_bytes_per_ghost"] = 8 * sum(WIDTH[f] for f in moving_fields(mode.all_spheres))
-        wires = comm.gather(mode.wire.as_dict() if mode.wire is not None else None, root=0)
-        info["wire"] = {str(r): w for r, w in enumerate(wires)} if rank == 0 else None
-        # where each rank ran: its host, CPU set and block, and which neighbours sat on another node
-        places = comm.gather({"host": socket.gethostname(), "cpus": sorted(os.sched_getaffinity(0)),
-                              "block": [int(c) for c in mode.coords], "neighbours": mode.halo.neighbour_ranks(),
-                              "neighbours_internode": sorted(mode.remote)}, root=0)
-        info["placement"] = {str(r): p for r, p in enumerate(places)} if rank == 0 else None
-        info["nodes"] = sorted({p["host"] for p in places}) if rank == 0 else None
-        info["block_particles"] = mode.block_counts.tolist()  # [px][py][pz], at the start
-        info["block_box"] = [mode.grid.lo.tolist(), mode.grid.hi.tolist()]
-        info["block_cuts"] = block_cuts(mode.grid)
-        if rank == 0:
-            for w in empty_block_warnings(mode.block_counts, args.update_grid):
-                print(f"bench: warning: {w}", file=sys.stderr, flush=True)
+    info = run_record(args, scene, mapping, scheme, mode, ts, span, t_compile, comm)
+    if rank == 0 and "block_particles" in info:  # the mode's blocks (MPI)
+        for w in empty_block_warnings(np.asarray(info["block_particles"]), args.update_grid):
+            print(f"bench: warning: {w}", file=sys.stderr, flush=True)
     reserve = Reserve(out) if rank == 0 else None
     run_json = os.path.join(out, "run.json")
     if rank == 0:
         write_json(run_json, info)
-    step_file = os.path.join(out, "steps.csv" if comm is None else f"steps.rank{rank}.csv")
-    writer = StepWriter(step_file)
+    writer = StepWriter(os.path.join(out, "steps.csv" if comm is None else f"steps.rank{rank}.csv"))
     snap_dir = os.path.join(out, "snapshots")
-    snapshot_format = getattr(args, "snapshot_format", None) or "vtu"
     if args.snapshot_every and rank == 0:
         os.makedirs(snap_dir, exist_ok=True)
-    ckpt_path = os.path.join(out, "checkpoint.npz")
-    ckpt = {"written": 0, "seconds": 0.0, "bytes": 0, "step": None}
-
-    def checkpoint(k):
-        """Write DIR/checkpoint.npz after timed step k (collective under MPI); its time is outside the
-        step timers (it is recorded in run.json)."""
-        t = time.perf_counter()
-        meta = {"step": step0 + k, "time": time0 + (warm + k) * dt, "warmup_total": warm0 + warm,
-                "steps_target": step0 + steps, "time_step": ts.as_dict(), "guard": guard.sums(),
-                **recorded(args, mapping, "checkpoint"), "mapping": str(mapping), "scheme": scheme}
-        ckpt["bytes"] = write_checkpoint(ckpt_path, mode, scene, meta, comm=comm)
-        ckpt["seconds"] += time.perf_counter() - t
-        ckpt["written"] += 1
-        ckpt["step"] = step0 + k
-    series = {"step": [], "totalT": [], "n_contacts": [], "ke": []}
+    checkpoints = Checkpoints(os.path.join(out, "checkpoint.npz"), args, scene, mapping, scheme, mode, ts, guard,
+                              span, comm)
     meter = LoadMeter().start()
     t_wall = time.perf_counter()
     # setup: from the start of the run (this process) to its first step: scene load or checkpoint, build
     # (or its cache), time step, mode set-up, JIT warm-up (the --warmup steps apart: warmup_steps_s)
+    clock0 = scene.extras.get("clock0")
     setup = {"load_s": scene.extras.get("load_s"), "setup_s": (t_ready - clock0) if clock0 is not None else None,
              "warmup_steps_s": t_warm_steps}
-    stable = reason is None
-    k = 0
     # between the timed steps: a bar on a terminal, a line every 10 s elsewhere (rank 0, not --quiet)
-    progress = Progress(steps, f"{scene.name} {mapping}", enabled=rank == 0 and not args.quiet)
+    progress = Progress(span.steps, f"{scene.name} {mapping}", enabled=rank == 0 and not args.quiet)
+    loop = StepLoop(args, mode, guard, span, writer, progress, checkpoints, snap_dir, rank, comm, beat)
     try:
-        for k in (range(1, steps + 1) if stable else ()):
-            row = mode.step()
-            progress.update(k)
-            writer.write(step0 + k, rank, row)
-            if beat is not None:
-                beat.step = step0 + k
-            reason = guard.check(step0 + k, row)  # collective: every rank stops at the same step
-            if args.plot:
-                series["step"].append(step0 + k)
-                series["totalT"].append(row["totalT"])
-                series["n_contacts"].append(total(row["n_contacts"]))
-                series["ke"].append(getattr(guard, "ke_last", 0.0))
-            if reason:
-                stable = False
-                break
-            if args.snapshot_every and (step0 + k) % args.snapshot_every == 0:
-                write_snapshot(mode, snap_dir, step0 + k, time0 + (warm + k) * dt, rank, snapshot_format)
-            if every and ((step0 + k) % every == 0 or k == steps):
-                checkpoint(k)
+        if reason is None:
+            reason = loop.run()
         writer.close()
     except (KeyboardInterrupt, Interrupted, RecordError) as e:
         # one process (a rank's own SIGTERM ends it at once: its supervisor keeps the records)
         progress.close()
-        try:
-            writer.close()
-        except RecordError:
-            pass
-        if reserve is not None:
-            reserve.release()  # room for run.json on a full disk
-        if isinstance(e, RecordError):
-            info.update(status="failed", reason=f"{e} at step {k}")
-        else:
-            info.update(status="interrupted", reason=f"interrupted by {signal_name(e)} at step {k}; the records "
-                                                     f"up to step {writer.last_step} are kept")
-        info.update(steps_done=writer.last_step, wall_s=time.perf_counter() - t_wall)
-        try:
-            write_json(run_json, info)
-        except RecordError:
-            pass
+        record_stop(e, loop.k, info, run_json, writer, reserve, t_wall)
         raise
+    stable = reason is None
     wall = time.perf_counter() - t_wall
     progress.close()
     meter.stop()
@@ -300,7 +215,6 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
     snap = mode.snapshot()
     worst = mode.max_overlap_ratio if comm is None else comm.allreduce(mode.max_overlap_ratio, op=_max_op())
     energy = guard.balance()
-    ke1 = energy["kinetic_final"]
     host = socket.gethostname()
     own = meter.own
     if comm is not None:  # the CPU of every rank on rank 0's host is the run's own
@@ -325,22 +239,13 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
         raise
     rows = read_step_rows(os.path.join(out, "steps.csv"))
     spread = step_spread(rows.groupby("step")["totalT"].max().to_numpy() if len(rows) else [])
-    info.update({"stable": stable, "stability_reason": reason, "status": "done" if stable else "unstable",
-                 "load": dict(meter.foreign(own), wall_s=meter.wall), "step_time": spread,
-                 "max_overlap_ratio": worst, "wall_s": wall,
-                 "neighbor_rebuilds": mode.pairs.rebuilds,
-                 "grid_updates": getattr(mode, "grid_updates", None),
-                 "thread_recuts": getattr(mode, "recuts", None),
-                 "block_cuts_final": block_cuts(mode.grid) if hasattr(mode, "grid") else None,
-                 "kinetic_energy_initial": ke0, "kinetic_energy_final": ke1, "energy_balance": energy,
-                 "guard": {"overlap_limit": guard.overlap, "energy_factor": guard.energy_factor},
-                 **setup, "simulated_time": steps * dt, "time_end": time0 + (warm + (k if steps else 0)) * dt,
-                 "checkpoint": ({"path": ckpt_path, "written": ckpt["written"], "last_step": ckpt["step"],
-                                 "bytes": ckpt["bytes"], "seconds": ckpt["seconds"]} if every else None)})
+    info.update(outcome_record(mode, guard, span, loop.k, reason, energy, worst, wall, meter, own, spread, setup,
+                               checkpoints))
     reserve.release()
     write_json(run_json, info)
+    n_total, dt, steps = info["particles"], ts.dt, span.steps
     if args.plot:
-        plot_run(series, os.path.join(out, "run.png"), title=f"{scene.name}, {n_total} particles, {mapping}")
+        plot_run(loop.series, os.path.join(out, "run.png"), title=f"{scene.name}, {n_total} particles, {mapping}")
     if not args.quiet:
         print(f"{scene.name}: {n_total} particles, {steps} steps of {dt:.3g} s, mapping {mapping}: "
               f"{wall:.2f} s ({1e6 * wall / max(steps, 1) / max(n_total, 1):.3f} us/particle-step), "
@@ -351,9 +256,167 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
     return 0
 
 
-def block_cuts(grid):
-    """The inner cut planes [m] of a block grid along x, y, z (lists; uniform grids too)."""
-    return [c.tolist() for c in grid.inner_cuts()]
+def _take(part, *keys):
+    """The items of `keys` taken out of the dict part (None for a key it lacks), in that order."""
+    return {key: part.pop(key, None) for key in keys}
+
+
+def run_record(args, scene, mapping, scheme, mode, ts, span, t_compile, comm=None):
+    """run.json as it is written before the first timed step (collective under MPI: the particles'
+    total and the mode's part, mode.run_info(), whose set-up keys sit with the run's options and
+    the rest, the decomposition's, at the end). t_compile: the JIT warm-up's seconds."""
+    try:
+        import numba
+        layer = numba.threading_layer()
+    except ValueError:  # no parallel region has run (serial mode)
+        layer = None
+    n_total = comm.allreduce(mode.state.n_owned) if comm is not None else mode.state.n_owned
+    part = mode.run_info()  # the mode's part of run.json (collective under MPI)
+    resume, step0, steps, dt = span.resume, span.step0, span.steps, ts.dt
+    every = getattr(args, "checkpoint_every", 0) or 0
+    info = {"command": "bench " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("bench") else None,
+            "argv": sys.argv, "scene": scene.name, "scene_source": scene.source,
+            "particles": n_total, "steps": steps, "mapping": str(mapping), "mode": mapping.kind,
+            "procs": mapping.procs, "px": mapping.px, "py": mapping.py, "pz": mapping.pz,
+            "threads": mapping.threads, "scheme": scheme,
+            "threading": _threading_info(), "affinity": getattr(args, "affinity", None),
+            "mpi_transport": transport_info(),
+            **recorded(args, mapping, "run.json"),  # threaded, pin, neighbor, preset, contact_method, halo, ...
+            "preset_overrides": getattr(args, "preset_overrides", None) or None,
+            **_take(part, "skin", "skin_m"), "skin_requested": args.skin, **_take(part, "newton", "balance"),
+            "dt": dt, "dt_auto": ts.auto,
+            "dt_critical": ts.critical, "dt_details": ts.details, "walls": scene.walls,
+            "gravity": scene.gravity.tolist(),
+            "materials": [m.__dict__ for m in scene.materials.materials],
+            "environment": environment(), "warmup_s": t_compile, "warmup_steps": getattr(args, "warmup", 0),
+            "threading_layer": layer,
+            "build": scene.extras.get("built"), "stable": None, "max_overlap_ratio": 0.0, "status": "running",
+            "pid": os.getpid(), "host": socket.gethostname(),
+            "restart": ({"from": resume["path"], "step": step0, "time": span.time0,
+                         "written_by": resume.get("mapping")} if resume else None),
+            "checkpoint_every": every or None, "step_first": step0 + 1, "step_last": step0 + steps,
+            "snapshot_format": (getattr(args, "snapshot_format", None) or "vtu") if args.snapshot_every else None,
+            "time_start": span.time(0)}
+    info.update(part)  # the mode's own keys (MPI: library, ghosts, wire, placement, blocks)
+    return info
+
+
+def outcome_record(mode, guard, span, k, reason, energy, worst, wall, meter, own, spread, setup, checkpoints):
+    """What run.json adds at the end of a run that was not interrupted (rank 0): the outcome (k: the
+    last timed step taken, reason: why the run stopped unstable, or None), the load, the step times'
+    spread, the mode's part (mode.run_info(end=True)), the energy balance, the set-up times and the
+    checkpoints."""
+    stable = reason is None
+    return {"stable": stable, "stability_reason": reason, "status": "done" if stable else "unstable",
+            "load": dict(meter.foreign(own), wall_s=meter.wall), "step_time": spread,
+            "max_overlap_ratio": worst, "wall_s": wall,
+            **mode.run_info(end=True),  # neighbor_rebuilds, grid_updates, thread_recuts, block_cuts_final
+            "kinetic_energy_initial": guard.ke0, "kinetic_energy_final": energy["kinetic_final"],
+            "energy_balance": energy,
+            "guard": {"overlap_limit": guard.overlap, "energy_factor": guard.energy_factor},
+            **setup, "simulated_time": span.steps * span.dt, "time_end": span.time(k if span.steps else 0),
+            "checkpoint": checkpoints.record()}
+
+
+def record_stop(e, k, info, run_json, writer, reserve, t_wall):
+    """run.json of a run stopped at timed step k by a signal or a record it could not write (e): the
+    rows written so far are kept, and run.json says why (room made for it by the reserve)."""
+    try:
+        writer.close()
+    except RecordError:
+        pass
+    if reserve is not None:
+        reserve.release()  # room for run.json on a full disk
+    if isinstance(e, RecordError):
+        info.update(status="failed", reason=f"{e} at step {k}")
+    else:
+        info.update(status="interrupted", reason=f"interrupted by {signal_name(e)} at step {k}; the records "
+                                                 f"up to step {writer.last_step} are kept")
+    info.update(steps_done=writer.last_step, wall_s=time.perf_counter() - t_wall)
+    try:
+        write_json(run_json, info)
+    except RecordError:
+        pass
+
+
+class Checkpoints:
+    """--checkpoint-every K: DIR/checkpoint.npz after every K-th step of the records and after the
+    run's last (collective under MPI); its time is outside the step timers (run.json `checkpoint`)."""
+
+    def __init__(self, path, args, scene, mapping, scheme, mode, ts, guard, span, comm=None):
+        self.path = path
+        self.every = getattr(args, "checkpoint_every", 0) or 0
+        self.args, self.scene, self.mapping, self.scheme = args, scene, mapping, scheme
+        self.mode, self.ts, self.guard, self.span, self.comm = mode, ts, guard, span, comm
+        self.written = 0
+        self.seconds = 0.0
+        self.bytes = 0
+        self.step = None   # the records' step of the last one written
+
+    def due(self, k):
+        """Whether a checkpoint follows timed step k of this run."""
+        return self.every and ((self.span.step0 + k) % self.every == 0 or k == self.span.steps)
+
+    def write(self, k):
+        """Write the checkpoint after timed step k (collective under MPI)."""
+        span = self.span
+        t = time.perf_counter()
+        meta = {"step": span.step0 + k, "time": span.time(k), "warmup_total": span.warm0 + span.warm,
+                "steps_target": span.step0 + span.steps, "time_step": self.ts.as_dict(), "guard": self.guard.sums(),
+                **recorded(self.args, self.mapping, "checkpoint"), "mapping": str(self.mapping),
+                "scheme": self.scheme}
+        self.bytes = write_checkpoint(self.path, self.mode, self.scene, meta, comm=self.comm)
+        self.seconds += time.perf_counter() - t
+        self.written += 1
+        self.step = span.step0 + k
+
+    def record(self):
+        """run.json `checkpoint` (None without --checkpoint-every)."""
+        if not self.every:
+            return None
+        return {"path": self.path, "written": self.written, "last_step": self.step, "bytes": self.bytes,
+                "seconds": self.seconds}
+
+
+class StepLoop:
+    """The timed steps of a run: each step's row to the step file, the guard's check (collective:
+    every rank stops at the same step), the --plot series, snapshots and checkpoints."""
+
+    def __init__(self, args, mode, guard, span, writer, progress, checkpoints, snap_dir, rank=0, comm=None,
+                 beat=None):
+        self.args, self.mode, self.guard, self.span = args, mode, guard, span
+        self.writer, self.progress, self.checkpoints = writer, progress, checkpoints
+        self.snap_dir = snap_dir
+        self.snapshot_format = getattr(args, "snapshot_format", None) or "vtu"
+        self.rank, self.comm, self.beat = rank, comm, beat
+        self.k = 0   # the timed step being taken (or the last one taken)
+        self.series = {"step": [], "totalT": [], "n_contacts": [], "ke": []}   # --plot
+
+    def run(self):
+        """Take the timed steps; returns None, or the guard's reason for the step that ended them."""
+        args, mode, guard, span, rank, comm = self.args, self.mode, self.guard, self.span, self.rank, self.comm
+        step0, series = span.step0, self.series
+        for k in range(1, span.steps + 1):
+            self.k = k
+            row = mode.step()
+            self.progress.update(k)
+            self.writer.write(step0 + k, rank, row)
+            if self.beat is not None:
+                self.beat.step = step0 + k
+            reason = guard.check(step0 + k, row)  # collective: every rank stops at the same step
+            if args.plot:
+                series["step"].append(step0 + k)
+                series["totalT"].append(row["totalT"])
+                series["n_contacts"].append(comm.allreduce(row["n_contacts"]) if comm is not None
+                                            else row["n_contacts"])
+                series["ke"].append(getattr(guard, "ke_last", 0.0))
+            if reason:
+                return reason
+            if args.snapshot_every and (step0 + k) % args.snapshot_every == 0:
+                write_snapshot(mode, self.snap_dir, step0 + k, span.time(k), rank, self.snapshot_format)
+            if self.checkpoints.due(k):
+                self.checkpoints.write(k)
+        return None
 
 
 def empty_block_warnings(counts, update_grid):

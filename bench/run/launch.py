@@ -37,7 +37,7 @@ import sys
 
 from bench.run.binding import NODE_CPUS_ENV, plan_binding, read_topology
 from bench.run.lifeline import Interrupted, child_env, inherited_lock
-from bench.run.options import mode_options, too_few_ranks
+from bench.run.options import setup_mode, too_few_ranks
 from bench.run.spec import rank_argv
 from bench.run.threads_env import check_size, usable_cpus
 from bench.run.transport import transport_env
@@ -46,8 +46,6 @@ from modes.decomposition import BlockGrid, DecompositionError, border_width, fit
 from modes.halo import compile_kernels
 from modes.newton import compile_kernels as compile_newton_kernels
 from modes.parallel import DEFAULT_SCHEME, SPLIT_SCHEMES
-from modes.serial import SerialMode
-from modes.threads import ThreadsMode
 
 
 def mpiexec_path():
@@ -59,11 +57,10 @@ def warm_cache(scene, mapping, args, dt):
     """Compile (and cache on disk) every kernel the ranks will run. The mode's warm-up steps a twin
     of the state (a compact piece of a large one), never the state itself (tests/modes/test_warmup.py),
     so the scene is not copied (a 1M-particle scene: 2 GB). The twin runs in one process with the
-    mapping's threads and the run's mode options (bench.run.options mode_options)."""
+    mapping's threads and the run's mode options (bench.run.options setup_mode)."""
     twin = copy.copy(scene)
     alone = parse_mapping(f"1-1-1-1-{mapping.threads}")
-    mode = ThreadsMode if mapping.threads > 1 else SerialMode
-    mode().setup(twin, dt=dt, **mode_options(alone, args, args.scheme or DEFAULT_SCHEME)).warmup()
+    setup_mode(alone, args, twin, dt).warmup()
     compile_kernels()
     compile_newton_kernels()
 

@@ -1,5 +1,6 @@
 """The values of the options of a run (`bench run` and each MPI rank of it; declared in
-bench.run.spec): their checks, the presets, and the mode options they give.
+bench.run.spec): their checks, the presets, the mode options they give and the mode's one set-up
+(setup_mode).
 
 Every bad value ends as one line through the parser's error (bench.cli); the mode refuses an
 option it lacks (modes.base.ModeError).
@@ -163,3 +164,22 @@ def mode_options(mapping, args, scheme):
         opts.update(halo=args.halo, update_grid=args.update_grid, balance=args.balance,
                     newton={"on": True, "off": False}.get(getattr(args, "newton", "auto")))
     return opts
+
+
+def run_scheme(mapping, args):
+    """The threads' scheme of a run: --scheme, else modes.parallel's default for a mapping with more
+    than one thread (None for one thread)."""
+    from modes.parallel import DEFAULT_SCHEME  # here, not at the top: importing modes starts numba
+    return args.scheme or (DEFAULT_SCHEME if mapping.threads > 1 else None)
+
+
+def setup_mode(mapping, args, scene, dt, comm=None):
+    """The one set-up of a run's mode (bench run's process, each MPI rank, the launcher's cache
+    warm-up): the registered mode that accepts `mapping` (modes.base mode_for), set up on the scene
+    with time step dt [s] and the run's options (mode_options; comm: the rank's Cartesian
+    communicator, for P > 1). Returns the mode (modes.base.Mode)."""
+    from modes.base import mode_for  # here, not at the top: importing modes starts numba
+    opts = mode_options(mapping, args, run_scheme(mapping, args))
+    if comm is not None:
+        opts["cart"] = comm
+    return mode_for(mapping)().setup(scene, dt=dt, **opts)

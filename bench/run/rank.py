@@ -20,14 +20,13 @@ from bench.run.checkpoint import load_checkpoint
 from bench.run.driver import execute
 from bench.run.heartbeat import Heartbeat, ranks_dir
 from bench.run.lifeline import PR_SET_PDEATHSIG, _prctl
-from bench.run.options import apply_preset, mode_options
+from bench.run.options import apply_preset, run_scheme, setup_mode
 from bench.run.prepare import load_prepared
 from bench.run.records import RecordError
 from bench.run.spec import add_run_arguments
 from dem.contact import DEFAULT_CONTACT_METHOD
 from dem.timestep import TimeStep, choose_time_step
-from modes.base import mode_for, parse_mapping
-from modes.parallel import DEFAULT_SCHEME
+from modes.base import parse_mapping
 
 
 def _first_to_say(out):
@@ -71,8 +70,8 @@ def main(argv):
         ts = TimeStep.from_dict(json.loads(args.time_step)) if args.time_step else choose_time_step(scene, args.dt)
     scene.extras["clock0"] = clock0
     scene.extras["load_s"] = time.perf_counter() - clock0
-    scheme = args.scheme or (DEFAULT_SCHEME if mapping.threads > 1 else None)
-    mode = mode_for(mapping)().setup(scene, dt=ts.dt, cart=cart, **mode_options(mapping, args, scheme))
+    scheme = run_scheme(mapping, args)
+    mode = setup_mode(mapping, args, scene, ts.dt, comm=cart)
     beat.phase = "running"
     try:
         execute(args, scene, mapping, scheme, mode, args.out, ts, comm=cart, beat=beat)
