@@ -33,6 +33,7 @@ import numpy as np
 
 from bench.run.lifeline import Interrupted, exit_status, raise_on_signals, signal_name
 from bench.run.records import prepare_output, process_alive, read_json_file, write_json
+from bench.run.threads_env import usable_cpus
 from bench.sweep.ceiling import Ceiling, CeilingError
 from bench.sweep.figures import plot_sweep
 from bench.sweep.granularity import plot_granularity
@@ -43,6 +44,7 @@ from bench.sweep.precision import MIN_ROUNDS, mark, next_round, unresolved, wide
 from bench.sweep.ranking import point_label, rank, ranking_lines
 from bench.sweep.records import (RUN_COLUMNS, RunsFileError, amdahl, flag_reference, manifest, merge_manifest,
                                  read_runs_rows, reference_key, summarise, with_speedup, write_runs)
+from bench.sweep.warm import warm_start
 from modes.base import ModeError, parse_mapping
 from modes.parallel import DEFAULT_SCHEME
 
@@ -173,6 +175,8 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
     n_runs = sum(len(v) for v in todo.values())
     print(f"sweep: {len(points)} points x {repeats} repeats ({sum(repeats - len(v) for v in todo.values())} "
           f"repeats already done) of {args.scene} into {out}", flush=True)
+    if n_runs:  # build and compile at once, before any point (bench.sweep.warm)
+        warm_start(out, [p for p in points if todo[p.key]], usable_cpus(), env, lock_fd)
     start = time.perf_counter()
     failed = {}
     ran = 0

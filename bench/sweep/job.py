@@ -150,10 +150,15 @@ def run_point(rep, timeout, cmd):
     return 0 if status["status"] == "done" else 1
 
 
-def prepare(directory):
-    """The prepare job (see the module docstring); returns the exit status."""
+def prepare(directory, part=None, folder="prepare"):
+    """The prepare job (see the module docstring); returns the exit status. part: None, all of it;
+    "build": the scenes and the kernels of the points with one thread; T (an int > 1): the kernels
+    of the points with T threads alone, on the scenes as generated, before their build stage (the
+    same arrays and types, so the same compiled kernels; no wait for the build): the parts of a
+    local sweep's warm start (bench.sweep.warm), which run at once. folder: DIR/<folder>/ takes
+    the records (prepare.json, status.json)."""
     import types
-    pdir = os.path.join(directory, "prepare")
+    pdir = os.path.join(directory, folder)
     os.makedirs(pdir, exist_ok=True)
     base = dict(node_info(), started=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
     status_path = os.path.join(pdir, "status.json")
@@ -169,36 +174,42 @@ def prepare(directory):
         from modes.parallel import DEFAULT_SCHEME
         with open(os.path.join(directory, "manifest.json")) as fh:
             points = json.load(fh)["points"]
+        if part is not None:
+            want = 1 if part == "build" else int(part)
+            points = [p for p in points if parse_mapping(p["mapping"]).threads == want]
+            record["part"] = part
         scenes = {}
         for p in points:
             skey = (p["scene"], p["particles"] or None, p["shape"] or None)
             if skey not in scenes:
                 t = time.perf_counter()
-                scene = build(load_scene(p["scene"], particles=skey[1], shape=skey[2]))
+                scene = load_scene(p["scene"], particles=skey[1], shape=skey[2])
+                if part is None or part == "build":
+                    scene = build(scene)
+                    built = scene.extras.get("built") or {}
+                    record["builds"].append({"scene": p["scene"], "particles": scene.n, "shape": skey[2],
+                                             "from_cache": bool(built.get("from_cache")),
+                                             "seconds": time.perf_counter() - t})
+                    print(f"prepare: scene {p['scene']} ({scene.n} particles) "
+                          f"{'loaded from the cache' if built.get('from_cache') else 'built'} "
+                          f"in {time.perf_counter() - t:.1f} s", flush=True)
                 dt = choose_time_step(scene, None).dt
-                built = scene.extras.get("built") or {}
-                record["builds"].append({"scene": p["scene"], "particles": scene.n, "shape": skey[2],
-                                         "from_cache": bool(built.get("from_cache")),
-                                         "seconds": time.perf_counter() - t})
-                print(f"prepare: scene {p['scene']} ({scene.n} particles) "
-                      f"{'loaded from the cache' if built.get('from_cache') else 'built'} "
-                      f"in {time.perf_counter() - t:.1f} s", flush=True)
                 scenes[skey] = (scene, dt, set())
             scene, dt, done = scenes[skey]
             m = parse_mapping(p["mapping"])
-            if m.procs > 1:
+            if m.procs > 1 and (part is None or part == "build"):
                 try:
                     BlockGrid(scene.box, (m.px, m.py, m.pz)).check_width(border_width(float(scene.state.rbound.max())))
                 except DecompositionError as e:
                     record["width_problems"].append({"point": p["key"], "reason": str(e)})
                     print(f"prepare: point {p['mapping']}: {e}", flush=True)
             scheme = (p["scheme"] or DEFAULT_SCHEME) if m.threads > 1 else ""
-            ckey = (m.threads, scheme, p["neighbor"], p["contact_method"])
+            ckey = (m.threads, scheme, p["neighbor"], p["contact_method"], p.get("skin"))
             if ckey in done:
                 continue
             done.add(ckey)
             args = types.SimpleNamespace(neighbor=p["neighbor"], scheme=scheme or None, threaded="step",
-                                         contact_method=p["contact_method"])
+                                         contact_method=p["contact_method"], skin=p.get("skin"))
             t = time.perf_counter()
             warm_cache(scene, parse_mapping(f"1-1-1-1-{m.threads}"), args, dt)  # on a copy of the scene
             took = time.perf_counter() - t
@@ -221,6 +232,10 @@ def prepare(directory):
 def main(argv):
     if len(argv) == 2 and argv[0] == "prepare":
         return prepare(argv[1])
+    if len(argv) == 4 and argv[0] == "warm":  # a part of a local sweep's warm start (bench.sweep.warm)
+        from bench.run.lifeline import die_with_parent
+        die_with_parent()
+        return prepare(argv[1], part=argv[2], folder=argv[3])
     if len(argv) >= 5 and argv[0] == "point" and argv[2] == "--timeout" and "--" in argv:
         cut = argv.index("--")
         return run_point(argv[1], int(argv[3]), argv[cut + 1:])

@@ -29,6 +29,14 @@ def test_sweep_records_metrics_figures(tmp_path):
     res, out = sweep(tmp_path, "--mappings", "1-1-1-1-2,2-2-1-1-1", "--schemes", "frogleap")
     assert res.returncode == 0, res.stderr + res.stdout
     assert "point 3/3" in res.stdout and "estimate" in res.stdout
+    # the warm start (bench.sweep.warm): the scene built with the one-thread kernels, and the
+    # 2-thread frogleap kernels compiled at the same time, before the first point
+    assert "scene and kernels ready in" in res.stdout.split("point 1/3")[0]
+    build = json.loads((out / "warm" / "build" / "prepare.json").read_text())
+    assert [b["scene"] for b in build["builds"]] == ["pluviation"]
+    threads = json.loads((out / "warm" / "2" / "prepare.json").read_text())
+    assert [(c["threads"], c["scheme"]) for c in threads["compiled"]] == [(2, "frogleap")]
+    assert json.loads((out / "warm" / "2" / "status.json").read_text())["status"] == "done"
     runs = pd.read_csv(out / "runs.csv")
     assert runs["mapping"].tolist() == ["1-1-1-1-1", "1-1-1-1-2", "2-2-1-1-1"]
     for col in ("mapping", "procs", "px", "py", "pz", "threads", "scheme", "neighbor", "scene", "particles",
@@ -57,6 +65,18 @@ def test_sweep_records_metrics_figures(tmp_path):
     import bench as api
     r, s = api.load(str(out))
     assert len(r) == 3 and set(s["point"]) == set(r["point"]) and len(s) == 15 * (1 + 1 + 2)
+
+
+def test_warm_start_parts(tmp_path):
+    """The warm start's parts: the build (with the one-thread kernels), then each thread count above
+    one once, ascending; nothing to overlap (only one-thread points, or one core) runs nothing."""
+    from types import SimpleNamespace
+    from bench.sweep.warm import parts_of, warm_start
+    pts = [SimpleNamespace(mapping=m) for m in ("1-1-1-1-1", "2-2-1-1-4", "1-1-1-1-2", "4-2-2-1-1", "1-1-1-1-4")]
+    assert parts_of(pts) == ("build", 2, 4)
+    assert parts_of(pts[:1] + pts[3:4]) == ()
+    assert warm_start(str(tmp_path), pts, 1, dict(os.environ)) == {}
+    assert warm_start(str(tmp_path), pts[:1], 2, dict(os.environ)) == {} and not (tmp_path / "warm").exists()
 
 
 def test_resume_after_killed_sweep(tmp_path):
