@@ -20,6 +20,7 @@ import sys
 import time
 
 from bench.run.lifeline import Interrupted, child_env
+from bench.run.records import read_json_file, write_json
 
 WARM_FOLDER = "warm"
 
@@ -65,13 +66,15 @@ def warm_start(out, points, cores, env, lock_fd=None):
                     del running[part]
             time.sleep(0.2)
     except (KeyboardInterrupt, Interrupted):
-        for proc, fh in running.values():
+        for part, (proc, fh) in running.items():
             try:
                 os.killpg(proc.pid, signal.SIGKILL)  # compiling only: nothing to keep
             except OSError:
                 pass
             proc.wait()
             fh.close()
+            path = os.path.join(out, WARM_FOLDER, str(part), "status.json")
+            write_json(path, dict(read_json_file(path) or {}, status="interrupted", reason="the sweep was interrupted"))
         raise
     failed = [str(p) for p, rc in status.items() if rc != 0]
     print(f"sweep: scene and kernels ready in {time.perf_counter() - t0:.0f} s"

@@ -79,6 +79,43 @@ def test_warm_start_parts(tmp_path):
     assert warm_start(str(tmp_path), pts[:1], 2, dict(os.environ)) == {} and not (tmp_path / "warm").exists()
 
 
+def _processes(text):
+    """The pids whose command line contains text (/proc)."""
+    found = []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as fh:
+                cmd = fh.read().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if text in cmd:
+            found.append(int(pid))
+    return found
+
+
+def test_interrupted_warm_start_leaves_nothing_running(tmp_path):
+    """SIGTERM while the warm start compiles (numba's cache empty: NUMBA_CACHE_DIR of the test, so
+    compiling lasts tens of seconds): the sweep ends with one line, no part outlives it, and each
+    part's status says interrupted."""
+    out = tmp_path / "int"
+    env = dict(os.environ, PYTHONPATH=ROOT, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    proc = subprocess.Popen([sys.executable, "-m", "bench", "sweep", *SMALL, "--mappings", "1-1-1-1-2", "--out",
+                             str(out)], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    for line in proc.stdout:
+        if "compiling the kernels" in line:
+            break
+    time.sleep(1.0)
+    assert len(_processes(f"bench.sweep.job warm {out}")) == 2  # the build and the 2-thread part, compiling
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode != 0 and err.strip().splitlines() == [
+        "bench: error: interrupted by SIGTERM; the records written so far are kept"]
+    time.sleep(0.5)
+    assert _processes(f"bench.sweep.job warm {out}") == []  # none left
+    for part in ("build", "2"):
+        assert json.loads((out / "warm" / part / "status.json").read_text())["status"] == "interrupted"
+
+
 def test_resume_after_killed_sweep(tmp_path):
     """Kill a sweep after its first point; runs.csv stays consistent; --resume runs only the rest
     and the result has every point exactly once."""
