@@ -88,15 +88,22 @@ class SerialMode:
 
     def warmup(self):
         """Compile every kernel by stepping a twin three times: a first build, a step between
-        rebuilds and a rebuild that carries history over (nothing of it is kept; under MPI every
-        rank does it together)."""
+        rebuilds (with what a mode does only now and then between rebuilds: warm_between) and a
+        rebuild that carries history over (nothing of it is kept; under MPI every rank does it
+        together)."""
         twin = copy.copy(self)
         twin.state = self._twin_state()
         twin._fresh()
         for rebuild in (True, False, True):
             twin.rebuild_next = rebuild
+            if not rebuild:
+                twin.warm_between()
             twin.step()
         twin.release()
+
+    def warm_between(self):
+        """Before the warm-up's step between rebuilds: make that step run the rare paths of such a
+        step (here none)."""
 
     def _twin_state(self):
         """The warm-up twin's state: a deep copy, or for more than WARMUP_PARTICLES owned particles
