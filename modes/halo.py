@@ -53,10 +53,12 @@ first brought.
 
 Message sizes are fixed between rebuilds, so a forward round sends no counts; a rebuild's
 exchange (migration, ghost choice) sends one message per neighbour, a header of row counts and
-the rows, which the receiver sizes by a matched probe (Halo.exchange). The ghosts' records are
-packed by one numba call and written in place after the owned rows of capacity arrays the halo
-keeps (Halo._append); the owned rows are copied only when a migration replaced the arrays or
-they are full.
+the rows, which the receiver sizes by a matched probe (Halo.exchange). The direct exchange's
+ghost choice is two numba calls: one selects the border particles and packs their records
+straight into each neighbour's message (pack_border_messages), the other writes the received
+ones in place after the owned rows of capacity arrays the halo keeps (write_border_messages,
+Halo._grow); the owned rows are copied only when a migration replaced the arrays or they are
+full.
 """
 import functools
 import operator
