@@ -474,8 +474,8 @@ class Halo:
         exchange with a round of counts first, 19-20 us without."""
         na = len(widths)
         nbrs = self.neighbours if dirs is None else [(k, self.ranks[k]) for k in dirs if self.ranks[k] is not None]
-        reqs = []
-        for k, r in nbrs:
+        messages = []
+        for k, _ in nbrs:
             parts = outgoing[k] or ()
             rows = [len(a) for a in parts] + [0] * (na - len(parts))
             buf = np.empty(na + sum(n * w for n, w in zip(rows, widths)))
@@ -485,15 +485,11 @@ class Halo:
                 size = rows[a] * widths[a]
                 buf[c:c + size] = part.reshape(size)
                 c += size
-            reqs.append(self.cart.Isend(buf, dest=r, tag=EXCHANGE_TAG + k))
-            self.account(r, buf.nbytes)
+            messages.append(buf)
+        recv, offs = self._swap(nbrs, messages)
         incoming = [None] * len(DIRECTIONS)
-        status = self.status
-        for k, r in nbrs:
-            # what neighbour k sent towards me travelled in the opposite direction
-            msg = self.cart.Mprobe(source=r, tag=EXCHANGE_TAG + int(OPPOSITE[k]), status=status)
-            buf = np.empty(status.Get_count(self.double))
-            msg.Recv(buf)
+        for i, (k, _) in enumerate(nbrs):
+            buf = recv[offs[i]:offs[i + 1]]
             got = []
             c = na
             for a in range(na):
@@ -501,8 +497,28 @@ class Halo:
                 got.append(buf[c:c + n * widths[a]].reshape(n, widths[a]))
                 c += n * widths[a]
             incoming[k] = tuple(got)
-        self.waitall(reqs)
         return incoming
+
+    def _swap(self, nbrs, messages):
+        """Send messages[i] (float64 [*]) to neighbour nbrs[i] = (direction k, rank) and receive
+        what each sent towards this block, sized by a matched probe (Mprobe): returns (recv, offs),
+        neighbour i's message recv[offs[i]:offs[i + 1]], in nbrs' order."""
+        cart, status, double = self.cart, self.status, self.double
+        reqs = []
+        for (k, r), msg in zip(nbrs, messages):
+            reqs.append(cart.Isend(msg, dest=r, tag=EXCHANGE_TAG + k))
+            self.account(r, msg.nbytes)
+        probed = []
+        offs = np.zeros(len(nbrs) + 1, dtype=np.int64)
+        for i, (k, r) in enumerate(nbrs):
+            # what neighbour k sent towards me travelled in the opposite direction
+            probed.append(cart.Mprobe(source=r, tag=EXCHANGE_TAG + int(OPPOSITE[k]), status=status))
+            offs[i + 1] = offs[i] + status.Get_count(double)
+        recv = np.empty(int(offs[-1]))
+        for i, msg in enumerate(probed):
+            msg.Recv(recv[offs[i]:offs[i + 1]])
+        self.waitall(reqs)
+        return recv, offs
 
     # --- ghosts -----------------------------------------------------------------------------
     def _round_dirs(self):
@@ -579,22 +595,7 @@ class Halo:
             n, self.lo, self.hi, float(width), NEEDS, self.faces, nbr_dirs, rec, ncol, state.gid.view(np.float64),
             state.shape, state.material, state.mass, state.axes, state.inertia, state.pos, state.vel, state.angmom,
             state.quat, state.poly))
-        cart, status, double = self.cart, self.status, self.double
-        reqs = []
-        for i, (k, r) in enumerate(self.neighbours):
-            msg = send[offs[i]:offs[i + 1]]
-            reqs.append(cart.Isend(msg, dest=r, tag=EXCHANGE_TAG + k))
-            self.account(r, msg.nbytes)
-        probed = []
-        roffs = np.zeros(len(nbr_dirs) + 1, dtype=np.int64)
-        for i, (k, r) in enumerate(self.neighbours):
-            # what neighbour k sent towards me travelled in the opposite direction
-            probed.append(cart.Mprobe(source=r, tag=EXCHANGE_TAG + int(OPPOSITE[k]), status=status))
-            roffs[i + 1] = roffs[i] + status.Get_count(double)
-        recv = np.empty(int(roffs[-1]))
-        for i, msg in enumerate(probed):
-            msg.Recv(recv[roffs[i]:roffs[i + 1]])
-        self.waitall(reqs)
+        recv, roffs = self._swap(self.neighbours, [send[offs[i]:offs[i + 1]] for i in range(len(nbr_dirs))])
         m = (len(recv) - len(nbr_dirs)) // ncol
         self.ghost_dirs = np.empty(m, dtype=np.int64)
         recv_counts = np.zeros(len(nbr_dirs), dtype=np.int64)
@@ -603,8 +604,8 @@ class Halo:
             call_entry(self.entries, write_border_messages, (n, recv, recv.view(np.int64), roffs, nbr_dirs, ncol, rec,
                                                              self.ghost_dirs, recv_counts, *view))
             self._finish_append(state, view, rec)
-        self.rounds.append(_Round(cart, self.neighbour_list, self.ranks, send_idx, send_counts, recv_counts, n, mwidth,
-                                  (self.wire, self.remote), self.entries))
+        self.rounds.append(_Round(self.cart, self.neighbour_list, self.ranks, send_idx, send_counts, recv_counts, n,
+                                  mwidth, (self.wire, self.remote), self.entries))
         return m
 
     def _start(self, rd, state):

@@ -24,6 +24,7 @@ Timers use MPI.Wtime. Halo and migration live in halo.py, the reverse exchange o
 law in newton.py, the geometry of blocks in decomposition.py, the ping-pong wire model in wire.py;
 this module only orchestrates.
 """
+import os
 import socket
 from collections import deque
 
@@ -34,7 +35,7 @@ from dem.state import HIST_LEN
 from modes.base import ModeError, register
 from modes.decomposition import (BlockGrid, DecompositionError, balanced_grid, blended_grid, block_counts,
                                  border_width, extent_grid, fit_skin, load_profiles)
-from modes.halo import Halo, drop_ghosts
+from modes.halo import Halo, drop_ghosts, ghost_fields, ghost_record
 from modes.newton import NewtonPlan, cross_layout, ghost_owner_directions
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
@@ -367,8 +368,6 @@ class _Blocks:
         update_grid), the MPI library, the ghosts' fields and bytes, each rank's wire model and place
         (host, CPUs, block, neighbours, those on another node), the nodes, the particles of each
         block [px][py][pz] and the grid's box and inner cuts [m]. At the end: grid updates and cuts."""
-        import os
-        from modes.halo import WIDTH, ghost_fields, moving_fields
         info = super().run_info(end)
         cuts = [c.tolist() for c in self.grid.inner_cuts()]
         if end:
@@ -377,10 +376,10 @@ class _Blocks:
         cart, root = self.cart, self.cart.Get_rank() == 0
         info.update(newton=self.newton, balance=self.balance if self.update_grid else None)
         info["mpi_library"] = self.mpi.Get_library_version().strip().splitlines()[0]
-        fields = ghost_fields(self.all_spheres, self.state.has_poly)
-        info["ghost_fields"] = list(fields)
-        info["ghost_bytes_per_particle"] = 8 * sum(WIDTH[f] for f in fields)  # the paper: 624 per ellipsoid
-        info["forward_bytes_per_ghost"] = 8 * sum(WIDTH[f] for f in moving_fields(self.all_spheres))
+        info["ghost_fields"] = list(ghost_fields(self.all_spheres, self.state.has_poly))
+        record, moving = Halo.record_widths(ghost_record(self.all_spheres, self.state.has_poly))
+        info["ghost_bytes_per_particle"] = 8 * record  # the paper: 624 per ellipsoid
+        info["forward_bytes_per_ghost"] = 8 * moving
         wires = cart.gather(self.wire.as_dict() if self.wire is not None else None, root=0)
         info["wire"] = {str(r): w for r, w in enumerate(wires)} if root else None
         places = cart.gather({"host": socket.gethostname(), "cpus": sorted(os.sched_getaffinity(0)),

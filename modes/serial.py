@@ -22,7 +22,7 @@ from dem.integrate import derive_all
 from dem.neighbor import cell_order, find_pairs
 from dem.pairs import DEFAULT_SKIN, PairList
 from dem.shapes import POLY, SPHERE
-from modes.base import ModeError, compiled_entry, fingerprint, register
+from modes.base import ModeError, call_entry, register
 
 
 # the warm-up twin's largest size (SerialMode._twin_state)
@@ -75,7 +75,8 @@ class SerialMode:
     def _fresh(self):
         """Per-run buffers: pair list, derived arrays, scratch; the next step rebuilds."""
         self.pairs = PairList(max(1024, 8 * self.state.n))
-        self.entries = {}
+        self.entries = {}  # kernel_call's compiled entry points, by call name (modes.base call_entry)
+        self.seen = {}     # the (key, epoch) of each call name's last call: a new one checks the arrays' types
         self.epoch = 0  # rebuilds so far: the kernels' arguments may take other types after one (kernel_call)
         self.rebuild_next = True
         self.rot = None
@@ -233,22 +234,17 @@ class SerialMode:
         return self.skin <= 0 or max_disp2 >= (0.5 * self.skin) ** 2
 
     def kernel_call(self, name, kernel, args, key=None):
-        """kernel(*args) through its compiled entry point (compiled_entry). Between rebuilds a step
-        passes the same arrays, so their types cannot change. The first call after a rebuild (the
-        arrays replaced) checks that the arguments' type fingerprint is the one the entry was found
-        for, and goes through the dispatcher (which compiles where needed) only where it is not, or
-        key changed (the dispatcher and a new lookup cost ~3.5 us a kernel at every rebuild)."""
-        hit = self.entries.get(name)
-        if hit is not None and hit[0] == key:
-            if hit[3] == self.epoch:
-                return hit[2](*args)
-            fp = fingerprint(args)
-            if fp is not None and fp == hit[1]:
-                self.entries[name] = (key, fp, hit[2], self.epoch)
-                return hit[2](*args)
-        result = kernel(*args)  # through the dispatcher: compiles where needed
-        self.entries[name] = (key, fingerprint(args), compiled_entry(kernel, args), self.epoch)
-        return result
+        """kernel(*args) through its compiled entry point (modes.base call_entry, one per call name).
+        Between rebuilds a step passes the same arrays, so their types cannot change. The first call
+        after a rebuild (the arrays replaced) or with a new key checks that the arguments' type
+        fingerprint is the one the entry was found for, and goes through the dispatcher (which
+        compiles where needed) only where it is not (the dispatcher and a new lookup cost ~3.5 us a
+        kernel at every rebuild)."""
+        seen = (key, self.epoch)
+        check = self.seen.get(name) != seen
+        if check:
+            self.seen[name] = seen
+        return call_entry(self.entries.setdefault(name, {}), kernel, args, check)
 
     def resolve(self):
         """Contact resolution of the pair list (as split fixed it); returns dem.forces.RESOLVED."""
