@@ -168,17 +168,30 @@ def contact_force(depth, nx, ny, nz, ux, uy, uz, iu2, r_e, kratio, r1x, r1y, r1z
 
 
 @njit(cache=True, inline="always")
-def _store_history(hist, k, f, nx, ny, nz, lam):
-    """Write the new history of pair k from contact_force's tuple f: spring, contact radius, and the
-    warm start of the next resolution (PW lambda, normal)."""
+def _store_spring(hist, k, f):
+    """Write the spring and contact radius of contact_force's tuple f to hist[k] (a pair's list row,
+    or a particle's row of one wall)."""
     hist[k, H_FT] = f[9]
     hist[k, H_FT + 1] = f[10]
     hist[k, H_FT + 2] = f[11]
     hist[k, H_A] = f[12]
-    hist[k, H_LAM] = lam
-    hist[k, H_N] = nx
-    hist[k, H_N + 1] = ny
-    hist[k, H_N + 2] = nz
+
+
+@njit(cache=True, inline="always")
+def contact_law(geo, r1x, r1y, r1z, r2x, r2y, r2z, vrx, vry, vrz, mstar, estar, gstar, zeta, mu, hist, k, has_hist,
+                dt):
+    """The one contact law of pairs and walls: contact_force on the resolved geometry geo (a contact
+    record: depth [m], unit normal from body 1 to body 2 [3], the normal unnormalised u [3] and iu2 =
+    1/|u|^2 (contact_force), contact point [3] [m], R_e [m], kappa ratio, PW lambda), lever arms
+    r1, r2 [m], relative velocity vr [m/s], reduced mass mstar [kg] and the material's E*, G* [Pa],
+    zeta, mu; the stored spring and contact radius are read from hist[k] (valid when has_hist) and
+    the new ones written back. Returns contact_force's tuple."""
+    depth, nx, ny, nz, ux, uy, uz, iu2, _, _, _, r_e, kratio, _ = geo
+    f = contact_force(depth, nx, ny, nz, ux, uy, uz, iu2, r_e, kratio, r1x, r1y, r1z, r2x, r2y, r2z, vrx, vry, vrz,
+                      mstar, estar, gstar, zeta, mu, hist[k, H_FT], hist[k, H_FT + 1], hist[k, H_FT + 2], hist[k, H_A],
+                      has_hist, dt)
+    _store_spring(hist, k, f)
+    return f
 
 
 @njit(cache=True, inline="always")
@@ -260,15 +273,14 @@ def _take_terms(c, k, i, j, terms, on, sums):
 
 @njit(cache=True, inline="always")
 def pair_law(k, i, j, geo, bodies, law, plist, dt, sums):
-    """contact_force for particles i -> j of pair k, on the resolved geometry geo = (depth [m],
-    normal from i to j [3], the normal unnormalised u [3] and iu2 = 1/|u|^2 (contact_force),
-    contact point [3] [m], R_e [m], kappa ratio, PW lambda); the old history is read from and the
-    new one written to hist[k] (it is valid when on[k] == 1), the forces handed on by _deliver
-    (sums)."""
+    """contact_law for particles i -> j of pair k, on the resolved geometry geo (contact_law's
+    record); the old history is read from and the new one written to hist[k] (it is valid when
+    on[k] == 1), with the warm start of the pair's next resolution (PW lambda, normal); the forces
+    handed on by _deliver (sums)."""
     pos, vel, _, _, mass, _, _, _, _, material, _, _, _, omega = bodies
     estar, gstar, mu, zeta = law
     _, _, hist, on, _ = plist
-    depth, nx, ny, nz, ux, uy, uz, iu2, xcx, xcy, xcz, r_e, kratio, lam = geo
+    nx, ny, nz, xcx, xcy, xcz, lam = geo[1], geo[2], geo[3], geo[8], geo[9], geo[10], geo[13]
     r1x, r1y, r1z = xcx - pos[i, 0], xcy - pos[i, 1], xcz - pos[i, 2]
     r2x, r2y, r2z = xcx - pos[j, 0], xcy - pos[j, 1], xcz - pos[j, 2]
     vrx = (vel[j, 0] + (omega[j, 1] * r2z - omega[j, 2] * r2y)
@@ -281,11 +293,12 @@ def pair_law(k, i, j, geo, bodies, law, plist, dt, sums):
     mj = mass[j]
     a = material[i]
     b = material[j]
-    f = contact_force(depth, nx, ny, nz, ux, uy, uz, iu2, r_e, kratio, r1x, r1y, r1z, r2x, r2y, r2z,
-                      vrx, vry, vrz,
-                      mi * mj / (mi + mj), estar[a, b], gstar[a, b], zeta[a, b], mu[a, b],
-                      hist[k, H_FT], hist[k, H_FT + 1], hist[k, H_FT + 2], hist[k, H_A], on[k] == 1, dt)
-    _store_history(hist, k, f, nx, ny, nz, lam)
+    f = contact_law(geo, r1x, r1y, r1z, r2x, r2y, r2z, vrx, vry, vrz, mi * mj / (mi + mj), estar[a, b], gstar[a, b],
+                    zeta[a, b], mu[a, b], hist, k, on[k] == 1, dt)
+    hist[k, H_LAM] = lam
+    hist[k, H_N] = nx
+    hist[k, H_N + 1] = ny
+    hist[k, H_N + 2] = nz
     _deliver(k, i, j, f, sums)
 
 
@@ -347,12 +360,19 @@ def _solved_pair(hit, k, i, j, out, amin_i, amin_j, bodies, law, plist, dt, sums
     if hit == 0:
         on[k] = 0
         return -1.0
-    depth = out[OUT_DEPTH]
-    nx, ny, nz = out[OUT_NX], out[OUT_NY], out[OUT_NZ]
-    pair_law(k, i, j, (depth, nx, ny, nz, nx, ny, nz, 1.0, out[OUT_XCX], out[OUT_XCY], out[OUT_XCZ],
-                       out[OUT_RE], out[OUT_KRATIO], out[OUT_LAM]), bodies, law, plist, dt, sums)
+    geo = solved_geometry(out)
+    pair_law(k, i, j, geo, bodies, law, plist, dt, sums)
     on[k] = 1
-    return depth / min(amin_i, amin_j)
+    return geo[0] / min(amin_i, amin_j)
+
+
+@njit(cache=True, inline="always")
+def solved_geometry(out):
+    """contact_law's record of a contact a solver wrote to out [OUT_LEN] (the normal is a unit
+    vector: u = n, iu2 = 1)."""
+    nx, ny, nz = out[OUT_NX], out[OUT_NY], out[OUT_NZ]
+    return (out[OUT_DEPTH], nx, ny, nz, nx, ny, nz, 1.0, out[OUT_XCX], out[OUT_XCY], out[OUT_XCZ], out[OUT_RE],
+            out[OUT_KRATIO], out[OUT_LAM])
 
 
 @njit(cache=True, inline="always")
@@ -511,66 +531,66 @@ def resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, deliver, 
                                terms, out, n0)
 
 
+@njit(cache=True, inline="always")
+def wall_geometry(p, w, wall_m, wall_d, pos, rot, axes, shape, polys, out):
+    """The contact geometry of particle p with wall plane w (m.x = d, m the unit normal into the
+    domain) by p's shape: the one shape dispatch of a wall contact (as pair_geometry is a pair's).
+    Body 1 is the particle, body 2 the wall: the normal from particle into wall is -m. A sphere in
+    closed form; an ellipsoid by its support along -m; a poly-ellipsoid by that of its octant facing
+    the wall, on the octant geometry of polys. out [OUT_LEN] is scratch. Returns (hit, contact_law's
+    record, smallest semi-axis of p [m])."""
+    mx, my, mz = wall_m[w, 0], wall_m[w, 1], wall_m[w, 2]
+    if shape[p] == SPHERE:
+        hit, depth, xcx, xcy, xcz, r_e = sphere_wall_contact(pos[p, 0], pos[p, 1], pos[p, 2], axes[p, 0],
+                                                             mx, my, mz, wall_d[w])
+        return hit, (depth, -mx, -my, -mz, -mx, -my, -mz, 1.0, xcx, xcy, xcz, r_e, 1.0, 0.0), axes[p, 0]
+    amin = min(axes[p, 0], min(axes[p, 1], axes[p, 2]))
+    if shape[p] == POLY:
+        _, oorg, orot, ax6 = polys
+        hit = polyellipsoid_wall_contact(oorg[p], orot[p], ax6[p], wall_m[w], wall_d[w], out) == 1
+        for c in range(6):
+            amin = min(amin, ax6[p, c])
+    else:
+        hit = ellipsoid_wall_contact(pos[p], rot[p], axes[p], wall_m[w], wall_d[w], out) == 1
+    return hit, solved_geometry(out), amin
+
+
 @njit(cache=True, _nrt=False)
 def _wall_particle(p, walls, bodies, polys, dt, out, fx, fy, fz, tx, ty, tz):
     """Planar-wall contacts of particle p (walls in fixed order) added to its force (fx, fy, fz) and
-    torque (tx, ty, tz); updates its per-wall history. Called only for a particle within reach of a
-    wall, and not inlined: the wall solvers would crowd the per-particle loop. Wall planes: m.x = d
-    with m the unit normal into the domain; body 1 is the particle, body 2 the fixed wall, the
-    normal from particle into wall is -m. Poly-ellipsoids use their octant geometry. Returns
-    (force [3], torque [3], wall contacts, largest depth ratio = depth over the smallest semi-axis)."""
+    torque (tx, ty, tz): wall_geometry, then the pairs' contact_law with the wall as a fixed body 2
+    (no velocity, reduced mass the particle's), its spring and contact radius in the particle's
+    per-wall history. Called only for a particle within reach of a wall, and not inlined: the wall
+    solvers would crowd the per-particle loop. Returns (force [3], torque [3], wall contacts,
+    largest depth ratio = depth over the smallest semi-axis)."""
     wall_m, wall_d, estar_w, gstar_w, zeta_w, mu_w, wall_hist = walls
     pos, vel, _, _, mass, _, shape, axes, rbound, material, _, _, rot, omega = bodies
-    _, oorg, orot, ax6 = polys
+    hist = wall_hist[p]
     worst = 0.0
     touching = 0
     for w in range(wall_m.shape[0]):
-        mx, my, mz = wall_m[w, 0], wall_m[w, 1], wall_m[w, 2]
-        dist = mx * pos[p, 0] + my * pos[p, 1] + mz * pos[p, 2] - wall_d[w]
+        dist = wall_m[w, 0] * pos[p, 0] + wall_m[w, 1] * pos[p, 1] + wall_m[w, 2] * pos[p, 2] - wall_d[w]
         if dist >= rbound[p]:
-            wall_hist[p, w, H_A] = 0.0
+            hist[w, H_A] = 0.0
             continue
-        if shape[p] == SPHERE:
-            hit, depth, xcx, xcy, xcz, r_e = sphere_wall_contact(pos[p, 0], pos[p, 1], pos[p, 2], axes[p, 0],
-                                                                 mx, my, mz, wall_d[w])
-            kratio = 1.0
-        else:
-            if shape[p] == POLY:
-                hit = polyellipsoid_wall_contact(oorg[p], orot[p], ax6[p], wall_m[w], wall_d[w], out) == 1
-            else:
-                hit = ellipsoid_wall_contact(pos[p], rot[p], axes[p], wall_m[w], wall_d[w], out) == 1
-            depth = out[OUT_DEPTH]
-            xcx, xcy, xcz = out[OUT_XCX], out[OUT_XCY], out[OUT_XCZ]
-            r_e = out[OUT_RE]
-            kratio = out[OUT_KRATIO]
+        hit, geo, amin = wall_geometry(p, w, wall_m, wall_d, pos, rot, axes, shape, polys, out)
         if not hit:
-            wall_hist[p, w, H_A] = 0.0
+            hist[w, H_A] = 0.0
             continue
-        r1x, r1y, r1z = xcx - pos[p, 0], xcy - pos[p, 1], xcz - pos[p, 2]
+        r1x, r1y, r1z = geo[8] - pos[p, 0], geo[9] - pos[p, 1], geo[10] - pos[p, 2]
         vrx = -vel[p, 0] - (omega[p, 1] * r1z - omega[p, 2] * r1y)
         vry = -vel[p, 1] - (omega[p, 2] * r1x - omega[p, 0] * r1z)
         vrz = -vel[p, 2] - (omega[p, 0] * r1y - omega[p, 1] * r1x)
         a = material[p]
-        f = contact_force(depth, -mx, -my, -mz, -mx, -my, -mz, 1.0, r_e, kratio, r1x, r1y, r1z, 0.0, 0.0, 0.0,
-                          vrx, vry, vrz,
-                          mass[p], estar_w[a], gstar_w[a], zeta_w[a], mu_w[a],
-                          wall_hist[p, w, H_FT], wall_hist[p, w, H_FT + 1], wall_hist[p, w, H_FT + 2],
-                          wall_hist[p, w, H_A], wall_hist[p, w, H_A] > 0.0, dt)
+        f = contact_law(geo, r1x, r1y, r1z, 0.0, 0.0, 0.0, vrx, vry, vrz, mass[p], estar_w[a], gstar_w[a], zeta_w[a],
+                        mu_w[a], hist, w, hist[w, H_A] > 0.0, dt)
         fx -= f[0]
         fy -= f[1]
         fz -= f[2]
         tx += f[3]
         ty += f[4]
         tz += f[5]
-        wall_hist[p, w, H_FT] = f[9]
-        wall_hist[p, w, H_FT + 1] = f[10]
-        wall_hist[p, w, H_FT + 2] = f[11]
-        wall_hist[p, w, H_A] = f[12]
-        amin = min(axes[p, 0], min(axes[p, 1], axes[p, 2]))
-        if shape[p] == POLY:
-            for c in range(6):
-                amin = min(amin, ax6[p, c])
-        worst = max(worst, depth / amin)
+        worst = max(worst, geo[0] / amin)
         touching += 1
     return fx, fy, fz, tx, ty, tz, touching, worst
 

@@ -47,7 +47,8 @@ from numba import njit
 from dem.contact.ellipsoid import (
     OUT_NX, OUT_NY, OUT_NZ, OUT_LAM, OUT_PW_ITERS, OUT_NEWTON_ITERS,
     OUT_LEN, NEWTON_DEEP_MAXIT,
-    ellipsoid_contact, _basis, _curv, _hertz_radius, _newton_s2, _oct_axes, _write_out, _hq)
+    ellipsoid_contact, ellipsoid_wall_contact, _basis, _curv, _hertz_radius, _newton_s2, _oct_axes, _write_out,
+    _hq)
 
 __all__ = ["mass_properties_poly", "poly_support", "polyellipsoid_contact",
            "polyellipsoid_wall_contact", "new_out", "OUT_SWITCHES", "POLY_OUT_LEN",
@@ -341,29 +342,14 @@ def polyellipsoid_contact(o1, rot1, ax6_1, o2, rot2, ax6_2, n0, out):
 def polyellipsoid_wall_contact(o, rot, axes6, m, d, out):
     """Contact of a poly-ellipsoid with the wall m.x = d (unit m points into the particle region).
 
-    delta = h_P(-m) - (m.o - d) (reference §2.2, octant of R^T(-m)); on contact returns 1 and
-    fills out: n = -m, p1 = s_P(-m) deepest particle point, p2 = p1 + delta m on the plane,
-    R_e and kratio from the active octant ellipsoid's curvature at p1, lam = 0, iterations 0
-    (and switches 0 when out is long enough).  Returns 0 otherwise.
+    delta = h_P(-m) - (m.o - d) (reference §2.2): the ellipsoid's wall contact
+    (dem.contact.ellipsoid.ellipsoid_wall_contact) of the octant ellipsoid that faces the wall,
+    the octant of R^T(-m), about the octant origin o. On contact returns 1 and fills out as that
+    does (n = -m, p1 = s_P(-m), p2 on the plane, R_e and kratio from the octant ellipsoid's
+    curvature at p1, lam = 0, iterations 0), and switches 0 when out is long enough. Returns 0
+    otherwise.
     """
-    mx = m[0]
-    my = m[1]
-    mz = m[2]
-    ax = _oct_axes(rot, axes6, -mx, -my, -mz)
-    h, u0, u1, u2 = _hq(rot, ax, mx, my, mz)
-    depth = h - (mx * o[0] + my * o[1] + mz * o[2] - d)
-    if not (depth > 0.0):
-        return 0
-    t1x, t1y, t1z, t2x, t2y, t2z = _basis(mx, my, mz)
-    k = _curv(rot, ax, h, t1x, t1y, t1z, t2x, t2y, t2z)
-    re, kr = _hertz_radius(k[0], k[1], k[2])
-    p1x = o[0] - u0 / h
-    p1y = o[1] - u1 / h
-    p1z = o[2] - u2 / h
-    p2x = p1x + depth * mx
-    p2y = p1y + depth * my
-    p2z = p1z + depth * mz
-    _write_out(out, depth, -mx, -my, -mz, p1x, p1y, p1z, p2x, p2y, p2z, re, kr, 0.0, 0.0, 0.0)
-    if out.shape[0] > OUT_SWITCHES:
+    hit = ellipsoid_wall_contact(o, rot, _oct_axes(rot, axes6, -m[0], -m[1], -m[2]), m, d, out)
+    if hit and out.shape[0] > OUT_SWITCHES:
         out[OUT_SWITCHES] = 0.0
-    return 1
+    return hit
