@@ -28,7 +28,7 @@ from dem.forces import EXACT, pair_contacts
 from dem.integrate import derive_geometry_range, derive_range
 from dem.neighbor import PairBuffer, candidate_pairs
 from dem.shapes import POLY
-from dem.state import smallest_semi_axes
+from dem.shapes.registry import smallest_semi_axes
 
 # the stability guard's default overlap limit (bench run --guard-overlap)
 DEFAULT_OVERLAP_LIMIT = 0.05

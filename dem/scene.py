@@ -39,10 +39,12 @@ import numpy as np
 from dem.limits import LimitError, check_particle_count, check_size_ratio
 from dem.materials import Material, MaterialTable
 from dem.quaternion import quat_to_matrices, random_quaternions
-from dem.shapes import POLY, POLY_LEN, SHAPE_CODES, SPHERE
+from dem.shapes import POLY, POLY_LEN, SPHERE
 from dem.overlaps import DEFAULT_OVERLAP_LIMIT, worst_pair_overlap
 from dem.particle_files import ParticleBlock, ParticleFileError, read_particle_file
-from dem.state import State, octant_pose, poly_from_octant, smallest_semi_axes
+from dem.shapes.polyellipsoid import octant_pose
+from dem.shapes.registry import BY_NAME, present, smallest_semi_axes
+from dem.state import State
 
 WALL_FACES = {"x-": (0, +1), "x+": (0, -1), "y-": (1, +1), "y+": (1, -1), "z-": (2, +1), "z+": (2, -1)}
 BUILTIN_DIR = os.path.join(os.path.dirname(__file__), "scenes")
@@ -394,9 +396,9 @@ class _Labels:
 
 def _assemble(blocks, table, n_walls):
     """The State of the particle blocks, vectorised (no loop over particles but the poly-ellipsoids'
-    rigid-body set-up): mass m = (4/3) pi rho a b c [kg], principal
-    moments m/5 (b^2 + c^2, ...) [kg m^2] (dem.state.mass_properties, the same operations in the same
-    order), angular momentum L = R diag(I) R^T omega (world)."""
+    rigid-body set-up): each shape's rigid body (dem.shapes.shape.Shape.body: mass [kg], principal
+    moments [kg m^2], mass centre and principal frame), angular momentum L = R diag(I) R^T omega
+    (world)."""
     shape_arr = np.concatenate([b.shape for b in blocks]).astype(np.int8)
     n = len(shape_arr)
     axes6 = np.concatenate([b.axes for b in blocks])
@@ -406,15 +408,14 @@ def _assemble(blocks, table, n_walls):
     omega = np.concatenate([b.omega for b in blocks])
     mat = np.concatenate([b.material for b in blocks]).astype(np.int32)
     rho = np.array([m.density for m in table.materials])[mat]
-    axes = np.ascontiguousarray(axes6[:, :3])
-    a, b, c = axes[:, 0], axes[:, 1], axes[:, 2]
-    mass = 4.0 / 3.0 * math.pi * rho * a * b * c
-    inertia = np.stack([mass / 5 * (b * b + c * c), mass / 5 * (a * a + c * c), mass / 5 * (a * a + b * b)], axis=1)
-    polys = np.flatnonzero(shape_arr == POLY)
-    poly = np.zeros((n, POLY_LEN)) if len(polys) else None
-    for k in polys:
-        # internally the rigid body at its mass centre, in its principal frame
-        axes[k], mass[k], inertia[k], pos[k], quat[k], poly[k] = poly_from_octant(axes6[k], rho[k], pos[k], quat[k])
+    axes, mass, inertia, poly = np.zeros((n, 3)), np.zeros(n), np.zeros((n, 3)), None
+    for shape, rows in present(shape_arr):  # each shape's rigid body (Shape.body)
+        rows = np.arange(n) if rows is None else rows
+        body = shape.body(axes6[rows], rho[rows], pos[rows], quat[rows])
+        axes[rows], mass[rows], inertia[rows], pos[rows], quat[rows], rec = body
+        if rec is not None:
+            poly = np.zeros((n, POLY_LEN)) if poly is None else poly
+            poly[rows] = rec
     gid = np.arange(n, dtype=np.int64)
     state = State(gid, shape_arr, axes, mass, inertia, mat, pos, vel, quat, np.zeros((n, 3)), n_walls=n_walls,
                   poly=poly)
@@ -442,30 +443,19 @@ def _explicit_particle(p, k, table):
     if not isinstance(p, dict):
         raise SceneError(f"{what} must be a table")
     _check_keys(p, {"shape", "axes", "pos", "quat", "vel", "omega", "material"}, what)
-    shape = p.get("shape", "sphere")
-    if not isinstance(shape, str) or shape not in SHAPE_CODES:
-        raise SceneError(f"{what}: unknown shape {_show(shape)} ({', '.join(SHAPE_CODES)})")
-    code = SHAPE_CODES[shape]
+    name = p.get("shape", "sphere")
+    if not isinstance(name, str) or name not in BY_NAME:
+        raise SceneError(f"{what}: unknown shape {_show(name)} ({', '.join(BY_NAME)})")
+    shape = BY_NAME[name]
     if "axes" not in p or "pos" not in p:
         raise SceneError(f"{what} needs 'axes' and 'pos'")
     ax = p["axes"]
-    if code == SPHERE:
-        if not isinstance(ax, list) or len(ax) != 1:
-            raise SceneError(f"{what}: a sphere's axes must be [r], got {ax!r}")
-        r = _num(ax[0], f"{what}.axes[0]")
-        if r <= 0:
-            raise SceneError(f"{what}: axes must be positive, got {ax!r}")
-        axes = np.array([r, r, r])
-    elif code == POLY:
-        if not isinstance(ax, list) or len(ax) != 6:
-            raise SceneError(f"{what}: a polyellipsoid's axes must be [a+, a-, b+, b-, c+, c-], got {ax!r}")
-        axes = _vec(ax, 6, f"{what}.axes")
-        if np.any(axes <= 0):
-            raise SceneError(f"{what}: axes must be positive, got {ax!r}")
-    else:
-        axes = _vec(ax, 3, f"{what}.axes")
-        if np.any(axes <= 0):
-            raise SceneError(f"{what}: axes must be positive, got {ax!r}")
+    if not isinstance(ax, list) or len(ax) != len(shape.file_axes):
+        raise SceneError(f"{what}: the axes of a {name} must be [{', '.join(shape.file_axes)}], got {ax!r}")
+    values = _vec(ax, len(ax), f"{what}.axes")
+    if np.any(values <= 0):
+        raise SceneError(f"{what}: axes must be positive, got {ax!r}")
+    axes = shape.semi_axes(values)
     quat = _vec(p.get("quat", [1.0, 0.0, 0.0, 0.0]), 4, f"{what}.quat")
     qn = np.linalg.norm(quat)
     if qn == 0:
@@ -473,7 +463,7 @@ def _explicit_particle(p, k, table):
     mname = p.get("material", "default" if "default" in table.index else table.materials[0].name)
     if not isinstance(mname, str) or mname not in table.index:
         raise SceneError(f"{what}: unknown material {mname!r} (defined: {', '.join(table.index)})")
-    return {"shape": code, "axes": axes, "pos": _vec(p["pos"], 3, f"{what}.pos"), "quat": quat / qn,
+    return {"shape": shape.code, "axes": axes, "pos": _vec(p["pos"], 3, f"{what}.pos"), "quat": quat / qn,
             "vel": _vec(p.get("vel", [0.0, 0.0, 0.0]), 3, f"{what}.vel"),
             "omega": _vec(p.get("omega", [0.0, 0.0, 0.0]), 3, f"{what}.omega"), "material": table.index[mname]}
 
@@ -509,9 +499,9 @@ def _generate(g, table, box, particles, shape_override, seed_override, first_ind
     except LimitError as e:
         raise SceneError(str(e)) from None
     shape = shape_override or g.get("shape", "sphere")
-    if not isinstance(shape, str) or shape not in SHAPE_CODES:
-        raise SceneError(f"unknown shape {_show(shape)} ({', '.join(SHAPE_CODES)})")
-    code = SHAPE_CODES[shape]
+    if not isinstance(shape, str) or shape not in BY_NAME:
+        raise SceneError(f"unknown shape {_show(shape)} ({', '.join(BY_NAME)})")
+    code = BY_NAME[shape].code
     seed = seed_override if seed_override is not None else g.get("seed", 1)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise SceneError(f"{what}.seed must be a non-negative integer, got {_show(seed)}")

@@ -12,15 +12,12 @@ ranks) carry identical history and migration moves it with the particle. The CSR
 the adjacency that the force gather builds each step, so it costs nnz x 64 bytes and is
 rewritten, never searched for free slots.
 """
-import math
-
 import numpy as np
 from numba import njit
 
-from dem.contact.polyellipsoid import mass_properties_poly
 from dem.integrate import angular_velocity
-from dem.quaternion import quat_to_matrices
-from dem.shapes import P_AX, P_OFF, P_ROT, POLY, POLY_LEN, SPHERE
+from dem.shapes import POLY_LEN, SPHERE
+from dem.shapes.registry import bounding_radii, present
 
 # contact-history record (per pair, per particle): stored tangential spring [3], contact radius,
 # PW lambda and normal [3] (warm start of the ellipsoid solver)
@@ -51,94 +48,6 @@ def _csr_rows(start, rows):
             idx[o] = e
             o += 1
     return idx, counts
-
-
-def mass_properties(shape, axes, density):
-    """Mass [kg] and principal moments [kg m^2] [3] of a sphere (axes [r]) or ellipsoid (a, b, c).
-
-    Ellipsoid: m = (4/3) pi rho a b c, I = m/5 (b^2+c^2, a^2+c^2, a^2+b^2).
-    """
-    a, b, c = axes
-    m = 4.0 / 3.0 * math.pi * density * a * b * c
-    return m, np.array([m / 5 * (b * b + c * c), m / 5 * (a * a + c * c), m / 5 * (a * a + b * b)])
-
-
-def poly_body(axes6, density):
-    """Rigid-body data of a poly-ellipsoid (Peters et al. 2009; contact-mechanics.md §2.2).
-
-    Returns (mass [kg], principal moments [3] [kg m^2], record [POLY_LEN], V [3, 3]) where V's
-    columns are the principal axes in the octant frame (dem.contact.polyellipsoid.
-    mass_properties_poly), W = V^T and off = -V^T centroid. The principal frame is R = R_oct V.
-    """
-    m, cen, moments, v = mass_properties_poly(axes6, density)
-    rec = np.zeros(POLY_LEN)
-    rec[P_AX:P_AX + 6] = axes6
-    rec[P_OFF:P_OFF + 3] = -(v.T @ cen)
-    rec[P_ROT:P_ROT + 9] = v.T.reshape(9)
-    return m, moments, rec, v
-
-
-def poly_from_octant(axes6, density, origin, quat_oct):
-    """Internal state of a poly-ellipsoid given as DESIGN.md's octant origin [3] and octant-frame
-    quaternion [4]: (axes [3] = largest semi-axis per octant-frame axis, mass, principal moments [3],
-    mass centre [3], principal-frame quaternion [4], record [POLY_LEN])."""
-    a6 = np.asarray(axes6, dtype=np.float64)
-    m, moments, rec, v = poly_body(a6, density)
-    quat = quat_of_matrix(quat_to_matrices(quat_oct)[0] @ v)
-    r = quat_to_matrices(quat)[0]
-    pos = np.asarray(origin, dtype=np.float64) - r @ rec[P_OFF:P_OFF + 3]
-    axes3 = np.array([max(a6[0], a6[1]), max(a6[2], a6[3]), max(a6[4], a6[5])])
-    return axes3, m, moments, pos, quat, rec
-
-
-def bounding_radii(axes, shape, poly):
-    """Radius [n] of a sphere about each particle's centre (its mass centre) that holds it:
-    the largest semi-axis, for a poly-ellipsoid the largest of six plus |octant origin offset|."""
-    rb = axes.max(axis=1).copy()
-    if poly.shape[1]:
-        sel = shape == POLY
-        rb[sel] = poly[sel, P_AX:P_AX + 6].max(axis=1) + np.linalg.norm(poly[sel, P_OFF:P_OFF + 3], axis=1)
-    return rb
-
-
-def equivalent_radii(axes, shape, poly):
-    """Volume-equivalent radius [n] [m]: (a b c)^(1/3); a poly-ellipsoid's volume is that of the
-    ellipsoid with semi-axes (a+ + a-)/2, (b+ + b-)/2, (c+ + c-)/2 (contact-mechanics.md §2.2)."""
-    r = np.cbrt(np.prod(axes, axis=1))
-    if poly.shape[1]:
-        sel = shape == POLY
-        a6 = poly[sel, P_AX:P_AX + 6]
-        r[sel] = np.cbrt(np.prod(0.5 * (a6[:, 0::2] + a6[:, 1::2]), axis=1))
-    return r
-
-
-def smallest_semi_axes(axes, shape, poly):
-    """Smallest semi-axis [n] of each particle (of six for a poly-ellipsoid) [m]."""
-    amin = axes.min(axis=1).copy()
-    if poly.shape[1]:
-        sel = shape == POLY
-        amin[sel] = poly[sel, P_AX:P_AX + 6].min(axis=1)
-    return amin
-
-
-def quat_of_matrix(r):
-    """Unit quaternion (w, x, y, z), w >= 0, of rotation matrix r [3, 3] (Shepperd's method)."""
-    t = np.trace(r)
-    k = int(np.argmax([t, r[0, 0], r[1, 1], r[2, 2]]))
-    if k == 0:
-        s = 2.0 * np.sqrt(1.0 + t)
-        q = np.array([0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s])
-    elif k == 1:
-        s = 2.0 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-        q = np.array([(r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s])
-    elif k == 2:
-        s = 2.0 * np.sqrt(1.0 - r[0, 0] + r[1, 1] - r[2, 2])
-        q = np.array([(r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s])
-    else:
-        s = 2.0 * np.sqrt(1.0 - r[0, 0] - r[1, 1] + r[2, 2])
-        q = np.array([(r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s])
-    q /= np.linalg.norm(q)
-    return -q if q[0] < 0 else q
 
 
 class State:
@@ -240,18 +149,12 @@ class State:
                 "quat": self.quat[:k][order].copy(), "vel": self.vel[:k][order].copy(),
                 "omega": om[order].copy(), "axes": self.axes[:k][order].copy(),
                 "shape": self.shape[:k][order].copy()}
-        if self.has_poly:
+        if self.has_poly:  # each shape's snapshot pose and six semi-axes (Shape.snapshot_pose)
             poly = self.poly[:k][order]
-            snap["axes"] = np.repeat(snap["axes"], 2, axis=1)
-            for r in np.flatnonzero(snap["shape"] == POLY):
-                snap["axes"][r] = poly[r, P_AX:P_AX + 6]
-                snap["pos"][r], snap["quat"][r] = octant_pose(snap["pos"][r], snap["quat"][r], poly[r])
+            axes6 = np.empty((k, 6))
+            for shape, rows in present(snap["shape"]):
+                rows = np.arange(k) if rows is None else rows
+                snap["pos"][rows], snap["quat"][rows], axes6[rows] = shape.snapshot_pose(
+                    snap["pos"][rows], snap["quat"][rows], snap["axes"][rows], poly[rows])
+            snap["axes"] = axes6
         return snap
-
-
-def octant_pose(pos, quat, rec):
-    """Octant origin [3] and octant-frame quaternion [4] of a poly-ellipsoid at mass centre pos in
-    principal frame quat (record rec [POLY_LEN]): o = pos + R off, R_oct = R W."""
-    r = quat_to_matrices(quat)[0]
-    o = pos + r @ rec[P_OFF:P_OFF + 3]
-    return o, quat_of_matrix(r @ rec[P_ROT:P_ROT + 9].reshape(3, 3))

@@ -45,7 +45,7 @@ from dem.contact.hertz_factor import hertz_factor
 from dem.materials import hertz_contact_time, rayleigh_time
 from dem.scene import SceneError
 from dem.shapes import SPHERE
-from dem.state import smallest_semi_axes
+from dem.shapes.registry import smallest_semi_axes
 
 
 # dt = "auto" as a fraction of dt_critical (module docstring)

@@ -67,7 +67,8 @@ import numpy as np
 from numba import njit
 
 from dem.shapes import POLY_LEN, SPHERE
-from dem.state import HIST_LEN, bounding_radii, csr_rows
+from dem.shapes.registry import bounding_radii
+from dem.state import HIST_LEN, csr_rows
 from modes.base import call_entry
 from modes.decomposition import (DIRECTIONS, NEEDS, OPPOSITE, BlockGrid, border_lists, border_lists_kernel,
                                  direction_of, face_bits)
@@ -222,7 +223,7 @@ def write_ghost_rows(n, rows, gids, rec, gid, shape, axes, rbound, mass, inertia
     [m, record width] (pack_ghost_rows' records; gids [m] their gids, the first column's bits). A
     sphere's ghost takes its one semi-axis and moment thrice and the unit quaternion (never read);
     a ghost's rbound is its largest semi-axis (the caller adds a poly-ellipsoid's offset:
-    dem.state.bounding_radii); force and torque start at zero."""
+    dem.shapes.registry.bounding_radii); force and torque start at zero."""
     for u in range(rows.shape[0]):
         p = n + u
         gid[p] = gids[u]

@@ -9,6 +9,7 @@ import argparse
 import re
 
 from dem.contact import CONTACT_METHODS, DEFAULT_CONTACT_METHOD  # plain names: numba has not started yet
+from dem.shapes.registry import SHAPE_NAMES  # the same
 
 # modes.mpi.BALANCE, named here because importing modes starts numba (tests/bench/test_cli.py
 # checks that they agree)
@@ -16,7 +17,7 @@ BALANCE = ("extent", "count", "time")
 
 CONTACT_METHOD_CHOICES = list(CONTACT_METHODS)
 NEIGHBOR_CHOICES = ["allpairs", "linkcell"]
-SHAPE_CHOICES = ["sphere", "ellipsoid", "polyellipsoid"]
+SHAPE_CHOICES = list(SHAPE_NAMES)  # the registered shapes (dem.shapes.registry)
 
 
 def _integer_at_least(text, lo, what):

@@ -432,7 +432,7 @@ def _tiles_for(scene, build):
 
 def quats_of_matrices(r):
     """Unit quaternions [n, 4] (w >= 0) of rotation matrices r [n, 3, 3]: Shepperd's method row by row
-    as dem.state.quat_of_matrix, vectorised (the largest of 1 + t, 1 + 2 r_kk - t picks the branch)."""
+    as dem.quaternion.quat_of_matrix, vectorised (the largest of 1 + t, 1 + 2 r_kk - t picks the branch)."""
     r = np.asarray(r, dtype=np.float64)
     t = np.trace(r, axis1=1, axis2=2)
     cand = np.stack([t, r[:, 0, 0], r[:, 1, 1], r[:, 2, 2]], axis=1)

@@ -7,7 +7,7 @@ ref_factor x dt_base (default half the smallest listed factor, so that every lis
 measurable error). Errors of the final state, particles matched by global id:
 
   err_max, err_rms      max / rms over particles of |x - x_ref| / r_mean   [-]
-                        r_mean = mean volume-equivalent radius (dem.state.equivalent_radii)
+                        r_mean = mean volume-equivalent radius (dem.shapes.registry.equivalent_radii)
   err_vel_max, _rms     max / rms of |v - v_ref| / v_ref,rms               [-]
   err_energy            |KE - KE_ref| / max(KE_ref, KE_0, M (0.01 m/s)^2)   [-]
 
@@ -31,7 +31,7 @@ from bench.run.guard import StabilityGuard
 from bench.run.prepare import prepare
 from bench.run.records import prepare_output
 from dem.scene import load_scene
-from dem.state import equivalent_radii
+from dem.shapes.registry import equivalent_radii
 from dem.timestep import choose_time_step
 from modes.serial import SerialMode
 

@@ -243,7 +243,7 @@ def test_ghost_records_in_place_equal_the_fields(rng, rec):
     s = _state(rng, 50, rec == REC_SPHERE)
     if rec == REC_POLY:
         from dem.shapes import POLY, POLY_LEN
-        from dem.state import bounding_radii
+        from dem.shapes.registry import bounding_radii
         s.shape[::3] = POLY
         s.poly = rng.random((50, POLY_LEN))
         s.rbound = bounding_radii(s.axes, s.shape, s.poly)
@@ -276,7 +276,7 @@ def test_border_messages_are_the_border_lists_records(rng, rec):
     written back by write_border_messages after 40 owned rows give every per-particle array the
     rows write_ghost_rows gives, and each ghost its message's direction."""
     from dem.shapes import POLY, POLY_LEN
-    from dem.state import bounding_radii
+    from dem.shapes.registry import bounding_radii
     from modes.decomposition import NEEDS
     from modes.halo import pack_border_messages, pack_ghost_rows, write_border_messages, write_ghost_rows
     s = _state(rng, 60, rec == REC_SPHERE)

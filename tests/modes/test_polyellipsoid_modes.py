@@ -254,7 +254,7 @@ def _rest_direction():
 def _floor_scene(u_body, tilt, gap=1e-6, restitution=0.1):
     """The reference §2 body over a floor z = 0 with its octant-frame direction u_body pointing down
     (then tilted by `tilt` rad about world x), lowest point `gap` above the floor."""
-    from dem.state import quat_of_matrix
+    from dem.quaternion import quat_of_matrix
     down = np.array([0.0, 0.0, -1.0])
     ax = np.cross(u_body, down)
     k = np.array([[0, -ax[2], ax[1]], [ax[2], 0, -ax[0]], [-ax[1], ax[0], 0]])

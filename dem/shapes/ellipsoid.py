@@ -1,0 +1,52 @@
+"""The ellipsoid: semi-axes (a, b, c) [m] along its body axes, any order.
+
+Contact geometry: dem.contact.ellipsoid (ellipsoid_contact: Perram-Wertheim + Newton on S^2;
+ellipsoid_wall_contact: the support along the wall normal), dem.contact.methods (pw, sextic);
+dispatched by dem.forces pair_geometry and wall_geometry. Integration: dem.integrate (the
+symplectic free-rotor splitting, contact-mechanics.md §4.2).
+"""
+import math
+
+import numpy as np
+
+from dem.shapes import ELLIPSOID
+from dem.shapes.shape import Shape
+
+
+def semi_axes(values):
+    """A scene file's [a, b, c] [m] as the block's six semi-axes [a, b, c, 0, 0, 0]."""
+    return np.concatenate([values, np.zeros(3)])
+
+
+def body(axes6, density, pos, quat):
+    """Mass m = (4/3) pi rho a b c [kg] and principal moments m/5 (b^2 + c^2, a^2 + c^2, a^2 + b^2)
+    [kg m^2] (the body frame is principal: pos and quat stay as given)."""
+    axes = np.ascontiguousarray(axes6[:, :3])
+    a, b, c = axes[:, 0], axes[:, 1], axes[:, 2]
+    mass = 4.0 / 3.0 * math.pi * density * a * b * c
+    inertia = np.stack([mass / 5 * (b * b + c * c), mass / 5 * (a * a + c * c), mass / 5 * (a * a + b * b)], axis=1)
+    return axes, mass, inertia, pos, quat, None
+
+
+def bounding_radius(axes, poly):
+    """The largest semi-axis [m]."""
+    return axes.max(axis=1)
+
+
+def smallest_semi_axis(axes, poly):
+    """The smallest semi-axis [m]."""
+    return axes.min(axis=1)
+
+
+def equivalent_radius(axes, poly):
+    """(a b c)^(1/3) [m]."""
+    return np.cbrt(np.prod(axes, axis=1))
+
+
+def snapshot_pose(pos, quat, axes, poly):
+    """Pose as held, each semi-axis twice (plus and minus sides alike)."""
+    return pos, quat, np.repeat(axes, 2, axis=1)
+
+
+SHAPE = Shape("ellipsoid", ELLIPSOID, ("a", "b", "c"), semi_axes, body, bounding_radius, smallest_semi_axis,
+              equivalent_radius, snapshot_pose)

@@ -1,0 +1,99 @@
+"""The poly-ellipsoid (Peters et al. 2009): eight octant ellipsoids with semi-axes
+[a+, a-, b+, b-, c+, c-] [m] along its octant frame, glued at the octant origin.
+
+Internally a rigid body at its mass centre in its principal frame (State.pos, quat; axes the
+largest semi-axis per octant-frame axis), with a record State.poly [POLY_LEN] (dem.shapes P_*)
+mapping that frame back to the octant geometry; scene files and snapshots give the octant origin
+and octant frame (DESIGN.md). Contact geometry: dem.contact.polyellipsoid (octant active set;
+polyellipsoid_wall_contact: the octant facing the wall), on the octant geometry of
+dem.integrate.derive_poly_geometry, dispatched by dem.forces pair_geometry and wall_geometry;
+its ghosts carry the record (modes.halo GHOST_POLY).
+"""
+import numpy as np
+
+from dem.shapes import P_AX, P_OFF, P_ROT, POLY, POLY_LEN
+from dem.shapes.shape import Shape
+
+
+def poly_body(axes6, density):
+    """Rigid-body data of a poly-ellipsoid (Peters et al. 2009; contact-mechanics.md §2.2).
+
+    Returns (mass [kg], principal moments [3] [kg m^2], record [POLY_LEN], V [3, 3]) where V's
+    columns are the principal axes in the octant frame (dem.contact.polyellipsoid.
+    mass_properties_poly), W = V^T and off = -V^T centroid. The principal frame is R = R_oct V.
+    """
+    from dem.contact.polyellipsoid import mass_properties_poly  # here: the registry is read before numba starts
+    m, cen, moments, v = mass_properties_poly(axes6, density)
+    rec = np.zeros(POLY_LEN)
+    rec[P_AX:P_AX + 6] = axes6
+    rec[P_OFF:P_OFF + 3] = -(v.T @ cen)
+    rec[P_ROT:P_ROT + 9] = v.T.reshape(9)
+    return m, moments, rec, v
+
+
+def poly_from_octant(axes6, density, origin, quat_oct):
+    """Internal state of a poly-ellipsoid given as DESIGN.md's octant origin [3] and octant-frame
+    quaternion [4]: (axes [3] = largest semi-axis per octant-frame axis, mass, principal moments [3],
+    mass centre [3], principal-frame quaternion [4], record [POLY_LEN])."""
+    from dem.quaternion import quat_of_matrix, quat_to_matrices
+    a6 = np.asarray(axes6, dtype=np.float64)
+    m, moments, rec, v = poly_body(a6, density)
+    quat = quat_of_matrix(quat_to_matrices(quat_oct)[0] @ v)
+    r = quat_to_matrices(quat)[0]
+    pos = np.asarray(origin, dtype=np.float64) - r @ rec[P_OFF:P_OFF + 3]
+    axes3 = np.array([max(a6[0], a6[1]), max(a6[2], a6[3]), max(a6[4], a6[5])])
+    return axes3, m, moments, pos, quat, rec
+
+
+def octant_pose(pos, quat, rec):
+    """Octant origin [3] and octant-frame quaternion [4] of a poly-ellipsoid at mass centre pos in
+    principal frame quat (record rec [POLY_LEN]): o = pos + R off, R_oct = R W."""
+    from dem.quaternion import quat_of_matrix, quat_to_matrices
+    r = quat_to_matrices(quat)[0]
+    o = pos + r @ rec[P_OFF:P_OFF + 3]
+    return o, quat_of_matrix(r @ rec[P_ROT:P_ROT + 9].reshape(3, 3))
+
+
+def semi_axes(values):
+    """A scene file's [a+, a-, b+, b-, c+, c-] [m], as given."""
+    return np.asarray(values, dtype=np.float64)
+
+
+def body(axes6, density, pos, quat):
+    """The rigid body of each (poly_from_octant: pos, quat given as octant origin and frame)."""
+    k = len(axes6)
+    axes, mass, inertia = np.zeros((k, 3)), np.zeros(k), np.zeros((k, 3))
+    centre, principal, rec = np.zeros((k, 3)), np.zeros((k, 4)), np.zeros((k, POLY_LEN))
+    for u in range(k):
+        axes[u], mass[u], inertia[u], centre[u], principal[u], rec[u] = poly_from_octant(
+            axes6[u], density[u], pos[u], quat[u])
+    return axes, mass, inertia, centre, principal, rec
+
+
+def bounding_radius(axes, poly):
+    """The largest of the six semi-axes plus |octant origin - mass centre| [m]."""
+    return poly[:, P_AX:P_AX + 6].max(axis=1) + np.linalg.norm(poly[:, P_OFF:P_OFF + 3], axis=1)
+
+
+def smallest_semi_axis(axes, poly):
+    """The smallest of the six semi-axes [m]."""
+    return poly[:, P_AX:P_AX + 6].min(axis=1)
+
+
+def equivalent_radius(axes, poly):
+    """The radius of the volume, that of the ellipsoid with semi-axes (a+ + a-)/2, (b+ + b-)/2,
+    (c+ + c-)/2 (contact-mechanics.md §2.2) [m]."""
+    a6 = poly[:, P_AX:P_AX + 6]
+    return np.cbrt(np.prod(0.5 * (a6[:, 0::2] + a6[:, 1::2]), axis=1))
+
+
+def snapshot_pose(pos, quat, axes, poly):
+    """The octant origin and octant frame (octant_pose) and the six semi-axes."""
+    pos, quat = pos.copy(), quat.copy()
+    for u in range(len(pos)):
+        pos[u], quat[u] = octant_pose(pos[u], quat[u], poly[u])
+    return pos, quat, poly[:, P_AX:P_AX + 6].copy()
+
+
+SHAPE = Shape("polyellipsoid", POLY, ("a+", "a-", "b+", "b-", "c+", "c-"), semi_axes, body, bounding_radius,
+              smallest_semi_axis, equivalent_radius, snapshot_pose)

@@ -1,0 +1,38 @@
+"""Shape: what the scene build, the state and the records need of one shape, in one place.
+
+Each shape's module (dem.shapes.sphere, ellipsoid, polyellipsoid) makes one Shape;
+dem.shapes.registry lists them. The step's kernels dispatch on the shape code instead (numba
+compiles a fixed dispatch, and its cache keys on the dispatching file's source, so a table of
+kernels read from here would go stale): a shape's contact geometry is dem.forces pair_geometry
+and wall_geometry, its integration dem.integrate, its ghost record modes.halo; each module's
+docstring names them.
+"""
+from dataclasses import dataclass
+from typing import Callable
+
+
+@dataclass(frozen=True)
+class Shape:
+    """One shape. All functions are vectorised over k particles of this shape.
+
+    name: as scene files and --shape write it; code: State.shape (dem.shapes); file_axes: how a
+    scene file's `axes` gives it, e.g. "[r]", its length the number of values;
+    semi_axes(values [len]): the scene block's semi-axes [6] (unused ones 0) [m];
+    body(axes6 [k, 6], density [k], pos [k, 3], quat [k, 4]) -> (axes [k, 3], mass [k] [kg],
+    principal moments [k, 3] [kg m^2], mass centre [k, 3] [m], principal-frame quaternion
+    [k, 4], poly record [k, POLY_LEN] or None): the rigid body of particles given as a scene
+    gives them; bounding_radius, smallest_semi_axis, equivalent_radius (axes [k, 3],
+    poly [k, POLY_LEN]) -> [k] [m]: the radius about the mass centre that holds the particle,
+    its smallest semi-axis (the depth scale of the stability guard and of the time step) and
+    its volume-equivalent radius; snapshot_pose(pos [k, 3], quat [k, 4], axes [k, 3],
+    poly [k, POLY_LEN]) -> (pos, quat, six semi-axes [k, 6]): the pose and semi-axes a snapshot
+    of a scene with poly-ellipsoids reports (DESIGN.md), from which its surface is drawn."""
+    name: str
+    code: int
+    file_axes: tuple
+    semi_axes: Callable
+    body: Callable
+    bounding_radius: Callable
+    smallest_semi_axis: Callable
+    equivalent_radius: Callable
+    snapshot_pose: Callable

@@ -1,0 +1,23 @@
+"""The sphere: one radius r [m], held as the ellipsoid (r, r, r), whose orientation shapes nothing.
+
+Contact geometry: dem.contact.sphere (closed form, pair and wall), dispatched by dem.forces
+pair_geometry and wall_geometry; a scene of spheres only has a loop of its own
+(dem.forces _resolve_spheres, finish_range with spheres=True: no rotation of the shape), its
+ghosts a shorter record (modes.halo GHOST_SPHERE). Mass properties, radii and snapshot are the
+ellipsoid's with a = b = c.
+"""
+import numpy as np
+
+from dem.shapes import SPHERE
+from dem.shapes import ellipsoid
+from dem.shapes.shape import Shape
+
+
+def semi_axes(values):
+    """A scene file's [r] [m] as the block's six semi-axes [r, r, r, 0, 0, 0]."""
+    r = values[0]
+    return np.array([r, r, r, 0.0, 0.0, 0.0])
+
+
+SHAPE = Shape("sphere", SPHERE, ("r",), semi_axes, ellipsoid.body, ellipsoid.bounding_radius,
+              ellipsoid.smallest_semi_axis, ellipsoid.equivalent_radius, ellipsoid.snapshot_pose)
