@@ -88,8 +88,8 @@ class ThreadsMode(SerialMode):
         p = self.pairs
         p.build_adjacency = lambda pi, pj, gid, n_owned: par.adjacency_threads(t, pi, pj, gid, n_owned,
                                                                                  self.no_mark, True)
-        p.build_adjacency_of = lambda pi, pj, gid, n_owned, mark: par.adjacency_threads(t, pi, pj, gid, n_owned,
-                                                                                         mark, False)
+        p.build_adjacency_of = lambda pi, pj, gid, n_owned, mark: par.adjacency_marked_threads(t, pi, pj, gid,
+                                                                                                n_owned, mark)
         p.carry_rows = lambda *a: par.carry_rows_threads(t, *a)
         # per-thread scratch and results, each row PAD doubles apart: rows closer than a cache line
         # would be written by two threads at once (false sharing on every pair: measured 14 %)

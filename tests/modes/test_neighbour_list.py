@@ -8,6 +8,7 @@ from bench.run.prepare import load_prepared
 from dem.timestep import choose_time_step
 from dem.pairs import (DEFAULT_SKIN, PairList, history_from_csr, history_to_csr, pair_adjacency,
                        pair_adjacency_of, sort_by_gid)
+from modes.parallel import adjacency_marked_threads
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 
@@ -261,9 +262,10 @@ def test_carry_by_ranges_equals_one_merge(rng):
 def test_marked_adjacency_rows_and_gid_sort(rng):
     """The gather of SPLIT reads the rows of the particles that gather only: pair_adjacency_of gives
     each marked particle exactly its pair_adjacency row (its pairs in ascending partner gid) and
-    the others none. sort_by_gid orders the pairs by (gid_i, gid_j) as numpy's lexsort does, with
-    the particles stored in gid order (ranks taken as indices) or not (owned ones sorted, ghosts
-    after them in any order, as under MPI)."""
+    the others none, and modes.parallel.adjacency_marked_threads the same arrays at 1-3 threads.
+    sort_by_gid orders the pairs by (gid_i, gid_j) as numpy's lexsort does, with the particles
+    stored in gid order (ranks taken as indices) or not (owned ones sorted, ghosts after them in
+    any order, as under MPI)."""
     n = 80
     for stored in ("sorted", "ghost tail"):
         gid = np.sort(rng.permutation(900)[:n]).astype(np.int64)
@@ -284,6 +286,9 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
             got = part[1][part[0][p]:part[0][p + 1]]
             want = full[1][full[0][p]:full[0][p + 1]] if mark[p] else full[1][:0]
             assert np.array_equal(got, want)
+        for threads in (1, 2, 3):  # the threads' one-pass version (modes.parallel): the same arrays
+            start, items = adjacency_marked_threads(threads, si, sj, gid, 60, mark)
+            assert np.array_equal(start, part[0]) and np.array_equal(items, part[1])
 
 
 ALLOCATION_PROBE = """

@@ -9,7 +9,8 @@ import pytest
 from bench.run.prepare import load_prepared
 from dem.timestep import choose_time_step
 from dem.forces import SPLIT, STORE
-from modes.parallel import DYNAMIC, PARTITION, SCHEMES, STATIC, finish_cuts, scheme_rows, split_pairs
+from modes.parallel import (DYNAMIC, PARTITION, SCHEMES, STATIC, WEIGHT_BLOCK, cut_at_equal_weight, finish_cuts,
+                            scheme_rows, split_pairs)
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 from tests.helpers import bench, one_line_error
@@ -210,6 +211,30 @@ def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads):
     if code == STATIC:
         longest = np.max(np.unique(pi, return_counts=True)[1])
         assert np.all(np.abs(np.diff(bounds) - m / threads) <= longest)
+
+
+@pytest.mark.parametrize("threads", [2, 3, 7])
+def test_cut_at_equal_weight_over_many_blocks(threads):
+    """The cut over a list of ~10 WEIGHT_BLOCKs (the threads sum blocks, one walks the sums and looks
+    inside the blocks a cut falls in) is the first row start whose preceding weight reaches t/T of
+    the total, as one walk over every weight finds it. Weights are small integers, so every sum
+    is exact and the two walks must agree to the index; rows of 1-12 pairs, some of weight 0."""
+    rng = np.random.default_rng(3)
+    rows = rng.integers(1, 13, 1500)
+    pi = np.repeat(np.arange(len(rows)), rows).astype(np.int64)
+    m = len(pi)
+    assert m > 8 * WEIGHT_BLOCK
+    w = rng.integers(0, 20, m).astype(np.float64)
+    bounds = np.zeros(threads + 1, dtype=np.int64)
+    cut_at_equal_weight(w, pi, False, threads, bounds)
+    before = np.concatenate([[0.0], np.cumsum(w)[:-1]])
+    starts = np.flatnonzero(np.concatenate([[True], pi[1:] != pi[:-1]]))
+    want = [0] + [int(next((k for k in starts if before[k] >= t * w.sum() / threads), m))
+                  for t in range(1, threads)] + [m]
+    assert bounds.tolist() == want
+    every = np.zeros(threads + 1, dtype=np.int64)
+    cut_at_equal_weight(w, pi[:0], True, threads, every)
+    assert every.tolist() == [0] + [int(np.argmax(before >= t * w.sum() / threads)) for t in range(1, threads)] + [m]
 
 
 def _cut_spheres_then_ellipsoids(code, n_owned, taken):
