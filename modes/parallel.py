@@ -450,10 +450,11 @@ def adjacency_marked_threads(threads, pi, pj, gid, n_owned, mark):
 
 
 @njit(cache=True, parallel=True)
-def cut_at_equal_weight(w, pi, every, threads, bounds):
-    """Cut the sequence of weights w [m] into T contiguous ranges of about equal weight: bounds [T+1]
-    = 0, the T-1 cuts, m; cut t at the first allowed index k whose preceding weight reaches t/T of
-    the total (a range may be empty). Allowed: every index when every, else the row starts of the
+def cut_at_equal_weight(w, pi, every, threads, shares, bounds):
+    """Cut the sequence of weights w [m] into T contiguous ranges of weight in proportion to shares
+    [T] (all 1: equal): bounds [T+1] = 0, the T-1 cuts, m; cut t at the first allowed index k whose
+    preceding weight reaches (shares[0] + ... + shares[t-1]) / sum(shares) of the total, t/T for
+    equal shares (a range may be empty). Allowed: every index when every, else the row starts of the
     gid-sorted list pi [m] (k = 0 or pi[k] != pi[k-1]: ranges of whole rows). The threads sum
     blocks of WEIGHT_BLOCK weights; one thread then walks the blocks' sums and looks inside only
     the blocks a cut falls in. One walk over every weight, a chain of dependent additions, took
@@ -471,14 +472,23 @@ def cut_at_equal_weight(w, pi, every, threads, bounds):
     total = 0.0
     for b in range(nb):
         total += sums[b]
+    target = np.empty(threads + 1)  # target[t]: the weight before cut t
+    whole = 0.0
+    for t in range(threads):
+        whole += shares[t]
+    before = 0.0
+    for t in range(threads + 1):
+        target[t] = total * before / whole  # equal shares: t * total / T
+        if t < threads:
+            before += shares[t]
     bounds[0] = 0
     t = 1
     acc = 0.0  # the weight before the block (or, inside a block walked, before index k)
     for b in range(nb):
-        if t < threads and acc + sums[b] >= t * total / threads:  # a cut falls here or is still open
+        if t < threads and acc + sums[b] >= target[t]:  # a cut falls here or is still open
             for k in range(b * WEIGHT_BLOCK, min(m, (b + 1) * WEIGHT_BLOCK)):
                 if every or k == 0 or pi[k] != pi[k - 1]:
-                    while t < threads and acc >= t * total / threads:
+                    while t < threads and acc >= target[t]:
                         bounds[t] = k
                         t += 1
                 acc += w[k]
@@ -490,16 +500,18 @@ def cut_at_equal_weight(w, pi, every, threads, bounds):
 
 
 @njit(cache=True)
-def split_pairs(code, threads, pi, pj, n_owned, pos, rbound, shape, taken, bounds, gat, home_start, home_items):
+def split_pairs(code, threads, shares, pi, pj, n_owned, pos, rbound, shape, taken, bounds, gat, home_start,
+                home_items):
     """Cut the gid-sorted pair list (pi, pj [m]: rows of equal pi contiguous) into T ranges of whole
     rows, bounds [T+1] (pair indices), by the scheme `code`: equal rows (PARTITION), equal estimated
     work (DYNAMIC: for a pair whose bounding spheres of radii rbound [n] [m] overlap at pos [n,3] [m],
     SPHERE_PAIR_WEIGHT if both shape [n] codes are SPHERE, else SOLVER_WEIGHT; 1 for the others and,
     when taken, for the pairs with a ghost end, whose terms are taken, not resolved: dem.forces,
-    SPLIT_TAKEN), equal pairs (otherwise): pair_weights, then cut_ranges. Returns the pairs'
-    weights w [m] (cut_ranges cuts them again when measured times rescale them)."""
+    SPLIT_TAKEN), equal pairs (otherwise): pair_weights, then cut_ranges, range t taking shares[t] of
+    the weight (cut_at_equal_weight). Returns the pairs' weights w [m] (cut_ranges cuts them again
+    when measured times rescale them)."""
     w = pair_weights(code, pi, pj, n_owned, pos, rbound, shape, taken)
-    cut_ranges(w, threads, pi, pj, n_owned, bounds, gat, home_start, home_items)
+    cut_ranges(w, threads, shares, pi, pj, n_owned, bounds, gat, home_start, home_items)
     return w
 
 
@@ -535,18 +547,18 @@ def _pair_weight(code, k, pi, pj, n_owned, pos, rbound, shape, taken):
 
 
 @njit(cache=True, parallel=True)
-def cut_ranges(w, threads, pi, pj, n_owned, bounds, gat, home_start, home_items):
-    """Cut the gid-sorted list (pi, pj [m]) into T ranges of whole rows and about equal weight w [m],
-    bounds [T+1]. Then gat [n_owned] int8 = 1 for the owned particles with pairs in two ranges
-    (they gather), and each range's other particles, those it alone sums (plus, in range 0, the
-    particles without pairs): home_items [n_owned - gathered] grouped by range, home_start [T+1];
-    their force and torque are zeroed by the thread of their range before it resolves
-    (dem.forces.resolve_range, SPLIT). Returns the number of particles the ranges sum themselves.
-    The cut is cut_at_equal_weight's; the rest runs on the threads: each range
-    marks its particles (seen [T, n_owned]), a particle's home is the first range that saw it, and
-    home_items is written by a counting sort over T blocks of particles, in ascending index within
-    each range, as one thread's loop gives."""
-    cut_at_equal_weight(w, pi, False, threads, bounds)
+def cut_ranges(w, threads, shares, pi, pj, n_owned, bounds, gat, home_start, home_items):
+    """Cut the gid-sorted list (pi, pj [m]) into T ranges of whole rows, range t with shares[t] of
+    the weight w [m] (all 1: equal), bounds [T+1]. Then gat [n_owned] int8 = 1 for the owned
+    particles with pairs in two ranges (they gather), and each range's other particles, those it
+    alone sums (plus, in range 0, the particles without pairs): home_items [n_owned - gathered]
+    grouped by range, home_start [T+1]; their force and torque are zeroed by the thread of their
+    range before it resolves (dem.forces.resolve_range, SPLIT). Returns the number of particles
+    the ranges sum themselves. The cut is cut_at_equal_weight's; the rest runs on the threads: each
+    range marks its particles (seen [T, n_owned]), a particle's home is the first range that saw
+    it, and home_items is written by a counting sort over T blocks of particles, in ascending index
+    within each range, as one thread's loop gives."""
+    cut_at_equal_weight(w, pi, False, threads, shares, bounds)
     seen = np.zeros((threads, n_owned), dtype=np.int8)
     for t in prange(threads):
         for k in range(bounds[t], bounds[t + 1]):
@@ -698,7 +710,7 @@ def finish_cuts(threads, n_owned, shape, near, cuts):
     w = np.empty(n_owned)
     for p in range(n_owned):
         w[p] = _finish_weight(shape[p], near[p])
-    cut_at_equal_weight(w, np.zeros(0, dtype=np.int64), True, threads, cuts)
+    cut_at_equal_weight(w, np.zeros(0, dtype=np.int64), True, threads, np.ones(threads), cuts)
 
 
 @njit(cache=True, inline="always")

@@ -168,6 +168,30 @@ def test_rebalance_scales_weights_towards_measured_cost():
         assert mode.window_n == 0
 
 
+def test_learn_speed_gives_the_next_fresh_cut_shares():
+    """learn_speed, at a rebuild step: thread 0 busy 2 units and thread 1 one over ranges of equal
+    estimated weight are costs per weight 2:1, 4/3 and 2/3 of their mean; from speeds (1, 1) half
+    way there (REBALANCE_KEEP = 0.5): 7/6 and 5/6. The next fresh cut (a rebuild's split) gives
+    thread t the share 1/speed[t] of the estimated weight: range 0 holds (6/7) / (6/7 + 6/5) =
+    5/12 of it, to within the heaviest row (the cut falls at a row start). Packed 400 ellipsoids,
+    2 threads, dynamic."""
+    sc = load_prepared("packed", particles=400)
+    mode = ThreadsMode().setup(sc, dt=choose_time_step(sc).dt, threads=2, scheme="dynamic")
+    mode.step()
+    m = mode.pairs.m
+    mode.weights[:] = 1.0
+    mode.pairs.offsets[:] = [0, m // 2, m]
+    mode.busy_rows[:, 0] = [2_000_000 * (m // 2), 1_000_000 * (m - m // 2)]
+    mode.speed[:] = 1.0  # the step above (a rebuild) learnt from its own times
+    mode.learn_speed()
+    assert np.allclose(mode.speed, [1.0 + 0.5 * (4 / 3 - 1), 1.0 + 0.5 * (2 / 3 - 1)], rtol=1e-9, atol=0)
+    mode.split()  # a rebuild's fresh cut, by the learnt shares
+    w, b, pi = mode.weights, mode.pairs.offsets, mode.pairs.pi
+    heaviest = max(w[pi == r].sum() for r in np.unique(pi))
+    assert abs(w[:b[1]].sum() - 5 / 12 * w.sum()) <= heaviest
+    assert mode.recut is None
+
+
 @pytest.mark.parametrize("code", [PARTITION, STATIC, DYNAMIC])
 @pytest.mark.parametrize("threads", [1, 2, 3, 5])
 def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads):
@@ -190,8 +214,8 @@ def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads):
     gat = np.zeros(n, dtype=np.int8)
     home_start = np.zeros(threads + 1, dtype=np.int64)
     home_items = np.zeros(n, dtype=np.int64)
-    split_pairs(code, threads, pi, pj, n, pos, rbound, np.zeros(n, dtype=np.int8), False, bounds, gat, home_start,
-                home_items)
+    split_pairs(code, threads, np.ones(threads), pi, pj, n, pos, rbound, np.zeros(n, dtype=np.int8), False, bounds, gat,
+                home_start, home_items)
     assert bounds[0] == 0 and bounds[-1] == m and np.all(np.diff(bounds) >= 0)
     assert all(b in (0, m) or pi[b] != pi[b - 1] for b in bounds)
     rng_of = np.searchsorted(bounds, np.arange(m), side="right") - 1
@@ -226,14 +250,14 @@ def test_cut_at_equal_weight_over_many_blocks(threads):
     assert m > 8 * WEIGHT_BLOCK
     w = rng.integers(0, 20, m).astype(np.float64)
     bounds = np.zeros(threads + 1, dtype=np.int64)
-    cut_at_equal_weight(w, pi, False, threads, bounds)
+    cut_at_equal_weight(w, pi, False, threads, np.ones(threads), bounds)
     before = np.concatenate([[0.0], np.cumsum(w)[:-1]])
     starts = np.flatnonzero(np.concatenate([[True], pi[1:] != pi[:-1]]))
     want = [0] + [int(next((k for k in starts if before[k] >= t * w.sum() / threads), m))
                   for t in range(1, threads)] + [m]
     assert bounds.tolist() == want
     every = np.zeros(threads + 1, dtype=np.int64)
-    cut_at_equal_weight(w, pi[:0], True, threads, every)
+    cut_at_equal_weight(w, pi[:0], True, threads, np.ones(threads), every)
     assert every.tolist() == [0] + [int(np.argmax(before >= t * w.sum() / threads)) for t in range(1, threads)] + [m]
 
 
@@ -249,8 +273,8 @@ def _cut_spheres_then_ellipsoids(code, n_owned, taken):
     rbound = np.full(n, 1e-3)
     shape = np.where(np.arange(n) < 200, 0, 1).astype(np.int8)
     bounds = np.zeros(3, dtype=np.int64)
-    split_pairs(code, 2, pi, pj, n_owned, pos, rbound, shape, taken, bounds, np.zeros(n_owned, dtype=np.int8),
-                np.zeros(3, dtype=np.int64), np.zeros(n_owned, dtype=np.int64))
+    split_pairs(code, 2, np.ones(2), pi, pj, n_owned, pos, rbound, shape, taken, bounds,
+                np.zeros(n_owned, dtype=np.int8), np.zeros(3, dtype=np.int64), np.zeros(n_owned, dtype=np.int64))
     return bounds.tolist()
 
 
