@@ -451,7 +451,7 @@ def _explicit_particle(p, k, table):
         raise SceneError(f"{what} needs 'axes' and 'pos'")
     ax = p["axes"]
     if not isinstance(ax, list) or len(ax) != len(shape.file_axes):
-        raise SceneError(f"{what}: the axes of a {name} must be [{', '.join(shape.file_axes)}], got {ax!r}")
+        raise SceneError(f"{what}: {name} axes must be [{', '.join(shape.file_axes)}], got {ax!r}")
     values = _vec(ax, len(ax), f"{what}.axes")
     if np.any(values <= 0):
         raise SceneError(f"{what}: axes must be positive, got {ax!r}")

@@ -100,6 +100,8 @@ BAD_SCENES = [
      "unknown material 'steel'"),
     (GOOD.replace("axes = [8e-4]", "axes = [-8e-4]"), "axes must be positive"),
     (GOOD.replace("axes = [1e-3, 8e-4, 6e-4]", "axes = [1e-3, 0.0, 6e-4]"), "axes must be positive"),
+    (GOOD.replace("axes = [8e-4]", "axes = [8e-4, 1e-4]"), "sphere axes must be [r]"),
+    (GOOD.replace("axes = [1e-3, 8e-4, 6e-4]", "axes = [1e-3, 8e-4]"), "ellipsoid axes must be [a, b, c]"),
     (GOOD.replace("density = 2650.0", "density = -1.0"), "density must be positive"),
     (GOOD.replace("pos = [0.01, 0.01, 0.0011]", "pos = [0.05, 0.01, 0.0011]"), "outside the box"),
     (GOOD.replace("pos = [0.01, 0.01, 0.0011]", "pos = [0.01, 0.01, 0.0005]"), "overlaps a wall"),
