@@ -39,7 +39,7 @@ import numpy as np
 from dem.limits import LimitError, check_particle_count, check_size_ratio
 from dem.materials import Material, MaterialTable
 from dem.quaternion import quat_to_matrices, random_quaternions
-from dem.shapes import POLY, POLY_LEN, SPHERE
+from dem.shapes import POLY, POLY_LEN
 from dem.overlaps import DEFAULT_OVERLAP_LIMIT, worst_pair_overlap
 from dem.particle_files import ParticleBlock, ParticleFileError, read_particle_file
 from dem.shapes.polyellipsoid import octant_pose
@@ -501,38 +501,24 @@ def _generate(g, table, box, particles, shape_override, seed_override, first_ind
     shape = shape_override or g.get("shape", "sphere")
     if not isinstance(shape, str) or shape not in BY_NAME:
         raise SceneError(f"unknown shape {_show(shape)} ({', '.join(BY_NAME)})")
-    code = BY_NAME[shape].code
+    kind = BY_NAME[shape]
+    code = kind.code
     seed = seed_override if seed_override is not None else g.get("seed", 1)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise SceneError(f"{what}.seed must be a non-negative integer, got {_show(seed)}")
     rng = np.random.default_rng(seed)
     diam = _sample_gradation(g.get("gradation"), count, rng, what)
-    a = diam / 2.0
-    if code == SPHERE:
-        axes = np.repeat(a[:, None], 3, axis=1)
-    else:
-        def rng_range(key):
-            lo, hi = _vec(g.get(key, [1.0, 1.0]), 2, f"{what}.{key}")
-            if not (0 < lo <= hi <= 1):
-                raise SceneError(f"{what}.{key} must satisfy 0 < lo <= hi <= 1, got {[lo, hi]}")
-            return rng.uniform(lo, hi, count)
-        axes = np.stack([a, a * rng_range("aspect_b"), a * rng_range("aspect_c")], axis=1)
-    rb = axes.max(axis=1)
-    cen = np.zeros((count, 3))
-    if code == POLY:
-        # extents 2a, 2b, 2c split into plus and minus halves with minus/plus ~ U(asymmetry)
-        lo, hi = _vec(g.get("asymmetry", [0.6, 1.0]), 2, f"{what}.asymmetry")
+
+    def draw(key, default, size):  # a [lo, hi] range of the [[generate]] table, drawn (Shape.generate)
+        lo, hi = _vec(g.get(key, default), 2, f"{what}.{key}")
         if not (0 < lo <= hi <= 1):
-            raise SceneError(f"{what}.asymmetry must satisfy 0 < lo <= hi <= 1, got {[lo, hi]}")
-        ratio = rng.uniform(lo, hi, (count, 3))
-        plus = 2.0 * axes / (1.0 + ratio)
-        axes = np.stack([plus[:, 0], ratio[:, 0] * plus[:, 0], plus[:, 1], ratio[:, 1] * plus[:, 1],
-                         plus[:, 2], ratio[:, 2] * plus[:, 2]], axis=1)
-        cen = 0.375 * (axes[:, 0::2] - axes[:, 1::2])        # centroid from the octant origin
-        rb = axes.max(axis=1) + np.linalg.norm(cen, axis=1)
+            raise SceneError(f"{what}.{key} must satisfy 0 < lo <= hi <= 1, got {[float(lo), float(hi)]}")
+        return rng.uniform(lo, hi, size)
+    axes, cen = kind.generate(diam / 2.0, draw)  # cen: the mass centre from the octant origin
+    rb = axes.max(axis=1) + np.linalg.norm(cen, axis=1)
     orient = g.get("orientation", "random")
     if orient == "random":
-        quat = random_quaternions(count, rng) if code != SPHERE else np.tile([1.0, 0, 0, 0], (count, 1))
+        quat = random_quaternions(count, rng) if kind.oriented else np.tile([1.0, 0, 0, 0], (count, 1))
     elif orient == "aligned":
         quat = np.tile([1.0, 0, 0, 0], (count, 1))
     else:
@@ -599,7 +585,7 @@ def _generate(g, table, box, particles, shape_override, seed_override, first_ind
     if speed > 0:
         d = rng.standard_normal((count, 3))
         vel = speed * d / np.linalg.norm(d, axis=1)[:, None]
-    if code == POLY:  # the mass centre sits on the site; a row gives the octant origin (DESIGN.md)
+    if np.any(cen != 0.0):  # the mass centre sits on the site; a row gives the octant origin (DESIGN.md)
         pos = pos - np.einsum("kab,kb->ka", quat_to_matrices(quat), cen)
     ax6 = np.zeros((count, 6))
     ax6[:, :axes.shape[1]] = axes

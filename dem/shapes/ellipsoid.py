@@ -48,5 +48,13 @@ def snapshot_pose(pos, quat, axes, poly):
     return pos, quat, np.repeat(axes, 2, axis=1)
 
 
+def generate(a, draw):
+    """Semi-axes (a, a b/a, a c/a), the ratios b/a and c/a drawn from the scene's aspect_b and
+    aspect_c ranges (default [1, 1]); the mass centre is the centre."""
+    k = len(a)
+    return np.stack([a, a * draw("aspect_b", [1.0, 1.0], k), a * draw("aspect_c", [1.0, 1.0], k)], axis=1), \
+        np.zeros((k, 3))
+
+
 SHAPE = Shape("ellipsoid", ELLIPSOID, ("a", "b", "c"), semi_axes, body, bounding_radius, smallest_semi_axis,
-              equivalent_radius, snapshot_pose)
+              equivalent_radius, snapshot_pose, generate, True)

@@ -11,7 +11,7 @@ its ghosts carry the record (modes.halo GHOST_POLY).
 """
 import numpy as np
 
-from dem.shapes import P_AX, P_OFF, P_ROT, POLY, POLY_LEN
+from dem.shapes import P_AX, P_OFF, P_ROT, POLY, POLY_LEN, ellipsoid
 from dem.shapes.shape import Shape
 
 
@@ -95,5 +95,17 @@ def snapshot_pose(pos, quat, axes, poly):
     return pos, quat, poly[:, P_AX:P_AX + 6].copy()
 
 
+def generate(a, draw):
+    """The ellipsoid's extents 2a, 2b, 2c (ellipsoid.generate), each split into a plus and a minus
+    half with minus/plus drawn from the scene's asymmetry range (default [0.6, 1.0]); the mass
+    centre from the octant origin is 3/8 (a+ - a-, b+ - b-, c+ - c-) (contact-mechanics.md §2.2)."""
+    axes, _ = ellipsoid.generate(a, draw)
+    ratio = draw("asymmetry", [0.6, 1.0], (len(a), 3))
+    plus = 2.0 * axes / (1.0 + ratio)
+    axes = np.stack([plus[:, 0], ratio[:, 0] * plus[:, 0], plus[:, 1], ratio[:, 1] * plus[:, 1],
+                     plus[:, 2], ratio[:, 2] * plus[:, 2]], axis=1)
+    return axes, 0.375 * (axes[:, 0::2] - axes[:, 1::2])
+
+
 SHAPE = Shape("polyellipsoid", POLY, ("a+", "a-", "b+", "b-", "c+", "c-"), semi_axes, body, bounding_radius,
-              smallest_semi_axis, equivalent_radius, snapshot_pose)
+              smallest_semi_axis, equivalent_radius, snapshot_pose, generate, True)

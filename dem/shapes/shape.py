@@ -26,7 +26,12 @@ class Shape:
     its smallest semi-axis (the depth scale of the stability guard and of the time step) and
     its volume-equivalent radius; snapshot_pose(pos [k, 3], quat [k, 4], axes [k, 3],
     poly [k, POLY_LEN]) -> (pos, quat, six semi-axes [k, 6]): the pose and semi-axes a snapshot
-    of a scene with poly-ellipsoids reports (DESIGN.md), from which its surface is drawn."""
+    of a scene with poly-ellipsoids reports (DESIGN.md), from which its surface is drawn;
+    generate(a [k], draw) -> (semi-axes [k, 3] or [k, 6] as a scene block holds them, mass centre
+    from the octant origin in the octant frame [k, 3] [m]): the shape of k generated particles of
+    largest semi-axis a [m] ([[generate]]), draw(key, default, size) giving the scene's [lo, hi]
+    range `key` (default if absent) drawn uniformly (in the order the shape draws them: the scene's
+    seed fixes them); oriented: whether its orientation shapes it (generated ones turn at random)."""
     name: str
     code: int
     file_axes: tuple
@@ -36,3 +41,5 @@ class Shape:
     smallest_semi_axis: Callable
     equivalent_radius: Callable
     snapshot_pose: Callable
+    generate: Callable
+    oriented: bool

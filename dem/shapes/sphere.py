@@ -19,5 +19,10 @@ def semi_axes(values):
     return np.array([r, r, r, 0.0, 0.0, 0.0])
 
 
+def generate(a, draw):
+    """Radius a (nothing drawn); the mass centre is the centre."""
+    return np.repeat(a[:, None], 3, axis=1), np.zeros((len(a), 3))
+
+
 SHAPE = Shape("sphere", SPHERE, ("r",), semi_axes, ellipsoid.body, ellipsoid.bounding_radius,
-              ellipsoid.smallest_semi_axis, ellipsoid.equivalent_radius, ellipsoid.snapshot_pose)
+              ellipsoid.smallest_semi_axis, ellipsoid.equivalent_radius, ellipsoid.snapshot_pose, generate, False)

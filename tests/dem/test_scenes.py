@@ -33,6 +33,27 @@ def test_generated_sizes_aspects_and_orientations():
     assert np.linalg.norm(ex.mean(axis=0)) < 0.1
 
 
+def test_generated_poly_ellipsoids_and_range_errors():
+    """Each shape generates its own (dem.shapes, Shape.generate): a poly-ellipsoid's minus/plus
+    ratios lie in the scene's asymmetry range [0.7, 0.9] and its plus and minus halves sum to the
+    ellipsoid's extents, whose b/a, c/a lie in aspect_b, aspect_c; spheres draw no aspects and do
+    not turn (identity quaternions). A range outside (0, 1] is one SceneError naming the key and
+    its values as given."""
+    s = build_scene(gen_doc(count=300, shape="polyellipsoid", asymmetry=[0.7, 0.9])).state
+    a6 = s.poly[:, :6]
+    ratio = a6[:, 1::2] / a6[:, 0::2]
+    assert np.all((ratio >= 0.7 - 1e-12) & (ratio <= 0.9 + 1e-12))
+    ext = a6[:, 0::2] + a6[:, 1::2]  # 2a, 2b, 2c
+    assert np.all((ext[:, 1] / ext[:, 0] >= 0.6 - 1e-12) & (ext[:, 1] / ext[:, 0] <= 0.9 + 1e-12))
+    assert np.all((ext[:, 2] / ext[:, 0] >= 0.4 - 1e-12) & (ext[:, 2] / ext[:, 0] <= 0.6 + 1e-12))
+    sph = build_scene(gen_doc(count=50, shape="sphere", aspect_b=[0.1, 0.2])).state
+    assert np.all(sph.axes == sph.axes[:, :1]) and np.all(sph.quat == [1.0, 0.0, 0.0, 0.0])
+    for key in ("asymmetry", "aspect_c"):
+        with pytest.raises(SceneError, match=rf"\[\[generate\]\]\.{key} must satisfy 0 < lo <= hi <= 1, got "
+                                             r"\[0\.0, 1\.0\]"):
+            build_scene(gen_doc(count=20, shape="polyellipsoid", **{key: [0.0, 1.0]}))
+
+
 def test_lattice_fits_box_and_particles_do_not_overlap():
     sc = build_scene(gen_doc(count=300))
     s = sc.state
