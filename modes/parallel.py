@@ -358,9 +358,9 @@ def _offsets_by_row(count, nrow, start):
 
 
 @njit(cache=True, parallel=True)
-def adjacency_threads(threads, pi, pj, gid, n_owned, mark, every):
-    """dem.pairs.pair_adjacency (every) or pair_adjacency_of (mark) by T threads: each counts the
-    ends of a contiguous range of the pairs per particle, a prefix over (particle, thread) gives
+def adjacency_threads(threads, pi, pj, gid, n_owned):
+    """dem.pairs.pair_adjacency by T threads (the marked rows only: adjacency_marked_threads): each
+    counts the ends of a contiguous range of the pairs per particle, a prefix over (particle, thread) gives
     its write offsets, so rows fill in pair order as on one thread; then the rows are sorted by
     partner gid over T blocks of particles (partners are distinct: the one order)."""
     m = pi.shape[0]
@@ -369,9 +369,9 @@ def adjacency_threads(threads, pi, pj, gid, n_owned, mark, every):
         for k in range(t * m // threads, (t + 1) * m // threads):
             i = pi[k]
             j = pj[k]
-            if i < n_owned and (every or mark[i] != 0):
+            if i < n_owned:
                 count[t, i] += 1
-            if j < n_owned and (every or mark[j] != 0):
+            if j < n_owned:
                 count[t, j] += 1
     start = np.empty(n_owned + 1, dtype=np.int64)
     _offsets_by_row(count, n_owned, start)
@@ -381,12 +381,12 @@ def adjacency_threads(threads, pi, pj, gid, n_owned, mark, every):
         for k in range(t * m // threads, (t + 1) * m // threads):
             i = pi[k]
             j = pj[k]
-            if i < n_owned and (every or mark[i] != 0):
+            if i < n_owned:
                 u = count[t, i]
                 items[u] = 2 * k
                 keys[u] = gid[j]
                 count[t, i] = u + 1
-            if j < n_owned and (every or mark[j] != 0):
+            if j < n_owned:
                 u = count[t, j]
                 items[u] = 2 * k + 1
                 keys[u] = gid[i]

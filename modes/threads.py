@@ -52,7 +52,6 @@ class ThreadsMode(SerialMode):
     forces stored and gathered (False))."""
 
     deliver = STORE   # how the resolution hands on the pair forces (dem.forces; set by setup)
-    no_mark = np.zeros(0, dtype=np.int8)
 
     def setup(self, scene, dt, threads=2, scheme=par.DEFAULT_SCHEME, threaded="step", split=True, **kw):
         if scheme not in par.SCHEMES:
@@ -89,8 +88,7 @@ class ThreadsMode(SerialMode):
         # gid stays on one thread: two counting sorts by T threads took 85 us on 2 threads where
         # one thread's took 54 us (11k pairs of 2500 packed ellipsoids)
         p = self.pairs
-        p.build_adjacency = lambda pi, pj, gid, n_owned: par.adjacency_threads(t, pi, pj, gid, n_owned,
-                                                                                 self.no_mark, True)
+        p.build_adjacency = lambda pi, pj, gid, n_owned: par.adjacency_threads(t, pi, pj, gid, n_owned)
         p.build_adjacency_of = lambda pi, pj, gid, n_owned, mark: par.adjacency_marked_threads(t, pi, pj, gid,
                                                                                                 n_owned, mark)
         p.carry_rows = lambda *a: par.carry_rows_threads(t, *a)

@@ -24,7 +24,7 @@ import time
 
 import pytest
 
-from tests.helpers import ROOT
+from tests.helpers import ROOT, processes_naming
 
 SCRIPT = os.path.join(ROOT, "tests", "bench", "slurm", "multinode.sh")
 NODES = 4  # the 8-rank point runs on all four
@@ -68,19 +68,6 @@ def counters(veths):
         stats = f"/sys/class/net/{v}/statistics"
         out[v] = tuple(int(open(f"{stats}/{k}_bytes").read()) for k in ("tx", "rx"))
     return out
-
-
-def processes_naming(path):
-    """PIDs of live processes whose command line names path (zombies have none)."""
-    pids = []
-    for pid in filter(str.isdigit, os.listdir("/proc")):
-        try:
-            cmd = open(f"/proc/{pid}/cmdline", "rb").read().decode(errors="replace")
-        except OSError:
-            continue
-        if path in cmd:
-            pids.append(int(pid))
-    return pids
 
 
 def leftovers(cl):

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tests.helpers import ROOT, bench, one_line_error
+from tests.helpers import ROOT, bench, one_line_error, processes_naming
 
 SMALL = ["--scene", "pluviation", "--particles", "200", "--steps", "15"]
 
@@ -79,20 +79,6 @@ def test_warm_start_parts(tmp_path):
     assert warm_start(str(tmp_path), pts[:1], 2, dict(os.environ)) == {} and not (tmp_path / "warm").exists()
 
 
-def _processes(text):
-    """The pids whose command line contains text (/proc)."""
-    found = []
-    for pid in filter(str.isdigit, os.listdir("/proc")):
-        try:
-            with open(f"/proc/{pid}/cmdline", "rb") as fh:
-                cmd = fh.read().replace(b"\0", b" ").decode(errors="replace")
-        except OSError:
-            continue
-        if text in cmd:
-            found.append(int(pid))
-    return found
-
-
 def test_interrupted_warm_start_leaves_nothing_running(tmp_path):
     """SIGTERM while the warm start compiles (numba's cache empty: NUMBA_CACHE_DIR of the test, so
     compiling lasts tens of seconds): the sweep ends with one line, no part outlives it, and each
@@ -105,13 +91,13 @@ def test_interrupted_warm_start_leaves_nothing_running(tmp_path):
         if "compiling the kernels" in line:
             break
     time.sleep(1.0)
-    assert len(_processes(f"bench.sweep.job warm {out}")) == 2  # the build and the 2-thread part, compiling
+    assert len(processes_naming(f"bench.sweep.job warm {out}")) == 2  # the build and the 2-thread part, compiling
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode != 0 and err.strip().splitlines() == [
         "bench: error: interrupted by SIGTERM; the records written so far are kept"]
     time.sleep(0.5)
-    assert _processes(f"bench.sweep.job warm {out}") == []  # none left
+    assert processes_naming(f"bench.sweep.job warm {out}") == []  # none left
     for part in ("build", "2"):
         assert json.loads((out / "warm" / part / "status.json").read_text())["status"] == "interrupted"
 
