@@ -43,7 +43,7 @@ from numba.extending import intrinsic
 from dem.forces import SPLIT, SPLIT_TAKEN, finish_range, resolve_range, wall_candidates_range
 from dem.integrate import derive_all
 from dem.neighbor import HALF_SHELL, cell_of_point, grid_shape, scan_rows
-from dem.pairs import carry_history_rows_range, carry_history_sorted_range
+from dem.pairs import _counting_sort, carry_history_rows_range, carry_history_sorted_range, gid_ranks
 from dem.shapes import SPHERE
 
 SCHEMES = ("partition", "frogleap", "headtail", "static", "dynamic")
@@ -58,6 +58,13 @@ STATIC_BLOCK = 64     # rows or pairs per prange iteration of the static scheme
 DYNAMIC_ROWS = 16     # rows per dynamic hand-out
 DYNAMIC_PAIRS = 64    # candidate pairs per dynamic hand-out (the dynamic scheme with split=False)
 WEIGHT_BLOCK = 1024   # pairs per prange iteration of the range cut's per-pair loops (pair_weights)
+# The rebuild's sort of the list by gid runs on the T threads from this many on (sort_by_gid_threads):
+# its bucket passes and the buckets' own sorts are 0.50-0.54 ms of one thread's work where one
+# thread's two counting sorts (dem.pairs.sort_by_gid) take 0.35 ms, and 2 threads finish in
+# 0.31-0.32 ms (57k pairs of 12k packed ellipsoids, 2 cores); on 2500 (11k pairs) 0.09-0.10, 2
+# threads 0.076 against 0.057 ms: one thread's sort up to 2 threads, the threads' from 3.
+SORT_THREADS_FROM = 3
+COUNT_PAD = 8         # int64 counters between two threads' rows of counts (a cache line)
 # Dynamic split: the cost of resolving a candidate pair, in units of one whose bounding spheres are
 # apart (`bench perf --what split` measures these on the machine at hand; 2 cores:
 # apart 0.0066-0.0117 us; overlapping sphere pair 0.063 us; overlapping ellipsoid pair 0.27 us on
@@ -177,7 +184,7 @@ def grid_threads(threads, pos, rbound, gid, cutoff):
             cell_of[p] = c
             fill[t, c] += 1
     cell_start = np.empty(ncell + 1, dtype=np.int64)
-    _offsets_by_row(fill, ncell, cell_start)  # each thread's first slot in each cell, in thread order
+    offsets_by_row_threads(fill, ncell, cell_start)  # each thread's first slot in each cell, in thread order
     cell_items = np.empty(n, dtype=np.int64)
     spos = np.empty((n, 3))
     srb = np.empty(n)
@@ -358,6 +365,119 @@ def _offsets_by_row(count, nrow, start):
 
 
 @njit(cache=True, parallel=True)
+def offsets_by_row_threads(count, nrow, start):
+    """_offsets_by_row by the T threads of count [T, nrow], each over a contiguous block of rows: the
+    blocks' totals, their prefix on one thread (T numbers), then each block's offsets from its
+    base; the same offsets. One thread's walk over the T x nrow counts is a serial phase of the
+    rebuild's counting sorts that grows with T (the grid's cells, the adjacency's particles)."""
+    threads = count.shape[0]
+    base = np.zeros(threads + 1, dtype=np.int64)
+    for b in prange(threads):
+        acc = 0
+        for r in range(b * nrow // threads, (b + 1) * nrow // threads):
+            for t in range(threads):
+                acc += count[t, r]
+        base[b + 1] = acc
+    for b in range(threads):
+        base[b + 1] += base[b]
+    for b in prange(threads):
+        acc = base[b]
+        for r in range(b * nrow // threads, (b + 1) * nrow // threads):
+            start[r] = acc
+            for t in range(threads):
+                c = count[t, r]
+                count[t, r] = acc
+                acc += c
+    start[nrow] = base[threads]
+
+
+@njit(cache=True, inline="always")
+def _rank_of(rank, ident, p):
+    """The gid rank of local particle p: p itself when the particles are stored in gid order."""
+    return p if ident else rank[p]
+
+
+@njit(cache=True, parallel=True)
+def sort_by_gid_threads(threads, pi, pj, gid):
+    """dem.pairs.sort_by_gid by T threads, in place: pi, pj [m] in ascending (gid[pi], gid[pj])
+    order (keys distinct: the one order one thread's sort gives). The ranks of the particles
+    (gid_ranks) fall in T buckets of equal rank ranges; each thread counts and moves a contiguous
+    range of the pairs into the buckets of their first end (counts per thread and bucket, rows
+    COUNT_PAD apart), then each bucket is sorted by its own two stable counting sorts, by the
+    second end's rank over the span the bucket holds, then by the first end's over the bucket's
+    ranks (dem.pairs._counting_sort). Work O(m/T + n/T + the spans) a thread, where one thread's
+    sort is O(m + n)."""
+    n = gid.shape[0]
+    m = pi.shape[0]
+    rank = gid_ranks(gid)
+    ident = True   # stored in gid order: the ranks are the indices (no lookups)
+    for p in range(n):
+        if rank[p] != p:
+            ident = False
+            break
+    count = np.zeros((threads, threads + COUNT_PAD), dtype=np.int64)
+    for t in prange(threads):
+        # a run of pairs in one bucket counts in a register (the list's order keeps runs long); a
+        # counter in memory, read and written each pair, made the pass 2-3x slower
+        cur = -1
+        c = 0
+        for k in range(t * m // threads, (t + 1) * m // threads):
+            b = _rank_of(rank, ident, pi[k]) * threads // n
+            if b != cur:
+                if cur >= 0:
+                    count[t, cur] += c
+                cur = b
+                c = 0
+            c += 1
+        if cur >= 0:
+            count[t, cur] += c
+    start = np.empty(threads + 1, dtype=np.int64)
+    acc = 0
+    for b in range(threads):   # bucket-major, then thread: each thread's first slot in each bucket
+        start[b] = acc
+        for t in range(threads):
+            c = count[t, b]
+            count[t, b] = acc
+            acc += c
+    start[threads] = acc
+    ta = np.empty(m, dtype=np.int64)
+    tb = np.empty(m, dtype=np.int64)
+    for t in prange(threads):
+        cur = -1
+        u = 0
+        for k in range(t * m // threads, (t + 1) * m // threads):
+            b = _rank_of(rank, ident, pi[k]) * threads // n
+            if b != cur:
+                if cur >= 0:
+                    count[t, cur] = u
+                cur = b
+                u = count[t, b]
+            ta[u] = pi[k]
+            tb[u] = pj[k]
+            u += 1
+    tc = np.empty(m, dtype=np.int64)
+    td = np.empty(m, dtype=np.int64)
+    for b in prange(threads):
+        k0 = start[b]
+        k1 = start[b + 1]
+        if k1 > k0:
+            # bucket b holds the ranks r with r T // n == b: first = ceil(b n / T) on; a second
+            # end's rank is above its first end's, so above first
+            first = (n * b + threads - 1) // threads
+            key = np.empty(k1 - k0, dtype=np.int64)
+            top = 0
+            for k in range(k0, k1):
+                r = _rank_of(rank, ident, tb[k]) - first
+                key[k - k0] = r
+                top = max(top, r)
+            _counting_sort(key, top + 1, ta[k0:k1], tb[k0:k1], tc[k0:k1], td[k0:k1])
+            for k in range(k0, k1):
+                key[k - k0] = _rank_of(rank, ident, tc[k]) - first
+            _counting_sort(key, (n * (b + 1) + threads - 1) // threads - first, tc[k0:k1], td[k0:k1], pi[k0:k1],
+                           pj[k0:k1])
+
+
+@njit(cache=True, parallel=True)
 def adjacency_threads(threads, pi, pj, gid, n_owned):
     """dem.pairs.pair_adjacency by T threads (the marked rows only: adjacency_marked_threads): each
     counts the ends of a contiguous range of the pairs per particle, a prefix over (particle, thread) gives
@@ -374,7 +494,7 @@ def adjacency_threads(threads, pi, pj, gid, n_owned):
             if j < n_owned:
                 count[t, j] += 1
     start = np.empty(n_owned + 1, dtype=np.int64)
-    _offsets_by_row(count, n_owned, start)
+    offsets_by_row_threads(count, n_owned, start)
     items = np.empty(start[n_owned], dtype=np.int64)
     keys = np.empty(start[n_owned], dtype=np.int64)
     for t in prange(threads):
@@ -500,10 +620,10 @@ def cut_at_equal_weight(w, pi, every, threads, shares, bounds):
 
 
 @njit(cache=True)
-def split_pairs(code, threads, shares, pi, pj, n_owned, pos, rbound, shape, taken, bounds, gat, home_start,
+def split_pairs(code, threads, shares, pi, pj, gid, n_owned, pos, rbound, shape, taken, bounds, gat, home_start,
                 home_items):
-    """Cut the gid-sorted pair list (pi, pj [m]: rows of equal pi contiguous) into T ranges of whole
-    rows, bounds [T+1] (pair indices), by the scheme `code`: equal rows (PARTITION), equal estimated
+    """Cut the gid-sorted pair list (pi, pj [m]: rows of equal pi contiguous; gid [n]) into T ranges
+    of whole rows, bounds [T+1] (pair indices), by the scheme `code`: equal rows (PARTITION), equal estimated
     work (DYNAMIC: for a pair whose bounding spheres of radii rbound [n] [m] overlap at pos [n,3] [m],
     SPHERE_PAIR_WEIGHT if both shape [n] codes are SPHERE, else SOLVER_WEIGHT; 1 for the others and,
     when taken, for the pairs with a ghost end, whose terms are taken, not resolved: dem.forces,
@@ -511,7 +631,7 @@ def split_pairs(code, threads, shares, pi, pj, n_owned, pos, rbound, shape, take
     the weight (cut_at_equal_weight). Returns the pairs' weights w [m] (cut_ranges cuts them again
     when measured times rescale them)."""
     w = pair_weights(code, pi, pj, n_owned, pos, rbound, shape, taken)
-    cut_ranges(w, threads, shares, pi, pj, n_owned, bounds, gat, home_start, home_items)
+    cut_ranges(w, threads, shares, pi, pj, gid, n_owned, bounds, gat, home_start, home_items)
     return w
 
 
@@ -547,43 +667,51 @@ def _pair_weight(code, k, pi, pj, n_owned, pos, rbound, shape, taken):
 
 
 @njit(cache=True, parallel=True)
-def cut_ranges(w, threads, shares, pi, pj, n_owned, bounds, gat, home_start, home_items):
-    """Cut the gid-sorted list (pi, pj [m]) into T ranges of whole rows, range t with shares[t] of
-    the weight w [m] (all 1: equal), bounds [T+1]. Then gat [n_owned] int8 = 1 for the owned
-    particles with pairs in two ranges (they gather), and each range's other particles, those it
-    alone sums (plus, in range 0, the particles without pairs): home_items [n_owned - gathered]
-    grouped by range, home_start [T+1]; their force and torque are zeroed by the thread of their
-    range before it resolves (dem.forces.resolve_range, SPLIT). Returns the number of particles
-    the ranges sum themselves. The cut is cut_at_equal_weight's; the rest runs on the threads: each
-    range marks its particles (seen [T, n_owned]), a particle's home is the first range that saw
-    it, and home_items is written by a counting sort over T blocks of particles, in ascending index
-    within each range, as one thread's loop gives."""
+def cut_ranges(w, threads, shares, pi, pj, gid, n_owned, bounds, gat, home_start, home_items):
+    """Cut the gid-sorted list (pi, pj [m]: gid[pi] < gid[pj], rows of equal pi contiguous, in
+    ascending gid) into T ranges of whole rows, range t with shares[t] of the weight w [m] (all 1:
+    equal), bounds [T+1] (cut_at_equal_weight). Range t's rows are those of the particles with gid in
+    [first[t], first[t+1]), first[t] the gid of its first row. Then gat [n_owned] int8 = 1 for the
+    owned particles that a range before their own holds as a pair's later end (gid[pj] at or past
+    the range's last row: they gather their forces), and each range's other particles, those it
+    alone sums: home_items [n_owned - gathered] grouped by range, home_start [T+1]; their force and
+    torque are zeroed by the thread of their range before it resolves (dem.forces.resolve_range,
+    SPLIT). Returns the number of particles the ranges sum themselves.
+
+    Why that is every particle with pairs in two ranges: a range holds a particle's own row and the
+    pairs (i, p) whose earlier end i has a row in it, so a particle's pairs lie in its own range
+    unless an earlier range holds a pair (i, p). Such a particle gathers even when its own range
+    holds none of its pairs (its sum is the same either way: DESIGN.md, Determinism). One read of
+    pj and gid[pj] a pair: marking every pair's two ends in a [T, n_owned] table took 0.09 of a
+    0.11 ms cut on 57k pairs of 12k packed ellipsoids at 2 threads. The home lists are written by
+    a counting sort over T blocks of particles, in ascending index within each range, as one
+    thread's loop gives."""
     cut_at_equal_weight(w, pi, False, threads, shares, bounds)
-    seen = np.zeros((threads, n_owned), dtype=np.int8)
+    m = pi.shape[0]
+    first = np.empty(threads + 1, dtype=np.int64)   # first[t]: the gid of range t's first row
+    top = np.iinfo(np.int64).max
+    for t in range(threads + 1):
+        first[t] = gid[pi[bounds[t]]] if bounds[t] < m else top
+    for b in prange(threads):
+        for p in range(b * n_owned // threads, (b + 1) * n_owned // threads):
+            gat[p] = 0
     for t in prange(threads):
+        last = first[t + 1]
         for k in range(bounds[t], bounds[t + 1]):
-            i = pi[k]
             j = pj[k]
-            if i < n_owned:
-                seen[t, i] = 1
-            if j < n_owned:
-                seen[t, j] = 1
+            if j < n_owned and gid[j] >= last:
+                gat[j] = 1
     count = np.zeros((threads, threads), dtype=np.int64)   # [particle block, range]
     home = np.empty(n_owned, dtype=np.int64)
     for b in prange(threads):
         for p in range(b * n_owned // threads, (b + 1) * n_owned // threads):
-            h = -1
-            g = 0
-            for t in range(threads):
-                if seen[t, p]:
-                    if h < 0:
-                        h = t
-                    else:
-                        g = 1
-            gat[p] = g
-            home[p] = max(h, 0)
-            if g == 0:
-                count[b, home[p]] += 1
+            if gat[p] == 0:
+                g = gid[p]
+                h = 0
+                while h + 1 < threads and first[h + 1] <= g:
+                    h += 1
+                home[p] = h
+                count[b, h] += 1
     # write offsets: range-major, then particle block (ascending index within a range)
     _offsets_by_row(count, threads, home_start)
     for b in prange(threads):

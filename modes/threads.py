@@ -8,8 +8,8 @@ paper's situation, for the Amdahl ceiling it reports), the per-particle pass (ga
 integration, derived quantities) in T contiguous blocks. A rebuild's own loops run on the T
 threads too (modes/parallel.py): the grid (bounding box, counting sort into cells, scan-ordered
 copies) with the scan and the compaction of the threads' lists in one call, the pair adjacency,
-the history carry, the wall list and the range cut, each with the one result the serial loop
-gives; the list's sort by gid (two counting sorts) stays on one thread (see _fresh).
+the history carry, the wall list and the range cut, and from 3 threads on the list's sort by gid
+(modes.parallel.SORT_THREADS_FROM), each with the one result the serial loop gives.
 """
 import numpy as np
 import numba
@@ -84,10 +84,11 @@ class ThreadsMode(SerialMode):
     def _fresh(self):
         super()._fresh()
         t = self.threads
-        # the pair list's own loops (adjacency, history carry by rows) by the T threads; its sort by
-        # gid stays on one thread: two counting sorts by T threads took 85 us on 2 threads where
-        # one thread's took 54 us (11k pairs of 2500 packed ellipsoids)
+        # the pair list's own loops (adjacency, history carry by rows, from SORT_THREADS_FROM threads
+        # its sort by gid) by the T threads
         p = self.pairs
+        if t >= par.SORT_THREADS_FROM:
+            p.sort_pairs = lambda pi, pj, gid: par.sort_by_gid_threads(t, pi, pj, gid)
         p.build_adjacency = lambda pi, pj, gid, n_owned: par.adjacency_threads(t, pi, pj, gid, n_owned)
         p.build_adjacency_of = lambda pi, pj, gid, n_owned, mark: par.adjacency_marked_threads(t, pi, pj, gid,
                                                                                                 n_owned, mark)
@@ -148,7 +149,9 @@ class ThreadsMode(SerialMode):
             par.compact_pairs(self.threads, pi_t, pj_t, offsets, pi, pj)
         self.pairs.offsets = offsets
         self.cap = max(self.cap, int(top * 1.25) + 64)
-        self.work_imbalance = float(self.tests.max() / max(self.tests.mean(), 1e-300))
+        # plain floats: numpy's reductions of T numbers took 20 us a rebuild (2500 particles: 3 %)
+        tests = self.tests.tolist()
+        self.work_imbalance = max(tests) / max(sum(tests) / len(tests), 1e-300)
         return m
 
     def wall_list(self, n_owned, pos, reach, wall_m, wall_d, wall_hist, near):
@@ -192,15 +195,16 @@ class ThreadsMode(SerialMode):
         t1 = self.threads + 1
         cross, terms = self.taken
         bounds = np.zeros(t1, dtype=np.int64)
-        self.gat = np.zeros(s.n_owned, dtype=np.int8)
-        home_start = np.zeros(t1, dtype=np.int64)
-        home_items = np.zeros(s.n_owned, dtype=np.int64)
+        self.gat = np.empty(s.n_owned, dtype=np.int8)
+        home_start = np.empty(t1, dtype=np.int64)
+        home_items = np.empty(s.n_owned, dtype=np.int64)
         if self.weights is None:  # a fresh cut: the dynamic scheme's shares by the learnt speeds
             shares = 1.0 / self.speed if self.scheme == "dynamic" else self.equal
-            self.weights = par.split_pairs(self.code, self.threads, shares, p.pi, p.pj, s.n_owned, s.pos, s.rbound,
-                                           s.shape, cross is not None, bounds, self.gat, home_start, home_items)
+            self.weights = par.split_pairs(self.code, self.threads, shares, p.pi, p.pj, s.gid, s.n_owned, s.pos,
+                                           s.rbound, s.shape, cross is not None, bounds, self.gat, home_start,
+                                           home_items)
         else:
-            par.cut_ranges(self.weights, self.threads, self.equal, p.pi, p.pj, s.n_owned, bounds, self.gat,
+            par.cut_ranges(self.weights, self.threads, self.equal, p.pi, p.pj, s.gid, s.n_owned, bounds, self.gat,
                            home_start, home_items)
         p.offsets = bounds
         if cross is None:
@@ -304,10 +308,16 @@ class ThreadsMode(SerialMode):
     def step(self):
         row = super().step()
         hz = cycles_per_second()
-        busy = (self.busy + (self.scan_busy if row["neighbor_rebuilt"] else 0)) / hz
-        row["busy_max"] = float(busy.max())
-        row["busy_mean"] = float(busy.mean())
-        row["imbalance"] = float(busy.max() / busy.mean()) if busy.mean() > 0 else 1.0
+        # plain floats over the T threads: numpy's reductions of so few numbers took 30-50 us a step,
+        # 3 % of a 2-thread step of 2500 packed ellipsoids
+        busy = [a + b for a, b in zip(self.busy_rows[:, 0].tolist(), self.busy_stored[:, 0].tolist())]
+        if row["neighbor_rebuilt"]:
+            busy = [a + b for a, b in zip(busy, self.scan_busy.tolist())]
+        top = max(busy) / hz
+        mean = sum(busy) / len(busy) / hz
+        row["busy_max"] = top
+        row["busy_mean"] = mean
+        row["imbalance"] = top / mean if mean > 0 else 1.0
         row["work_imbalance"] = self.work_imbalance
         if row["neighbor_rebuilt"]:
             self.window_n = 0   # a new cut (and cold caches): its window starts with the next step

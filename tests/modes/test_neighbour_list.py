@@ -8,7 +8,7 @@ from bench.run.prepare import load_prepared
 from dem.timestep import choose_time_step
 from dem.pairs import (DEFAULT_SKIN, PairList, history_from_csr, history_to_csr, pair_adjacency,
                        pair_adjacency_of, sort_by_gid)
-from modes.parallel import adjacency_marked_threads
+from modes.parallel import adjacency_marked_threads, sort_by_gid_threads
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 
@@ -265,7 +265,8 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
     the others none, and modes.parallel.adjacency_marked_threads the same arrays at 1-3 threads.
     sort_by_gid orders the pairs by (gid_i, gid_j) as numpy's lexsort does, with the particles
     stored in gid order (ranks taken as indices) or not (owned ones sorted, ghosts after them in
-    any order, as under MPI)."""
+    any order, as under MPI), and modes.parallel.sort_by_gid_threads the same order at 1-7
+    threads."""
     n = 80
     for stored in ("sorted", "ghost tail"):
         gid = np.sort(rng.permutation(900)[:n]).astype(np.int64)
@@ -278,6 +279,10 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
         sort_by_gid(pi.copy(), pj.copy(), gid, si, sj)
         ref = np.lexsort((gid[pj], gid[pi]))
         assert np.array_equal(si, pi[ref]) and np.array_equal(sj, pj[ref])
+        for threads in (1, 2, 3, 7):  # modes.parallel's, in place, by T buckets of ranks: the same order
+            ti, tj = pi.copy(), pj.copy()
+            sort_by_gid_threads(threads, ti, tj, gid)
+            assert np.array_equal(ti, si) and np.array_equal(tj, sj)
         full = pair_adjacency(si, sj, gid, 60)
         mark = (rng.random(60) < 0.2).astype(np.int8)
         part = pair_adjacency_of(si, sj, gid, 60, mark)

@@ -9,8 +9,8 @@ import pytest
 from bench.run.prepare import load_prepared
 from dem.timestep import choose_time_step
 from dem.forces import SPLIT, STORE
-from modes.parallel import (DYNAMIC, PARTITION, SCHEMES, STATIC, WEIGHT_BLOCK, cut_at_equal_weight, finish_cuts,
-                            scheme_rows, split_pairs)
+from modes.parallel import (DYNAMIC, PARTITION, SCHEMES, STATIC, WEIGHT_BLOCK, _offsets_by_row, cut_at_equal_weight,
+                            finish_cuts, offsets_by_row_threads, scheme_rows, split_pairs)
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 from tests.helpers import bench, one_line_error
@@ -196,17 +196,20 @@ def test_learn_speed_gives_the_next_fresh_cut_shares():
 @pytest.mark.parametrize("threads", [1, 2, 3, 5])
 def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads):
     """split_pairs on a random gid-sorted list of up to 600 pairs among particles 0..119 of 150 (30
-    without pairs): the T ranges start at row starts and cover the list in order; gat[p] = 1
-    exactly for the particles with pairs in two ranges (by brute force); every other particle is
-    zeroed by exactly one range, its own (range 0 for those without pairs); static ranges hold m/T
-    pairs to within one row."""
+    without pairs), stored in reverse gid order: the T ranges start at row starts and cover the list
+    in order; gat[p] = 1 exactly for the particles that a range before their own (the range whose
+    rows span gid[p]) holds as a pair's later end (by brute force), which takes in every particle
+    with pairs in two ranges; every other particle is zeroed by exactly one range, its own, which
+    holds all its pairs; static ranges hold m/T pairs to within one row."""
     rng = np.random.default_rng(7)
     n = 150
     i = rng.integers(0, 119, 600)
     j = np.minimum(i + rng.integers(1, 30, 600), 119)
     keys = np.unique(np.stack([i, j], axis=1), axis=0)
     keys = keys[keys[:, 0] < keys[:, 1]]
-    pi, pj = keys[:, 0].copy(), keys[:, 1].copy()
+    gid = np.arange(n)[::-1].copy()   # particle p has gid n-1-p: rows by gid, not by index
+    pi, pj = n - 1 - keys[:, 0], n - 1 - keys[:, 1]
+    assert np.all(gid[pi] < gid[pj])
     m = len(pi)
     pos = rng.random((n, 3))
     rbound = np.full(n, 0.1)
@@ -214,27 +217,53 @@ def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads):
     gat = np.zeros(n, dtype=np.int8)
     home_start = np.zeros(threads + 1, dtype=np.int64)
     home_items = np.zeros(n, dtype=np.int64)
-    split_pairs(code, threads, np.ones(threads), pi, pj, n, pos, rbound, np.zeros(n, dtype=np.int8), False, bounds, gat,
-                home_start, home_items)
+    split_pairs(code, threads, np.ones(threads), pi, pj, gid, n, pos, rbound, np.zeros(n, dtype=np.int8), False,
+                bounds, gat, home_start, home_items)
     assert bounds[0] == 0 and bounds[-1] == m and np.all(np.diff(bounds) >= 0)
     assert all(b in (0, m) or pi[b] != pi[b - 1] for b in bounds)
     rng_of = np.searchsorted(bounds, np.arange(m), side="right") - 1
+    first = [gid[pi[b]] if b < m else np.inf for b in bounds]
+    own = [max([0] + [t for t in range(1, threads) if first[t] <= gid[p]]) for p in range(n)]
     ranges = [set() for _ in range(n)]
+    later_end_before_own = np.zeros(n, dtype=np.int8)
     for k in range(m):
         ranges[pi[k]].add(rng_of[k])
         ranges[pj[k]].add(rng_of[k])
-    assert [int(g) for g in gat] == [1 if len(r) > 1 else 0 for r in ranges]
+        if rng_of[k] < own[pj[k]]:
+            later_end_before_own[pj[k]] = 1
+    assert gat.tolist() == later_end_before_own.tolist()
+    assert all(gat[p] == 1 for p in range(n) if len(ranges[p]) > 1)
     assert (gat.sum() > 0) == (threads > 1)
+    assert home_start[threads] == n - gat.sum()
     zeroed = {}
     for t in range(threads):
         for p in home_items[home_start[t]:home_start[t + 1]]:
             assert p not in zeroed
             zeroed[int(p)] = t
     assert sorted(zeroed) == [p for p in range(n) if gat[p] == 0]
-    assert all(zeroed[p] == (min(ranges[p]) if ranges[p] else 0) for p in zeroed)
+    assert all(zeroed[p] == own[p] and ranges[p] <= {own[p]} for p in zeroed)
+    assert all(list(home_items[home_start[t]:home_start[t + 1]]) == sorted(home_items[home_start[t]:home_start[t + 1]])
+               for t in range(threads))
     if code == STATIC:
         longest = np.max(np.unique(pi, return_counts=True)[1])
         assert np.all(np.abs(np.diff(bounds) - m / threads) <= longest)
+
+
+@pytest.mark.parametrize("threads, nrow", [(1, 5), (2, 1000), (3, 7), (7, 2), (16, 300)])
+def test_offsets_by_row_threads_is_the_one_thread_prefix(threads, nrow):
+    """The counting sorts' write offsets by T threads over blocks of rows (some blocks empty where
+    rows < T) equal one thread's walk: start[r] = the counts of rows before r, and each thread's
+    first slot in row r after the threads before it (np.cumsum of the row-major counts)."""
+    count = np.random.default_rng(threads).integers(0, 6, (threads, nrow))
+    flat = np.concatenate([[0], np.cumsum(count.T.ravel())])
+    want_slots = flat[:-1].reshape(nrow, threads).T
+    one, many = count.copy(), count.copy()
+    s1 = np.empty(nrow + 1, dtype=np.int64)
+    s2 = np.full(nrow + 1, -1, dtype=np.int64)
+    _offsets_by_row(one, nrow, s1)
+    offsets_by_row_threads(many, nrow, s2)
+    assert np.array_equal(s2, s1) and np.array_equal(s2, flat[::threads])
+    assert np.array_equal(many, one) and np.array_equal(many, want_slots)
 
 
 @pytest.mark.parametrize("threads", [2, 3, 7])
@@ -273,7 +302,7 @@ def _cut_spheres_then_ellipsoids(code, n_owned, taken):
     rbound = np.full(n, 1e-3)
     shape = np.where(np.arange(n) < 200, 0, 1).astype(np.int8)
     bounds = np.zeros(3, dtype=np.int64)
-    split_pairs(code, 2, np.ones(2), pi, pj, n_owned, pos, rbound, shape, taken, bounds,
+    split_pairs(code, 2, np.ones(2), pi, pj, np.arange(n), n_owned, pos, rbound, shape, taken, bounds,
                 np.zeros(n_owned, dtype=np.int8), np.zeros(3, dtype=np.int64), np.zeros(n_owned, dtype=np.int64))
     return bounds.tolist()
 
