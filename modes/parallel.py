@@ -65,6 +65,7 @@ WEIGHT_BLOCK = 1024   # pairs per prange iteration of the range cut's per-pair l
 # threads 0.076 against 0.057 ms: one thread's sort up to 2 threads, the threads' from 3.
 SORT_THREADS_FROM = 3
 COUNT_PAD = 8         # int64 counters between two threads' rows of counts (a cache line)
+OFFSETS_THREADS_FROM = 65536   # counts [T x rows] from which their write offsets are made by the threads
 # Dynamic split: the cost of resolving a candidate pair, in units of one whose bounding spheres are
 # apart (`bench perf --what split` measures these on the machine at hand; 2 cores:
 # apart 0.0066-0.0117 us; overlapping sphere pair 0.063 us; overlapping ellipsoid pair 0.27 us on
@@ -369,8 +370,14 @@ def offsets_by_row_threads(count, nrow, start):
     """_offsets_by_row by the T threads of count [T, nrow], each over a contiguous block of rows: the
     blocks' totals, their prefix on one thread (T numbers), then each block's offsets from its
     base; the same offsets. One thread's walk over the T x nrow counts is a serial phase of the
-    rebuild's counting sorts that grows with T (the grid's cells, the adjacency's particles)."""
+    rebuild's counting sorts that grows with T (the grid's cells, the adjacency's particles);
+    below OFFSETS_THREADS_FROM counts one thread walks them (two more parallel regions gained
+    nothing at 2 threads: the grid of 2500 and 12k packed ellipsoids took 0.027 and 0.075 ms
+    either way)."""
     threads = count.shape[0]
+    if threads * nrow < OFFSETS_THREADS_FROM:
+        _offsets_by_row(count, nrow, start)
+        return
     base = np.zeros(threads + 1, dtype=np.int64)
     for b in prange(threads):
         acc = 0

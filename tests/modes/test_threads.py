@@ -249,10 +249,11 @@ def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads):
         assert np.all(np.abs(np.diff(bounds) - m / threads) <= longest)
 
 
-@pytest.mark.parametrize("threads, nrow", [(1, 5), (2, 1000), (3, 7), (7, 2), (16, 300)])
+@pytest.mark.parametrize("threads, nrow", [(1, 5), (2, 1000), (3, 7), (7, 2), (16, 300), (2, 40000), (16, 5000),
+                                           (7, 10000)])
 def test_offsets_by_row_threads_is_the_one_thread_prefix(threads, nrow):
-    """The counting sorts' write offsets by T threads over blocks of rows (some blocks empty where
-    rows < T) equal one thread's walk: start[r] = the counts of rows before r, and each thread's
+    """The counting sorts' write offsets by T threads over blocks of rows (one thread below
+    OFFSETS_THREADS_FROM = 65536 counts, the last three cases above it) equal one thread's walk: start[r] = the counts of rows before r, and each thread's
     first slot in row r after the threads before it (np.cumsum of the row-major counts)."""
     count = np.random.default_rng(threads).integers(0, 6, (threads, nrow))
     flat = np.concatenate([[0], np.cumsum(count.T.ravel())])
