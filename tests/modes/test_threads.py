@@ -253,8 +253,9 @@ def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads):
                                            (7, 10000)])
 def test_offsets_by_row_threads_is_the_one_thread_prefix(threads, nrow):
     """The counting sorts' write offsets by T threads over blocks of rows (one thread below
-    OFFSETS_THREADS_FROM = 65536 counts, the last three cases above it) equal one thread's walk: start[r] = the counts of rows before r, and each thread's
-    first slot in row r after the threads before it (np.cumsum of the row-major counts)."""
+    OFFSETS_THREADS_FROM = 65536 counts, the last three cases above it) equal one thread's walk:
+    start[r] = the counts of rows before r, and each thread's first slot in row r after the
+    threads before it (np.cumsum of the row-major counts)."""
     count = np.random.default_rng(threads).integers(0, 6, (threads, nrow))
     flat = np.concatenate([[0], np.cumsum(count.T.ravel())])
     want_slots = flat[:-1].reshape(nrow, threads).T
