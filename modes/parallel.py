@@ -18,9 +18,10 @@ and dynamic the list is sorted by global id and cut, at each rebuild, into T con
 of whole rows (split_pairs): equal rows (partition), equal pairs (static), or equal estimated
 work (dynamic, which re-balances at every rebuild instead of handing out chunks, and between
 rebuilds re-cuts from the threads' measured busy times: modes.threads, rebalance): a pair whose
-bounding spheres are apart counts 1, one whose bounding spheres overlap SPHERE_PAIR_WEIGHT between
-two spheres (closed form) and SOLVER_WEIGHT where an ellipsoid or poly-ellipsoid is in it (the
-iterative solve), so that a scene of spheres beside ellipsoids splits by cost, not by count.
+bounding spheres are apart counts 1, one whose bounding spheres overlap the larger contact cost
+of its two shapes (CONTACT_COST, from the registered shapes: 10 for two spheres' closed form, 40
+where an ellipsoid or poly-ellipsoid needs the iterative solve), so that a scene of spheres
+beside ellipsoids splits by cost, not by count.
 Thread t resolves range t and sums the forces of the particles whose pairs all lie in it as it
 goes, as one thread does (SPLIT); only the particles with pairs in two ranges gather. Where the
 ranges hold many particles this spares the gather and the per-pair stores: on 12k packed
@@ -44,7 +45,7 @@ from dem.forces import SPLIT, SPLIT_TAKEN, finish_range, resolve_range, wall_can
 from dem.integrate import derive_all
 from dem.neighbor import HALF_SHELL, cell_of_point, grid_shape, scan_rows
 from dem.pairs import _counting_sort, carry_history_rows_range, carry_history_sorted_range, gid_ranks
-from dem.shapes import SPHERE
+from dem.shapes.registry import SHAPES
 
 SCHEMES = ("partition", "frogleap", "headtail", "static", "dynamic")
 DEFAULT_SCHEME = "dynamic"   # the scheme of a run with T > 1 threads when none is given
@@ -66,20 +67,14 @@ WEIGHT_BLOCK = 1024   # pairs per prange iteration of the range cut's per-pair l
 SORT_THREADS_FROM = 3
 COUNT_PAD = 8         # int64 counters between two threads' rows of counts (a cache line)
 OFFSETS_THREADS_FROM = 65536   # counts [T x rows] from which their write offsets are made by the threads
-# Dynamic split: the cost of resolving a candidate pair, in units of one whose bounding spheres are
-# apart (`bench perf --what split` measures these on the machine at hand; 2 cores:
-# apart 0.0066-0.0117 us; overlapping sphere pair 0.063 us; overlapping ellipsoid pair 0.27 us on
-# packed 2000, 0.35 us on the built-in mixed crystal; poly-ellipsoid 0.29 us on packed 2000).
-SPHERE_PAIR_WEIGHT = 10.0
-SOLVER_WEIGHT = 40.0
-# The per-particle pass (gather, walls, integration), in units of a sphere's without a wall
-# (`bench perf --what split`: dem.forces.finish_range over the spheres and over the ellipsoids of
-# the mixed crystal, with its walls and without; 2 cores: sphere 0.059 us, ellipsoid 0.142 us; a
-# wall on the particle's list adds 0.009 us to a sphere, 0.129 us to an ellipsoid, whose wall
-# contact needs its support).
-FINISH_SOLID_WEIGHT = 2.4       # an ellipsoid or poly-ellipsoid
-FINISH_WALL_SPHERE = 0.15
-FINISH_WALL_SOLID = 2.2
+# The cost model, from the registered shapes (dem.shapes.shape.Shape, measured by `bench perf --what
+# split`), indexed by shape code: a candidate pair whose bounding spheres overlap, in units of one
+# whose bounding spheres are apart, costs the larger CONTACT_COST of its two shapes (the dynamic cut);
+# a particle's per-particle pass PASS_COST, plus WALL_COST when a wall is on its list, in units of
+# a sphere's (the pass's blocks).
+CONTACT_COST = np.array([s.contact_cost for s in SHAPES])
+PASS_COST = np.array([s.pass_cost for s in SHAPES])
+WALL_COST = np.array([s.wall_cost for s in SHAPES])
 
 
 @intrinsic
@@ -632,8 +627,8 @@ def split_pairs(code, threads, shares, pi, pj, gid, n_owned, pos, rbound, shape,
     """Cut the gid-sorted pair list (pi, pj [m]: rows of equal pi contiguous; gid [n]) into T ranges
     of whole rows, bounds [T+1] (pair indices), by the scheme `code`: equal rows (PARTITION), equal estimated
     work (DYNAMIC: for a pair whose bounding spheres of radii rbound [n] [m] overlap at pos [n,3] [m],
-    SPHERE_PAIR_WEIGHT if both shape [n] codes are SPHERE, else SOLVER_WEIGHT; 1 for the others and,
-    when taken, for the pairs with a ghost end, whose terms are taken, not resolved: dem.forces,
+    the larger CONTACT_COST of its two shape [n] codes (both spheres 10, else 40); 1 for the others
+    and, when taken, for the pairs with a ghost end, whose terms are taken, not resolved: dem.forces,
     SPLIT_TAKEN), equal pairs (otherwise): pair_weights, then cut_ranges, range t taking shares[t] of
     the weight (cut_at_equal_weight). Returns the pairs' weights w [m] (cut_ranges cuts them again
     when measured times rescale them)."""
@@ -668,9 +663,7 @@ def _pair_weight(code, k, pi, pj, n_owned, pos, rbound, shape, taken):
     d2 = (pos[j, 0] - pos[i, 0]) ** 2 + (pos[j, 1] - pos[i, 1]) ** 2 + (pos[j, 2] - pos[i, 2]) ** 2
     if d2 >= (rbound[i] + rbound[j]) ** 2:
         return 1.0
-    if shape[i] == SPHERE and shape[j] == SPHERE:
-        return SPHERE_PAIR_WEIGHT
-    return SOLVER_WEIGHT
+    return max(CONTACT_COST[shape[i]], CONTACT_COST[shape[j]])
 
 
 @njit(cache=True, parallel=True)
@@ -839,9 +832,9 @@ def derive_threads(threads, lo, hi, bodies, polys, poly_scene):
 @njit(cache=True)
 def finish_cuts(threads, n_owned, shape, near, cuts):
     """Cut the owned particles 0..n_owned-1 into T contiguous blocks of equal estimated cost of the
-    per-particle pass, cuts [T+1]: a sphere weighs 1 (+ FINISH_WALL_SPHERE when near [n_owned] puts
-    it on the wall list), an ellipsoid or poly-ellipsoid (shape [n] codes) FINISH_SOLID_WEIGHT (+
-    FINISH_WALL_SOLID). Where every particle weighs the same the blocks are equal to within one."""
+    per-particle pass, cuts [T+1]: a particle weighs its shape's (shape [n] codes) PASS_COST (a sphere 1,
+    an ellipsoid or poly-ellipsoid 2.4) plus its WALL_COST when near [n_owned] puts it on the wall
+    list (0.15, 2.2). Where every particle weighs the same the blocks are equal to within one."""
     w = np.empty(n_owned)
     for p in range(n_owned):
         w[p] = _finish_weight(shape[p], near[p])
@@ -850,9 +843,7 @@ def finish_cuts(threads, n_owned, shape, near, cuts):
 
 @njit(cache=True, inline="always")
 def _finish_weight(code, near):
-    if code == SPHERE:
-        return 1.0 + FINISH_WALL_SPHERE * near
-    return FINISH_SOLID_WEIGHT + FINISH_WALL_SOLID * near
+    return PASS_COST[code] + WALL_COST[code] * near
 
 
 @njit(parallel=True, cache=True)

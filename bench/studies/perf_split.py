@@ -1,6 +1,6 @@
-"""`bench perf --what split`: the measurement behind the thread schemes' cost model
-(modes.parallel: SPHERE_PAIR_WEIGHT, SOLVER_WEIGHT, FINISH_SOLID_WEIGHT, FINISH_WALL_SPHERE,
-FINISH_WALL_SOLID), taken on the machine at hand.
+"""`bench perf --what split`: the measurement behind the thread schemes' cost model (each registered
+shape's contact_cost, pass_cost and wall_cost: dem.shapes.shape.Shape, read by modes.parallel),
+taken on the machine at hand.
 
 On the built-in `mixed` crystal (2000 spheres, then 2000 aligned ellipsoids by global id, every
 particle on the floor) a serial mode is built at two Verlet skins, 0.1 and 0.6. Its gid-sorted
@@ -13,8 +13,8 @@ with the scene's walls and with none: the particle's cost without a wall, and wh
 contact adds. The calls repeat one step's work on a throwaway copy (its history and positions
 drift by the repeats, which does not change what the kernels do).
 
-Weights are in the units of modes.parallel: a pair apart (pairs), a sphere without a wall
-(the per-particle pass).
+Weights are in the units of the cost model: a pair apart (pairs), a sphere without a wall (the
+per-particle pass). The poly-ellipsoid is not in the crystal; its costs are the ellipsoid's.
 """
 import statistics
 import time
@@ -24,8 +24,8 @@ import numpy as np
 from bench.run.prepare import load_prepared
 from dem.forces import finish_range, resolve_range
 from dem.shapes import SPHERE
+from dem.shapes.registry import BY_NAME
 from dem.timestep import choose_time_step
-from modes import parallel
 from modes.serial import SerialMode
 
 SKINS = (0.1, 0.6)
@@ -108,12 +108,15 @@ def measure(repeats, log, calls=100, scene_name="mixed"):
     base = 1e6 * s_bare / ns
     fin = {"sphere_us": base, "ellipsoid_us": 1e6 * e_bare / ne,
            "sphere_wall_us": 1e6 * (s_walls - s_bare) / ns, "ellipsoid_wall_us": 1e6 * (e_walls - e_bare) / ne}
-    measured = {"SPHERE_PAIR_WEIGHT": costs["sphere"]["near_us"] / apart,
-                "SOLVER_WEIGHT": costs["ellipsoid"]["near_us"] / apart,
-                "FINISH_SOLID_WEIGHT": fin["ellipsoid_us"] / base,
-                "FINISH_WALL_SPHERE": fin["sphere_wall_us"] / base,
-                "FINISH_WALL_SOLID": fin["ellipsoid_wall_us"] / base}
-    constants = {k: float(getattr(parallel, k)) for k in measured}
+    measured = {"sphere.contact_cost": costs["sphere"]["near_us"] / apart,
+                "ellipsoid.contact_cost": costs["ellipsoid"]["near_us"] / apart,
+                "ellipsoid.pass_cost": fin["ellipsoid_us"] / base,
+                "sphere.wall_cost": fin["sphere_wall_us"] / base,
+                "ellipsoid.wall_cost": fin["ellipsoid_wall_us"] / base}
+    constants = {}
+    for k in measured:
+        shape, cost = k.split(".")
+        constants[k] = float(getattr(BY_NAME[shape], cost))
     return {"scene": scene.name, "particles": scene.n, "skins": list(SKINS), "repeats": repeats, "calls": calls,
             "pairs": costs, "finish": fin, "measured_weights": measured, "constants": constants}
 
@@ -127,5 +130,5 @@ def report_lines(rep):
              f"per-particle pass: sphere {f['sphere_us']:.4f} us, ellipsoid {f['ellipsoid_us']:.4f} us; a wall "
              f"contact adds {f['sphere_wall_us']:.4f} and {f['ellipsoid_wall_us']:.4f} us"]
     for k, v in rep["measured_weights"].items():
-        lines.append(f"{k}: measured {v:.3g}, modes.parallel {rep['constants'][k]:g}")
+        lines.append(f"{k}: measured {v:.3g}, registered {rep['constants'][k]:g}")
     return lines

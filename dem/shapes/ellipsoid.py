@@ -56,5 +56,8 @@ def generate(a, draw):
         np.zeros((k, 3))
 
 
+# cost model (Shape; `bench perf --what split`, 2 cores, in the sphere's units): an overlapping pair
+# (the iterative solve) 0.27 us on packed 2000, 0.35 us on the built-in mixed crystal; the
+# per-particle pass 0.142 us, a wall on its list adds 0.129 us (its wall contact needs its support)
 SHAPE = Shape("ellipsoid", ELLIPSOID, ("a", "b", "c"), semi_axes, body, bounding_radius, smallest_semi_axis,
-              equivalent_radius, snapshot_pose, generate, True)
+              equivalent_radius, snapshot_pose, generate, True, contact_cost=40.0, pass_cost=2.4, wall_cost=2.2)

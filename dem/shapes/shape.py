@@ -1,11 +1,10 @@
 """Shape: what the scene build, the state and the records need of one shape, in one place.
 
 Each shape's module (dem.shapes.sphere, ellipsoid, polyellipsoid) makes one Shape;
-dem.shapes.registry lists them. The step's kernels dispatch on the shape code instead (numba
-compiles a fixed dispatch, and its cache keys on the dispatching file's source, so a table of
-kernels read from here would go stale): a shape's contact geometry is dem.forces pair_geometry
-and wall_geometry, its integration dem.integrate, its ghost record modes.halo; each module's
-docstring names them.
+dem.shapes.registry lists them. The step's kernels dispatch on the shape code by hand (numba
+compiles a fixed dispatch; docs/ARCHITECTURE.md, "Adding a shape", says what a registry-built one
+cost): a shape's contact geometry is dem.forces pair_geometry and wall_geometry, its integration
+dem.integrate, its ghost record modes.halo; each module's docstring names them.
 """
 from dataclasses import dataclass
 from typing import Callable
@@ -31,7 +30,14 @@ class Shape:
     from the octant origin in the octant frame [k, 3] [m]): the shape of k generated particles of
     largest semi-axis a [m] ([[generate]]), draw(key, default, size) giving the scene's [lo, hi]
     range `key` (default if absent) drawn uniformly (in the order the shape draws them: the scene's
-    seed fixes them); oriented: whether its orientation shapes it (generated ones turn at random)."""
+    seed fixes them); oriented: whether its orientation shapes it (generated ones turn at random).
+
+    The thread schemes' cost model (modes.parallel: the dynamic cut of the pair list and the
+    blocks of the per-particle pass), measured by `bench perf --what split` on the machine at hand:
+    contact_cost, a candidate pair's resolution where this is the pair's most general shape and
+    the bounding spheres overlap, in units of a pair whose bounding spheres are apart; pass_cost,
+    its per-particle pass (gather, integration) in units of a sphere's; wall_cost, what a wall on
+    its wall list adds to that pass, in the same units."""
     name: str
     code: int
     file_axes: tuple
@@ -43,3 +49,6 @@ class Shape:
     snapshot_pose: Callable
     generate: Callable
     oriented: bool
+    contact_cost: float
+    pass_cost: float
+    wall_cost: float

@@ -1,4 +1,4 @@
-"""`bench perf --what split`: the measurement behind the thread schemes' cost model (modes.parallel)."""
+"""`bench perf --what split`: the measurement behind the thread schemes' cost model (the shapes' costs)."""
 from tests.helpers import bench
 
 
@@ -8,8 +8,8 @@ def test_split_study_counts_and_orders_the_costs():
     pairs, each with bounding spheres overlapping; a wider skin only adds pairs whose bounding
     spheres are apart. An ellipsoid pair needs the iterative solve, so the ellipsoids' rows take
     longer than the spheres' (5.6x measured), and an ellipsoid's per-particle pass with its floor
-    contact longer than a sphere's (4x). The report carries modes.parallel's constants beside the
-    measured weights."""
+    contact longer than a sphere's (4x). The report carries the registered shapes' costs (the
+    ones modes.parallel cuts by) beside the measured weights."""
     from bench.studies.perf_split import measure
     from modes import parallel
     rep = measure(1, lambda msg: None, calls=3)
@@ -19,7 +19,8 @@ def test_split_study_counts_and_orders_the_costs():
     assert ell[0]["seconds"] > sph[0]["seconds"]
     assert rep["finish"]["ellipsoid_us"] + rep["finish"]["ellipsoid_wall_us"] > \
         rep["finish"]["sphere_us"] + rep["finish"]["sphere_wall_us"]
-    assert rep["constants"]["SOLVER_WEIGHT"] == parallel.SOLVER_WEIGHT
+    assert rep["constants"]["ellipsoid.contact_cost"] == parallel.CONTACT_COST[1] == 40.0
+    assert rep["constants"]["sphere.wall_cost"] == parallel.WALL_COST[0] == 0.15
     assert set(rep["measured_weights"]) == set(rep["constants"])
 
 

@@ -310,8 +310,9 @@ def _cut_spheres_then_ellipsoids(code, n_owned, taken):
 
 
 def test_dynamic_split_weighs_ellipsoid_pairs_above_sphere_pairs():
-    """The dynamic scheme cuts by estimated cost (modes.parallel: an overlapping sphere pair weighs
-    SPHERE_PAIR_WEIGHT = 10, one with an ellipsoid SOLVER_WEIGHT = 40, from resolve_range timings):
+    """The dynamic scheme cuts by estimated cost (modes.parallel CONTACT_COST, the registered shapes'
+    contact_cost: an overlapping sphere pair weighs 10, one with an ellipsoid 40, from resolve_range
+    timings):
     100 sphere pairs (rows 0..99) then 100 ellipsoid pairs (rows 100..199), all touching, one pair
     a row, on 2 threads: half the cost is 2500 = 100 x 10 + 37.5 x 40, so thread 0 takes the 100
     sphere pairs and 38 ellipsoid pairs (the row where the cost first reaches 2500), thread 1 the
