@@ -48,15 +48,15 @@ import math
 import numpy as np
 from numba import njit
 
-from dem.contact.ellipsoid import (_write_out, ellipsoid_contact, ellipsoid_wall_contact, OUT_DEPTH, OUT_NX, OUT_NY,
-                                   OUT_NZ, OUT_XCX, OUT_XCY, OUT_XCZ, OUT_RE, OUT_KRATIO, OUT_LAM, OUT_LEN)
+# ellipsoid contact methods (dem.contact.CONTACT_METHODS): EXACT, PW, SEXTIC, the `method` argument
+from dem.contact import EXACT, PW, SEXTIC  # noqa: F401 (the kernels' callers name them here)
+from dem.contact.ellipsoid import (OUT_DEPTH, OUT_NX, OUT_XCX, OUT_LEN, solved_geometry)
 from dem.contact.hertz_factor import hertz_factor
 from dem.contact.law import hertz_mindlin
-from dem.contact.methods import pw_contact, sextic_contact
-from dem.contact.polyellipsoid import polyellipsoid_contact, polyellipsoid_wall_contact
-from dem.contact.sphere import sphere_contact, sphere_wall_contact
+from dem.contact.sphere import sphere_contact
 from dem.integrate import derive_particle, derive_poly_geometry, integrate_particle
 from dem.shapes import ELLIPSOID, POLY, SPHERE
+from dem.shapes.dispatch import by_shape
 from dem.state import H_FT, H_A, H_LAM, H_N
 
 # a pair's forces: pf [m, PF_LEN]
@@ -79,8 +79,6 @@ TERMS = 7
 # as TAKEN takes them (hybrid with Newton), their terms stored into pf for an end that gathers
 STORE, SUM, SPLIT, TAKEN, SPLIT_TAKEN = 0, 1, 2, 3, 4
 
-# ellipsoid contact methods (dem.contact.CONTACT_METHODS; dem/contact/methods.py): index = the `method` argument
-EXACT, PW, SEXTIC = 0, 1, 2
 
 # what resolve_range returns, in this order
 RESOLVED = ("n_contacts", "ellipsoid_calls", "worst_ratio", "worst_pair", "ratio_sum")
@@ -366,50 +364,18 @@ def _solved_pair(hit, k, i, j, out, amin_i, amin_j, bodies, law, plist, dt, sums
     return geo[0] / min(amin_i, amin_j)
 
 
-@njit(cache=True, inline="always")
-def solved_geometry(out):
-    """contact_law's record of a contact a solver wrote to out [OUT_LEN] (the normal is a unit
-    vector: u = n, iu2 = 1)."""
-    nx, ny, nz = out[OUT_NX], out[OUT_NY], out[OUT_NZ]
-    return (out[OUT_DEPTH], nx, ny, nz, nx, ny, nz, 1.0, out[OUT_XCX], out[OUT_XCY], out[OUT_XCZ], out[OUT_RE],
-            out[OUT_KRATIO], out[OUT_LAM])
-
-
-@njit(cache=True, inline="always")
-def pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, polys, lam0, n0, out):
-    """The contact geometry of the pair (i, j) by the pair's shapes: the one shape dispatch of a
-    pair, used by the step (resolve_range) and by `bench contacts` (pair_contacts). Two spheres:
-    closed form; a poly-ellipsoid on either side (in a scene with them, poly_scene): the octant
-    active set on the octant geometry of polys; else the ellipsoid method CONTACT_METHODS[method]
-    (warm start lam0, n0 [3]; lam0 < 0 and n0 = 0: none). Fills out [OUT_LEN] (OUT_* layout: depth,
-    normal from i to j, contact points, R_e, kappa ratio, lambda) on contact. Returns (hit,
-    smallest semi-axis of i, of j [m], 1 when a solver ran)."""
-    if shape[i] == SPHERE and shape[j] == SPHERE:
-        hit, depth, nx, ny, nz, xcx, xcy, xcz, r_e = sphere_contact(
-            pos[i, 0], pos[i, 1], pos[i, 2], axes[i, 0], pos[j, 0], pos[j, 1], pos[j, 2], axes[j, 0])
-        if hit:  # surface points p1 = x_c + depth/2 n on i, p2 = x_c - depth/2 n on j
-            h = 0.5 * depth
-            _write_out(out, depth, nx, ny, nz, xcx + h * nx, xcy + h * ny, xcz + h * nz,
-                       xcx - h * nx, xcy - h * ny, xcz - h * nz, r_e, 1.0, 0.0, 0, 0)
-        return 1 if hit else 0, axes[i, 0], axes[j, 0], 0
-    if poly_scene and (shape[i] == POLY or shape[j] == POLY):
-        _, oorg, orot, ax6 = polys
-        hit = polyellipsoid_contact(oorg[i], orot[i], ax6[i], oorg[j], orot[j], ax6[j], n0, out)
-        ai = ax6[i, 0]
-        aj = ax6[j, 0]
-        for c in range(1, 6):
-            ai = min(ai, ax6[i, c])
-            aj = min(aj, ax6[j, c])
-        return hit, ai, aj, 1
-    if method == EXACT:
-        hit = ellipsoid_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
-    elif method == PW:
-        hit = pw_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
-    else:
-        hit = sextic_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
-    ai = min(axes[i, 0], min(axes[i, 1], axes[i, 2]))
-    aj = min(axes[j, 0], min(axes[j, 1], axes[j, 2]))
-    return hit, ai, aj, 1
+pair_geometry = by_shape(
+    "pair_geometry", "i, j, pos, rot, axes, shape, method, poly_scene, polys, lam0, n0, out", "max(shape[i], shape[j])",
+    """The contact geometry of the pair (i, j): the kernel of the pair's most general shape (the
+    codes are ordered so, each shape's kernels handling the shapes before it), built from the
+    registered shapes (dem.shapes.dispatch): two spheres in closed form (dem.shapes.sphere), an
+    ellipsoid by the method CONTACT_METHODS[method] (warm start lam0, n0 [3]; lam0 < 0 and n0 = 0:
+    none) (dem.shapes.ellipsoid), a poly-ellipsoid on either side (poly_scene: the scene has them)
+    by the octant active set on the octant geometry of polys (dem.shapes.polyellipsoid). The one
+    shape dispatch of a pair, used by the step (resolve_range) and by `bench contacts`
+    (pair_contacts). Fills out [OUT_LEN] (OUT_* layout: depth, normal from i to j, contact points,
+    R_e, kappa ratio, lambda) on contact. Returns (hit, smallest semi-axis of i, of j [m], 1 when a
+    solver ran).""")
 
 
 @njit(cache=True)
@@ -531,28 +497,15 @@ def resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, deliver, 
                                terms, out, n0)
 
 
-@njit(cache=True, inline="always")
-def wall_geometry(p, w, wall_m, wall_d, pos, rot, axes, shape, polys, out):
+wall_geometry = by_shape(
+    "wall_geometry", "p, w, wall_m, wall_d, pos, rot, axes, shape, polys, out", "shape[p]",
     """The contact geometry of particle p with wall plane w (m.x = d, m the unit normal into the
-    domain) by p's shape: the one shape dispatch of a wall contact (as pair_geometry is a pair's).
-    Body 1 is the particle, body 2 the wall: the normal from particle into wall is -m. A sphere in
-    closed form; an ellipsoid by its support along -m; a poly-ellipsoid by that of its octant facing
-    the wall, on the octant geometry of polys. out [OUT_LEN] is scratch. Returns (hit, contact_law's
-    record, smallest semi-axis of p [m])."""
-    mx, my, mz = wall_m[w, 0], wall_m[w, 1], wall_m[w, 2]
-    if shape[p] == SPHERE:
-        hit, depth, xcx, xcy, xcz, r_e = sphere_wall_contact(pos[p, 0], pos[p, 1], pos[p, 2], axes[p, 0],
-                                                             mx, my, mz, wall_d[w])
-        return hit, (depth, -mx, -my, -mz, -mx, -my, -mz, 1.0, xcx, xcy, xcz, r_e, 1.0, 0.0), axes[p, 0]
-    amin = min(axes[p, 0], min(axes[p, 1], axes[p, 2]))
-    if shape[p] == POLY:
-        _, oorg, orot, ax6 = polys
-        hit = polyellipsoid_wall_contact(oorg[p], orot[p], ax6[p], wall_m[w], wall_d[w], out) == 1
-        for c in range(6):
-            amin = min(amin, ax6[p, c])
-    else:
-        hit = ellipsoid_wall_contact(pos[p], rot[p], axes[p], wall_m[w], wall_d[w], out) == 1
-    return hit, solved_geometry(out), amin
+    domain): the kernel of p's shape, built from the registered shapes (dem.shapes.dispatch): the
+    one shape dispatch of a wall contact, as pair_geometry is a pair's. Body 1 is the particle,
+    body 2 the wall: the normal from particle into wall is -m. A sphere in closed form; an
+    ellipsoid by its support along -m; a poly-ellipsoid by that of its octant facing the wall, on
+    the octant geometry of polys. out [OUT_LEN] is scratch. Returns (hit, contact_law's record,
+    smallest semi-axis of p [m]).""")
 
 
 @njit(cache=True, _nrt=False)

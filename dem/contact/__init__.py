@@ -7,4 +7,5 @@ DEFAULT_CONTACT_METHOD is the one a run takes when none is given. Plain names, i
 numba starts.
 """
 CONTACT_METHODS = ("exact", "pw", "sextic")
+EXACT, PW, SEXTIC = 0, 1, 2   # the codes of CONTACT_METHODS (the kernels' `method` argument)
 DEFAULT_CONTACT_METHOD = "exact"

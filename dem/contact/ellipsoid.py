@@ -540,3 +540,13 @@ def ellipsoid_wall_contact(c, rot, ax, m, d, out):
     p2z = p1z + depth * mz
     _write_out(out, depth, -mx, -my, -mz, p1x, p1y, p1z, p2x, p2y, p2z, re, kr, 0.0, 0.0, 0.0)
     return 1
+
+
+@njit(cache=True, inline="always")
+def solved_geometry(out):
+    """The contact record dem.forces contact_law takes, of a contact a solver wrote to out [OUT_LEN]
+    (the normal is a unit vector: u = n, iu2 = 1): (depth [m], n [3], u [3], iu2, x_c [3] [m],
+    R_e [m], kappa ratio, PW lambda)."""
+    nx, ny, nz = out[OUT_NX], out[OUT_NY], out[OUT_NZ]
+    return (out[OUT_DEPTH], nx, ny, nz, nx, ny, nz, 1.0, out[OUT_XCX], out[OUT_XCY], out[OUT_XCZ], out[OUT_RE],
+            out[OUT_KRATIO], out[OUT_LAM])

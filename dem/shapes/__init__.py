@@ -4,10 +4,11 @@ per shape.
 The plain constants live here, in the package's root, so that state, integration and contact
 modules can all import them (no import circle). Each shape's own facts (the scene file's
 semi-axes, mass properties, bounding radius, smallest and volume-equivalent semi-axis, the pose
-and semi-axes a snapshot reports, how a generated scene makes it; its module's docstring names the
-contact kernels it uses) live in its module:
+and semi-axes a snapshot reports, how a generated scene makes it, its costs in the thread
+schemes' cost model) and the kernels of its contact geometry (pair and wall) live in its module:
 dem.shapes.sphere, dem.shapes.ellipsoid, dem.shapes.polyellipsoid, each a dem.shapes.shape.Shape;
-dem.shapes.registry lists them and dispatches over the shapes a set of particles holds.
+dem.shapes.registry lists them and dispatches over the shapes a set of particles holds, and
+dem.shapes.dispatch builds the kernels' dispatch from it.
 
 Shapes: SPHERE (one radius, axes [r, r, r]), ELLIPSOID (semi-axes a >= b >= c or any order
 [m]), POLY (poly-ellipsoid, Peters et al. 2009: eight octant ellipsoids). A scene's kind, which

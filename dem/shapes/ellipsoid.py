@@ -1,14 +1,19 @@
 """The ellipsoid: semi-axes (a, b, c) [m] along its body axes, any order.
 
-Contact geometry: dem.contact.ellipsoid (ellipsoid_contact: Perram-Wertheim + Newton on S^2;
-ellipsoid_wall_contact: the support along the wall normal), dem.contact.methods (pw, sextic);
-dispatched by dem.forces pair_geometry and wall_geometry. Integration: dem.integrate (the
+Contact geometry: pair_geometry and wall_geometry below, which dem.forces calls through the
+registry's dispatch (dem.shapes.dispatch): dem.contact.ellipsoid (ellipsoid_contact:
+Perram-Wertheim + Newton on S^2; ellipsoid_wall_contact: the support along the wall normal),
+dem.contact.methods (pw, sextic). Integration: dem.integrate (the
 symplectic free-rotor splitting, contact-mechanics.md §4.2).
 """
 import math
 
 import numpy as np
+from numba import njit
 
+from dem.contact import EXACT, PW
+from dem.contact.ellipsoid import ellipsoid_contact, ellipsoid_wall_contact, solved_geometry
+from dem.contact.methods import pw_contact, sextic_contact
 from dem.shapes import ELLIPSOID
 from dem.shapes.shape import Shape
 
@@ -61,3 +66,30 @@ def generate(a, draw):
 # per-particle pass 0.142 us, a wall on its list adds 0.129 us (its wall contact needs its support)
 SHAPE = Shape("ellipsoid", ELLIPSOID, ("a", "b", "c"), semi_axes, body, bounding_radius, smallest_semi_axis,
               equivalent_radius, snapshot_pose, generate, True, contact_cost=40.0, pass_cost=2.4, wall_cost=2.2)
+
+
+@njit(cache=True, inline="always")
+def pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, polys, lam0, n0, out):
+    """A pair of ellipsoids, or of an ellipsoid and a sphere (its semi-axes (r, r, r)) (dem.forces
+    pair_geometry, whose arguments these are): the contact method CONTACT_METHODS[method] (warm
+    start lam0, n0 [3]) into out [OUT_LEN]. Returns (hit, smallest semi-axis of i, of j [m], 1: a
+    solver ran)."""
+    if method == EXACT:
+        hit = ellipsoid_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
+    elif method == PW:
+        hit = pw_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
+    else:
+        hit = sextic_contact(pos[i], rot[i], axes[i], pos[j], rot[j], axes[j], lam0, n0, out)
+    ai = min(axes[i, 0], min(axes[i, 1], axes[i, 2]))
+    aj = min(axes[j, 0], min(axes[j, 1], axes[j, 2]))
+    return hit, ai, aj, 1
+
+
+@njit(cache=True, inline="always")
+def wall_geometry(p, w, wall_m, wall_d, pos, rot, axes, shape, polys, out):
+    """Ellipsoid p and wall plane w (dem.forces wall_geometry, whose arguments these are): its
+    support along -m (out [OUT_LEN] scratch). Returns (hit, contact_law's record, smallest
+    semi-axis [m])."""
+    amin = min(axes[p, 0], min(axes[p, 1], axes[p, 2]))
+    hit = ellipsoid_wall_contact(pos[p], rot[p], axes[p], wall_m[w], wall_d[w], out) == 1
+    return hit, solved_geometry(out), amin

@@ -6,11 +6,15 @@ largest semi-axis per octant-frame axis), with a record State.poly [POLY_LEN] (d
 mapping that frame back to the octant geometry; scene files and snapshots give the octant origin
 and octant frame (DESIGN.md). Contact geometry: dem.contact.polyellipsoid (octant active set;
 polyellipsoid_wall_contact: the octant facing the wall), on the octant geometry of
-dem.integrate.derive_poly_geometry, dispatched by dem.forces pair_geometry and wall_geometry;
-its ghosts carry the record (modes.halo GHOST_POLY).
+dem.integrate.derive_poly_geometry: pair_geometry and wall_geometry below, which dem.forces calls
+through the registry's dispatch (dem.shapes.dispatch); its ghosts carry the record (modes.halo
+GHOST_POLY).
 """
 import numpy as np
+from numba import njit
 
+from dem.contact.ellipsoid import solved_geometry
+from dem.contact.polyellipsoid import mass_properties_poly, polyellipsoid_contact, polyellipsoid_wall_contact
 from dem.shapes import P_AX, P_OFF, P_ROT, POLY, POLY_LEN, ellipsoid
 from dem.shapes.shape import Shape
 
@@ -22,7 +26,6 @@ def poly_body(axes6, density):
     columns are the principal axes in the octant frame (dem.contact.polyellipsoid.
     mass_properties_poly), W = V^T and off = -V^T centroid. The principal frame is R = R_oct V.
     """
-    from dem.contact.polyellipsoid import mass_properties_poly  # here: the registry is read before numba starts
     m, cen, moments, v = mass_properties_poly(axes6, density)
     rec = np.zeros(POLY_LEN)
     rec[P_AX:P_AX + 6] = axes6
@@ -112,3 +115,32 @@ def generate(a, draw):
 SHAPE = Shape("polyellipsoid", POLY, ("a+", "a-", "b+", "b-", "c+", "c-"), semi_axes, body, bounding_radius,
               smallest_semi_axis, equivalent_radius, snapshot_pose, generate, True, contact_cost=40.0,
               pass_cost=2.4, wall_cost=2.2)
+
+
+@njit(cache=True, inline="always")
+def pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, polys, lam0, n0, out):
+    """A pair with a poly-ellipsoid on either side (dem.forces pair_geometry, whose arguments these
+    are): the octant active set on the octant geometry of polys (dem.integrate
+    derive_poly_geometry), warm normal n0 [3], into out [OUT_LEN]. Returns (hit, smallest
+    semi-axis of i, of j [m], 1: a solver ran)."""
+    _, oorg, orot, ax6 = polys
+    hit = polyellipsoid_contact(oorg[i], orot[i], ax6[i], oorg[j], orot[j], ax6[j], n0, out)
+    ai = ax6[i, 0]
+    aj = ax6[j, 0]
+    for c in range(1, 6):
+        ai = min(ai, ax6[i, c])
+        aj = min(aj, ax6[j, c])
+    return hit, ai, aj, 1
+
+
+@njit(cache=True, inline="always")
+def wall_geometry(p, w, wall_m, wall_d, pos, rot, axes, shape, polys, out):
+    """Poly-ellipsoid p and wall plane w (dem.forces wall_geometry, whose arguments these are): the
+    ellipsoid wall contact of its octant facing the wall (out [OUT_LEN] scratch). Returns (hit,
+    contact_law's record, smallest semi-axis [m])."""
+    _, oorg, orot, ax6 = polys
+    amin = min(axes[p, 0], min(axes[p, 1], axes[p, 2]))
+    hit = polyellipsoid_wall_contact(oorg[p], orot[p], ax6[p], wall_m[w], wall_d[w], out) == 1
+    for c in range(6):
+        amin = min(amin, ax6[p, c])
+    return hit, solved_geometry(out), amin

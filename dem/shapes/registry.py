@@ -1,18 +1,41 @@
 """The registered shapes (dem.shapes.shape.Shape), in code order, and the dispatch of their
 vectorised functions over the particles of a set that may hold several shapes.
 
-Adding a shape: its module beside these (a Shape), its line in SHAPES, its contact geometry in
-dem/contact/ and the kernels' dispatch on its code (docs/ARCHITECTURE.md, "Adding a shape").
+Adding a shape: its module beside these (dem.shapes.<name>: its Shape and its kernels) and its
+name in SHAPE_NAMES (docs/ARCHITECTURE.md, "Adding a shape").
+
+SHAPE_NAMES is plain data: the command line reads it before numba starts (the thread variables
+are set first: bench.run.threads_env), while the shapes' modules hold numba kernels. SHAPES,
+BY_NAME and BY_CODE therefore import the modules when first asked for.
 """
+import importlib
+
 import numpy as np
 
-from dem.shapes import ellipsoid, polyellipsoid, sphere
+# one line a shape, in code order (its module is dem.shapes.<name>)
+SHAPE_NAMES = ("sphere", "ellipsoid", "polyellipsoid")
 
-SHAPES = (sphere.SHAPE, ellipsoid.SHAPE, polyellipsoid.SHAPE)
-BY_NAME = {s.name: s for s in SHAPES}
-BY_CODE = {s.code: s for s in SHAPES}
-SHAPE_NAMES = tuple(BY_NAME)
-assert all(s.code == k for k, s in enumerate(SHAPES)), "shape codes are the registry's order"
+_LOADED = {}
+
+
+def shapes():
+    """The registered Shapes in code order (their modules imported on the first call)."""
+    if "SHAPES" not in _LOADED:
+        found = tuple(importlib.import_module(f"dem.shapes.{name}").SHAPE for name in SHAPE_NAMES)
+        assert all(s.code == k and s.name == SHAPE_NAMES[k] for k, s in enumerate(found)), \
+            "shape codes are the registry's order"
+        _LOADED["SHAPES"] = found
+        _LOADED["BY_NAME"] = {s.name: s for s in found}
+        _LOADED["BY_CODE"] = {s.code: s for s in found}
+    return _LOADED["SHAPES"]
+
+
+def __getattr__(name):
+    """SHAPES, BY_NAME ({name: Shape}), BY_CODE ({code: Shape}), loaded on first use."""
+    if name in ("SHAPES", "BY_NAME", "BY_CODE"):
+        shapes()
+        return _LOADED[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def present(shape):
@@ -20,11 +43,12 @@ def present(shape):
     None)], rows None when it is the only one (no selection needed)."""
     if not len(shape):
         return []
+    registered = shapes()
     lo, hi = int(shape.min()), int(shape.max())
     if lo == hi:
-        return [(SHAPES[lo], None)]
+        return [(registered[lo], None)]
     found = []
-    for s in SHAPES[lo:hi + 1]:
+    for s in registered[lo:hi + 1]:
         rows = np.flatnonzero(shape == s.code)
         if len(rows):
             found.append((s, rows))

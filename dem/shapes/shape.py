@@ -1,10 +1,10 @@
 """Shape: what the scene build, the state and the records need of one shape, in one place.
 
-Each shape's module (dem.shapes.sphere, ellipsoid, polyellipsoid) makes one Shape;
-dem.shapes.registry lists them. The step's kernels dispatch on the shape code by hand (numba
-compiles a fixed dispatch; docs/ARCHITECTURE.md, "Adding a shape", says what a registry-built one
-cost): a shape's contact geometry is dem.forces pair_geometry and wall_geometry, its integration
-dem.integrate, its ghost record modes.halo; each module's docstring names them.
+Each shape's module (dem.shapes.sphere, ellipsoid, polyellipsoid) makes one Shape and holds the
+kernels of its contact geometry, pair_geometry and wall_geometry (the same arguments in every
+module), which dem.forces calls through a dispatch built from the registry (dem.shapes.dispatch).
+Its integration (dem.integrate) and ghost record (modes.halo) still dispatch on the shape code
+where they are (docs/ARCHITECTURE.md, "Adding a shape"); each module's docstring names them.
 """
 from dataclasses import dataclass
 from typing import Callable

@@ -1,13 +1,17 @@
 """The sphere: one radius r [m], held as the ellipsoid (r, r, r), whose orientation shapes nothing.
 
-Contact geometry: dem.contact.sphere (closed form, pair and wall), dispatched by dem.forces
-pair_geometry and wall_geometry; a scene of spheres only has a loop of its own
+Contact geometry: pair_geometry and wall_geometry below (dem.contact.sphere, closed form), which
+dem.forces calls through the registry's dispatch (dem.shapes.dispatch); a scene of spheres only
+has a loop of its own
 (dem.forces _resolve_spheres, finish_range with spheres=True: no rotation of the shape), its
 ghosts a shorter record (modes.halo GHOST_SPHERE). Mass properties, radii and snapshot are the
 ellipsoid's with a = b = c.
 """
 import numpy as np
+from numba import njit
 
+from dem.contact.ellipsoid import _write_out
+from dem.contact.sphere import sphere_contact, sphere_wall_contact
 from dem.shapes import SPHERE
 from dem.shapes import ellipsoid
 from dem.shapes.shape import Shape
@@ -29,3 +33,27 @@ def generate(a, draw):
 SHAPE = Shape("sphere", SPHERE, ("r",), semi_axes, ellipsoid.body, ellipsoid.bounding_radius,
               ellipsoid.smallest_semi_axis, ellipsoid.equivalent_radius, ellipsoid.snapshot_pose, generate, False,
               contact_cost=10.0, pass_cost=1.0, wall_cost=0.15)
+
+
+@njit(cache=True, inline="always")
+def pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, polys, lam0, n0, out):
+    """Two spheres (dem.forces pair_geometry, whose arguments these are): closed form, the surface
+    points p1 = x_c + depth/2 n on i, p2 = x_c - depth/2 n on j into out [OUT_LEN]. Returns (hit,
+    radius of i, of j [m], 0: no solver)."""
+    hit, depth, nx, ny, nz, xcx, xcy, xcz, r_e = sphere_contact(
+        pos[i, 0], pos[i, 1], pos[i, 2], axes[i, 0], pos[j, 0], pos[j, 1], pos[j, 2], axes[j, 0])
+    if hit:
+        h = 0.5 * depth
+        _write_out(out, depth, nx, ny, nz, xcx + h * nx, xcy + h * ny, xcz + h * nz,
+                   xcx - h * nx, xcy - h * ny, xcz - h * nz, r_e, 1.0, 0.0, 0, 0)
+    return 1 if hit else 0, axes[i, 0], axes[j, 0], 0
+
+
+@njit(cache=True, inline="always")
+def wall_geometry(p, w, wall_m, wall_d, pos, rot, axes, shape, polys, out):
+    """Sphere p and wall plane w (dem.forces wall_geometry, whose arguments these are): closed form,
+    the normal from particle into wall -m. Returns (hit, contact_law's record, radius [m])."""
+    mx, my, mz = wall_m[w, 0], wall_m[w, 1], wall_m[w, 2]
+    hit, depth, xcx, xcy, xcz, r_e = sphere_wall_contact(pos[p, 0], pos[p, 1], pos[p, 2], axes[p, 0],
+                                                         mx, my, mz, wall_d[w])
+    return hit, (depth, -mx, -my, -mz, -mx, -my, -mz, 1.0, xcx, xcy, xcz, r_e, 1.0, 0.0), axes[p, 0]
