@@ -15,11 +15,11 @@ contact normal exists): refused as such. The screen: the depth (the shortest tra
 separates two convex bodies) is the minimum over unit directions n of h_i(n) + h_j(-n) - n.(x_j - x_i),
 h the support function about the centre (contact-mechanics.md §1), so any one direction bounds it
 from above; along the line of centres n = (x_j - x_i)/d that bound is h_i(n) + h_j(-n) - d, with
-h(n) = |diag(a, b, c) R^T n| for an ellipsoid (R body to world) and r for a sphere. A pair whose
-bound is below the limit cannot exceed it, and only the others go to the solver (for spheres the
-bound is the exact depth). A poly-ellipsoid pair uses its bounding spheres, r_i + r_j - d (a body
-lies inside its bounding sphere). A 1M-ellipsoid rested pack, whose resting contacts are all
-screened out, checks in about a second.
+h(n) = |diag(a, b, c) R^T n| for an ellipsoid (R body to world) and r for a sphere; a
+poly-ellipsoid's h is bounded by its bounding radius (a body lies inside its bounding sphere):
+each shape's support_bound (dem.shapes.<name>). A pair whose bound is below the limit cannot
+exceed it, and only the others go to the solver (for spheres the bound is the exact depth). A
+1M-ellipsoid rested pack, whose resting contacts are all screened out, checks in about a second.
 """
 import numpy as np
 from numba import njit
@@ -27,29 +27,25 @@ from numba import njit
 from dem.forces import EXACT, pair_contacts
 from dem.integrate import derive_geometry_range, derive_range
 from dem.neighbor import PairBuffer, candidate_pairs
-from dem.shapes import POLY
+from dem.shapes.dispatch import by_shape
 from dem.shapes.registry import smallest_semi_axes
 
 # the stability guard's default overlap limit (bench run --guard-overlap)
 DEFAULT_OVERLAP_LIMIT = 0.05
 
-
-@njit(cache=True)
-def _support_along(k, nx, ny, nz, rot, axes):
-    """h(n) = |diag(a, b, c) R^T n| [m]: particle k's support along the unit world direction n."""
-    h2 = 0.0
-    for c in range(3):
-        t = axes[k, c] * (rot[k, 0, c] * nx + rot[k, 1, c] * ny + rot[k, 2, c] * nz)
-        h2 += t * t
-    return np.sqrt(h2)
+support_bound = by_shape(
+    "support_bound", "k, nx, ny, nz, rot, axes, rbound, shape", "shape[k]",
+    """An upper bound [m] of particle k's support function h_k(n) about its centre along the unit
+    world direction n (rot [n, 3, 3] body to world, axes [n, 3], rbound [n] bounding radii,
+    shape [n] codes): each registered shape's support_bound (dem.shapes.dispatch).""")
 
 
 @njit(cache=True)
 def _screen(pi, pj, pos, rbound, amin, shape, rot, axes, limit):
     """Per candidate pair: 2 when coincident (centres closer than 1e-9 of the smaller bounding radius),
     1 when the depth may exceed limit x min(amin_i, amin_j) (its upper bound along the line of
-    centres, h_i(n) + h_j(-n) - d, or for a poly-ellipsoid the bounding spheres' overlap, exceeds
-    it: module docstring), else 0."""
+    centres, h_i(n) + h_j(-n) - d with each h bounded by its shape's support_bound, exceeds it:
+    module docstring), else 0."""
     out = np.zeros(pi.shape[0], dtype=np.int8)
     for k in range(pi.shape[0]):
         i = pi[k]
@@ -63,13 +59,11 @@ def _screen(pi, pj, pos, rbound, amin, shape, rot, axes, limit):
             out[k] = 2
             continue
         d = np.sqrt(d2)
-        if shape[i] == POLY or shape[j] == POLY:
-            bound = rbound[i] + rbound[j] - d
-        else:
-            nx = (pos[j, 0] - pos[i, 0]) / d
-            ny = (pos[j, 1] - pos[i, 1]) / d
-            nz = (pos[j, 2] - pos[i, 2]) / d
-            bound = _support_along(i, nx, ny, nz, rot, axes) + _support_along(j, nx, ny, nz, rot, axes) - d
+        nx = (pos[j, 0] - pos[i, 0]) / d
+        ny = (pos[j, 1] - pos[i, 1]) / d
+        nz = (pos[j, 2] - pos[i, 2]) / d
+        bound = (support_bound(i, nx, ny, nz, rot, axes, rbound, shape)
+                 + support_bound(j, nx, ny, nz, rot, axes, rbound, shape) - d)
         if bound > limit * min(amin[i], amin[j]):
             out[k] = 1
     return out

@@ -93,3 +93,14 @@ def wall_geometry(p, w, wall_m, wall_d, pos, rot, axes, shape, polys, out):
     amin = min(axes[p, 0], min(axes[p, 1], axes[p, 2]))
     hit = ellipsoid_wall_contact(pos[p], rot[p], axes[p], wall_m[w], wall_d[w], out) == 1
     return hit, solved_geometry(out), amin
+
+
+@njit(cache=True, inline="always")
+def support_bound(k, nx, ny, nz, rot, axes, rbound, shape):
+    """The support function of ellipsoid k along the unit world direction n, exactly:
+    h(n) = |diag(a, b, c) R^T n| [m] (R = rot[k] body to world; dem.overlaps' screen)."""
+    h2 = 0.0
+    for c in range(3):
+        t = axes[k, c] * (rot[k, 0, c] * nx + rot[k, 1, c] * ny + rot[k, 2, c] * nz)
+        h2 += t * t
+    return np.sqrt(h2)

@@ -144,3 +144,10 @@ def wall_geometry(p, w, wall_m, wall_d, pos, rot, axes, shape, polys, out):
     for c in range(6):
         amin = min(amin, ax6[p, c])
     return hit, solved_geometry(out), amin
+
+
+@njit(cache=True, inline="always")
+def support_bound(k, nx, ny, nz, rot, axes, rbound, shape):
+    """A bound of poly-ellipsoid k's support along any direction (dem.overlaps' screen): its bounding
+    radius rbound[k] [m] (the body lies inside its bounding sphere)."""
+    return rbound[k]

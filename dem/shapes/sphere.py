@@ -57,3 +57,10 @@ def wall_geometry(p, w, wall_m, wall_d, pos, rot, axes, shape, polys, out):
     hit, depth, xcx, xcy, xcz, r_e = sphere_wall_contact(pos[p, 0], pos[p, 1], pos[p, 2], axes[p, 0],
                                                          mx, my, mz, wall_d[w])
     return hit, (depth, -mx, -my, -mz, -mx, -my, -mz, 1.0, xcx, xcy, xcz, r_e, 1.0, 0.0), axes[p, 0]
+
+
+@njit(cache=True, inline="always")
+def support_bound(k, nx, ny, nz, rot, axes, rbound, shape):
+    """The sphere's support along n (dem.overlaps' screen): the ellipsoid's formula with a = b = c = r,
+    r to rounding."""
+    return ellipsoid.support_bound(k, nx, ny, nz, rot, axes, rbound, shape)
