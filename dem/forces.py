@@ -79,7 +79,6 @@ TERMS = 7
 # as TAKEN takes them (hybrid with Newton), their terms stored into pf for an end that gathers
 STORE, SUM, SPLIT, TAKEN, SPLIT_TAKEN = 0, 1, 2, 3, 4
 
-
 # what resolve_range returns, in this order
 RESOLVED = ("n_contacts", "ellipsoid_calls", "worst_ratio", "worst_pair", "ratio_sum")
 # what finish_range returns, in this order
@@ -365,28 +364,27 @@ def _solved_pair(hit, k, i, j, out, amin_i, amin_j, bodies, law, plist, dt, sums
 
 
 pair_geometry = by_shape(
-    "pair_geometry", "i, j, pos, rot, axes, shape, method, poly_scene, polys, lam0, n0, out", "max(shape[i], shape[j])",
+    "pair_geometry", "i, j, pos, rot, axes, shape, method, polys, lam0, n0, out", "max(shape[i], shape[j])",
     """The contact geometry of the pair (i, j): the kernel of the pair's most general shape (the
     codes are ordered so, each shape's kernels handling the shapes before it), built from the
     registered shapes (dem.shapes.dispatch): two spheres in closed form (dem.shapes.sphere), an
     ellipsoid by the method CONTACT_METHODS[method] (warm start lam0, n0 [3]; lam0 < 0 and n0 = 0:
-    none) (dem.shapes.ellipsoid), a poly-ellipsoid on either side (poly_scene: the scene has them)
-    by the octant active set on the octant geometry of polys (dem.shapes.polyellipsoid). The one
-    shape dispatch of a pair, used by the step (resolve_range) and by `bench contacts`
-    (pair_contacts). Fills out [OUT_LEN] (OUT_* layout: depth, normal from i to j, contact points,
-    R_e, kappa ratio, lambda) on contact. Returns (hit, smallest semi-axis of i, of j [m], 1 when a
-    solver ran).""")
+    none) (dem.shapes.ellipsoid), a poly-ellipsoid on either side by the octant active set on the
+    octant geometry of polys (dem.shapes.polyellipsoid). The one shape dispatch of a pair, used by
+    the step (resolve_range) and by `bench contacts` (pair_contacts). Fills out [OUT_LEN] (OUT_*
+    layout: depth, normal from i to j, contact points, R_e, kappa ratio, lambda) on contact.
+    Returns (hit, smallest semi-axis of i, of j [m], 1 when a solver ran).""")
 
 
 @njit(cache=True)
-def pair_contacts(pi, pj, pos, rot, axes, shape, method, poly_scene, polys, rows):
+def pair_contacts(pi, pj, pos, rot, axes, shape, method, polys, rows):
     """The contacts of candidate pairs (pi[k], pj[k]) without history (no warm start), through
     pair_geometry: rows [m, 8] = (hit, depth [m], normal i -> j [3], contact point [3] [m])."""
     out = np.zeros(OUT_LEN)
     n0 = np.zeros(3)
     for k in range(pi.shape[0]):
         n0[0] = n0[1] = n0[2] = 0.0
-        hit, _, _, _ = pair_geometry(pi[k], pj[k], pos, rot, axes, shape, method, poly_scene, polys, -1.0, n0, out)
+        hit, _, _, _ = pair_geometry(pi[k], pj[k], pos, rot, axes, shape, method, polys, -1.0, n0, out)
         rows[k, 0] = hit
         if hit:
             rows[k, 1] = out[OUT_DEPTH]
@@ -424,9 +422,8 @@ def _resolve_spheres(k0, k1, plist, bodies, law, dt, deliver, n_owned, gat, term
 
 
 @njit(cache=True, _nrt=False)
-def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, poly_scene, deliver, n_owned, gat, terms, out,
-                        n0):
-    """The loop of a scene with ellipsoids (and poly-ellipsoids when poly_scene): closed form for
+def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, deliver, n_owned, gat, terms, out, n0):
+    """The loop of a scene with ellipsoids (and poly-ellipsoids): closed form for
     two spheres, the bounding-sphere test, then the solver of the pair's shapes."""
     pi, pj, hist, on, pf = plist
     pos, _, _, _, _, _, shape, axes, rbound, _, force, torque, rot, _ = bodies
@@ -451,7 +448,7 @@ def _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, poly_scen
             r = -1.0
         else:
             lam0 = _warm_start(hist, k, on[k] == 1, n0)
-            hit, ai, aj, solver = pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, polys, lam0, n0, out)
+            hit, ai, aj, solver = pair_geometry(i, j, pos, rot, axes, shape, method, polys, lam0, n0, out)
             calls += solver
             r = _solved_pair(hit, k, i, j, out, ai, aj, bodies, law, plist, dt, sums)
         if r >= 0.0:
@@ -493,8 +490,7 @@ def resolve_range(kind, method, k0, k1, plist, bodies, polys, law, dt, deliver, 
                 torque[p, c] = 0.0
     if kind == SPHERE:
         return _resolve_spheres(k0, k1, plist, bodies, law, dt, deliver, n_owned, gat, terms)
-    return _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, kind == POLY, deliver, n_owned, gat,
-                               terms, out, n0)
+    return _resolve_ellipsoids(k0, k1, plist, bodies, polys, law, dt, method, deliver, n_owned, gat, terms, out, n0)
 
 
 wall_geometry = by_shape(

@@ -98,8 +98,7 @@ def pair_overlaps(state, screen=0.0):
     ok = np.flatnonzero(~coincident)
     if len(ok):
         sub = np.zeros((len(ok), 8))
-        pair_contacts(pi[ok], pj[ok], s.pos, rot, s.axes, s.shape, EXACT, bool(s.has_poly), (s.poly, oorg, orot, ax6),
-                      sub)
+        pair_contacts(pi[ok], pj[ok], s.pos, rot, s.axes, s.shape, EXACT, (s.poly, oorg, orot, ax6), sub)
         rows[ok] = sub
     hit = (rows[:, 0] != 0) | coincident
     depth = np.where(coincident, np.inf, rows[:, 1])[hit]

@@ -659,7 +659,7 @@ def cut_ranges(w, threads, shares, pi, pj, gid, n_owned, bounds, gat, home_start
     equal), bounds [T+1] (cut_at_equal_weight). Range t's rows are those of the particles with gid in
     [first[t], first[t+1]), first[t] the gid of its first row. Then gat [n_owned] int8 = 1 for the
     owned particles that a range before their own holds as a pair's later end (gid[pj] at or past
-    the range's last row: they gather their forces), and each range's other particles, those it
+    the next range's first row: they gather their forces), and each range's other particles, those it
     alone sums: home_items [n_owned - gathered] grouped by range, home_start [T+1]; their force and
     torque are zeroed by the thread of their range before it resolves (dem.forces.resolve_range,
     SPLIT). Returns the number of particles the ranges sum themselves.

@@ -310,9 +310,7 @@ class ThreadsMode(SerialMode):
         hz = cycles_per_second()
         # plain floats over the T threads: numpy's reductions of so few numbers took 30-50 us a step,
         # 3 % of a 2-thread step of 2500 packed ellipsoids
-        busy = [a + b for a, b in zip(self.busy_rows[:, 0].tolist(), self.busy_stored[:, 0].tolist())]
-        if row["neighbor_rebuilt"]:
-            busy = [a + b for a, b in zip(busy, self.scan_busy.tolist())]
+        busy = (self.busy + self.scan_busy if row["neighbor_rebuilt"] else self.busy).tolist()
         top = max(busy) / hz
         mean = sum(busy) / len(busy) / hz
         row["busy_max"] = top

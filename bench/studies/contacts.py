@@ -25,6 +25,6 @@ def scene_contacts(scene):
     a = np.array([p[0] for p in pairs], dtype=np.int64)
     b = np.array([p[1] for p in pairs], dtype=np.int64)
     rows = np.zeros((len(pairs), 8))
-    pair_contacts(a, b, s.pos, rot, s.axes, s.shape, EXACT, bool(s.has_poly), (s.poly, oorg, orot, ax6), rows)
+    pair_contacts(a, b, s.pos, rot, s.axes, s.shape, EXACT, (s.poly, oorg, orot, ax6), rows)
     return [{"i": int(i), "j": int(j), "depth": float(r[1]), "point": [float(v) for v in r[5:8]],
              "normal": [float(v) for v in r[2:5]]} for (i, j), r in zip(pairs, rows) if r[0]]

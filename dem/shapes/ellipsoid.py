@@ -69,7 +69,7 @@ SHAPE = Shape("ellipsoid", ELLIPSOID, ("a", "b", "c"), semi_axes, body, bounding
 
 
 @njit(cache=True, inline="always")
-def pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, polys, lam0, n0, out):
+def pair_geometry(i, j, pos, rot, axes, shape, method, polys, lam0, n0, out):
     """A pair of ellipsoids, or of an ellipsoid and a sphere (its semi-axes (r, r, r)) (dem.forces
     pair_geometry, whose arguments these are): the contact method CONTACT_METHODS[method] (warm
     start lam0, n0 [3]) into out [OUT_LEN]. Returns (hit, smallest semi-axis of i, of j [m], 1: a

@@ -118,7 +118,7 @@ SHAPE = Shape("polyellipsoid", POLY, ("a+", "a-", "b+", "b-", "c+", "c-"), semi_
 
 
 @njit(cache=True, inline="always")
-def pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, polys, lam0, n0, out):
+def pair_geometry(i, j, pos, rot, axes, shape, method, polys, lam0, n0, out):
     """A pair with a poly-ellipsoid on either side (dem.forces pair_geometry, whose arguments these
     are): the octant active set on the octant geometry of polys (dem.integrate
     derive_poly_geometry), warm normal n0 [3], into out [OUT_LEN]. Returns (hit, smallest

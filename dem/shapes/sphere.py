@@ -36,7 +36,7 @@ SHAPE = Shape("sphere", SPHERE, ("r",), semi_axes, ellipsoid.body, ellipsoid.bou
 
 
 @njit(cache=True, inline="always")
-def pair_geometry(i, j, pos, rot, axes, shape, method, poly_scene, polys, lam0, n0, out):
+def pair_geometry(i, j, pos, rot, axes, shape, method, polys, lam0, n0, out):
     """Two spheres (dem.forces pair_geometry, whose arguments these are): closed form, the surface
     points p1 = x_c + depth/2 n on i, p2 = x_c - depth/2 n on j into out [OUT_LEN]. Returns (hit,
     radius of i, of j [m], 0: no solver)."""
