@@ -149,7 +149,7 @@ class ThreadsMode(SerialMode):
             par.compact_pairs(self.threads, pi_t, pj_t, offsets, pi, pj)
         self.pairs.offsets = offsets
         self.cap = max(self.cap, int(top * 1.25) + 64)
-        # plain floats: numpy's reductions of T numbers took 20 us a rebuild (2500 particles: 3 %)
+        # plain floats: numpy's reductions of T numbers read 20 us a rebuild under line_profiler (2500 particles)
         tests = self.tests.tolist()
         self.work_imbalance = max(tests) / max(sum(tests) / len(tests), 1e-300)
         return m
@@ -308,8 +308,8 @@ class ThreadsMode(SerialMode):
     def step(self):
         row = super().step()
         hz = cycles_per_second()
-        # plain floats over the T threads: numpy's reductions of so few numbers took 30-50 us a step,
-        # 3 % of a 2-thread step of 2500 packed ellipsoids
+        # plain floats over the T threads: numpy's reductions of so few numbers read 30-50 us a step
+        # under line_profiler (which inflates small calls), 3 % of a 2-thread step of 2500 packed ellipsoids
         busy = (self.busy + self.scan_busy if row["neighbor_rebuilt"] else self.busy).tolist()
         top = max(busy) / hz
         mean = sum(busy) / len(busy) / hz
