@@ -3,8 +3,8 @@
 Contact geometry: pair_geometry and wall_geometry below, which dem.forces calls through the
 registry's dispatch (dem.shapes.dispatch): dem.contact.ellipsoid (ellipsoid_contact:
 Perram-Wertheim + Newton on S^2; ellipsoid_wall_contact: the support along the wall normal),
-dem.contact.methods (pw, sextic). Integration: dem.integrate (the
-symplectic free-rotor splitting, contact-mechanics.md §4.2).
+dem.contact.methods (pw, sextic). Rotation: turn and derive below (dem.rotation: the symplectic
+free-rotor splitting, contact-mechanics.md §4.2), which dem.integrate calls through the dispatch.
 """
 import math
 
@@ -14,6 +14,7 @@ from numba import njit
 from dem.contact import EXACT, PW
 from dem.contact.ellipsoid import ellipsoid_contact, ellipsoid_wall_contact, solved_geometry
 from dem.contact.methods import pw_contact, sextic_contact
+from dem.rotation import drift, rotation_and_omega
 from dem.shapes import ELLIPSOID
 from dem.shapes.shape import Shape
 
@@ -104,3 +105,30 @@ def support_bound(k, nx, ny, nz, rot, axes, rbound, shape):
         t = axes[k, c] * (rot[k, 0, c] * nx + rot[k, 1, c] * ny + rot[k, 2, c] * nz)
         h2 += t * t
     return np.sqrt(h2)
+
+
+@njit(cache=True, inline="always")
+def turn(p, quat, angmom, inertia, shape, dt):
+    """The ellipsoid's orientation after dt [s] (dem.integrate integrate_particle, after the torque
+    kick of angmom): the symplectic free-rotor splitting (dem.rotation drift). Returns (w, x, y, z)."""
+    return drift(quat[p, 0], quat[p, 1], quat[p, 2], quat[p, 3], angmom[p, 0], angmom[p, 1], angmom[p, 2],
+                 inertia[p, 0], inertia[p, 1], inertia[p, 2], dt)
+
+
+@njit(cache=True, inline="always")
+def derive(p, quat, angmom, inertia, shape, rot, omega, sphere_rot):
+    """Rotation matrix rot[p] = R(q) and world angular velocity omega[p] (dem.integrate
+    derive_particle; dem.rotation rotation_and_omega)."""
+    rotation_and_omega(p, quat, angmom, inertia, rot, omega)
+
+
+@njit(cache=True, inline="always")
+def octant_geometry(p, pos, rot, axes, shape, poly, orot, oorg, ax6):
+    """The ellipsoid as a poly-ellipsoid (dem.integrate derive_poly_geometry): its own octant frame
+    and origin, a+ = a-, b+ = b-, c+ = c-."""
+    for a in range(3):
+        for b in range(3):
+            orot[p, a, b] = rot[p, a, b]
+        oorg[p, a] = pos[p, a]
+        ax6[p, 2 * a] = axes[p, a]
+        ax6[p, 2 * a + 1] = axes[p, a]

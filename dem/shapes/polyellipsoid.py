@@ -5,10 +5,11 @@ Internally a rigid body at its mass centre in its principal frame (State.pos, qu
 largest semi-axis per octant-frame axis), with a record State.poly [POLY_LEN] (dem.shapes P_*)
 mapping that frame back to the octant geometry; scene files and snapshots give the octant origin
 and octant frame (DESIGN.md). Contact geometry: dem.contact.polyellipsoid (octant active set;
-polyellipsoid_wall_contact: the octant facing the wall), on the octant geometry of
-dem.integrate.derive_poly_geometry: pair_geometry and wall_geometry below, which dem.forces calls
-through the registry's dispatch (dem.shapes.dispatch); its ghosts carry the record (modes.halo
-GHOST_POLY).
+polyellipsoid_wall_contact: the octant facing the wall), on the octant geometry
+(octant_geometry below, through dem.integrate.derive_poly_geometry): pair_geometry and
+wall_geometry below, which dem.forces calls through the registry's dispatch
+(dem.shapes.dispatch); its ghosts carry the record (modes.halo GHOST_POLY). Its rotation is the
+ellipsoid's (turn, derive).
 """
 import numpy as np
 from numba import njit
@@ -151,3 +152,23 @@ def support_bound(k, nx, ny, nz, rot, axes, rbound, shape):
     """A bound of poly-ellipsoid k's support along any direction (dem.overlaps' screen): its bounding
     radius rbound[k] [m] (the body lies inside its bounding sphere)."""
     return rbound[k]
+
+
+# its rotation is the rigid body's in its principal frame, the ellipsoid's
+turn = ellipsoid.turn
+derive = ellipsoid.derive
+
+
+@njit(cache=True, inline="always")
+def octant_geometry(p, pos, rot, axes, shape, poly, orot, oorg, ax6):
+    """Octant frame orot[p] = R W [3,3], octant origin oorg[p] = x + R off [3] [m] and six semi-axes
+    ax6[p] [6] [m] from its record poly[p] (dem.integrate derive_poly_geometry; rot[p] derived
+    first)."""
+    for a in range(3):
+        for b in range(3):
+            orot[p, a, b] = (rot[p, a, 0] * poly[p, P_ROT + b] + rot[p, a, 1] * poly[p, P_ROT + 3 + b]
+                             + rot[p, a, 2] * poly[p, P_ROT + 6 + b])
+        oorg[p, a] = pos[p, a] + (rot[p, a, 0] * poly[p, P_OFF] + rot[p, a, 1] * poly[p, P_OFF + 1]
+                                  + rot[p, a, 2] * poly[p, P_OFF + 2])
+    for k in range(6):
+        ax6[p, k] = poly[p, P_AX + k]

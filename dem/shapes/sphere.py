@@ -12,6 +12,7 @@ from numba import njit
 
 from dem.contact.ellipsoid import _write_out
 from dem.contact.sphere import sphere_contact, sphere_wall_contact
+from dem.rotation import spin
 from dem.shapes import SPHERE
 from dem.shapes import ellipsoid
 from dem.shapes.shape import Shape
@@ -64,3 +65,40 @@ def support_bound(k, nx, ny, nz, rot, axes, rbound, shape):
     """The sphere's support along n (dem.overlaps' screen): the ellipsoid's formula with a = b = c = r,
     r to rounding."""
     return ellipsoid.support_bound(k, nx, ny, nz, rot, axes, rbound, shape)
+
+
+@njit(cache=True, inline="always")
+def turn(p, quat, angmom, inertia, shape, dt):
+    """The sphere's orientation after dt [s] (dem.integrate integrate_particle, after the torque
+    kick of angmom): the exact exp map at omega = L/I (dem.rotation spin). Returns (w, x, y, z)."""
+    ii = 1.0 / inertia[p, 0]
+    return spin(quat[p, 0], quat[p, 1], quat[p, 2], quat[p, 3], angmom[p, 0] * ii, angmom[p, 1] * ii,
+                angmom[p, 2] * ii, dt)
+
+
+@njit(cache=True, inline="always")
+def derive(p, quat, angmom, inertia, shape, rot, omega, sphere_rot):
+    """The sphere's rotation matrix rot[p] [3,3] and world angular velocity omega[p] = L/I [rad/s]
+    (dem.integrate derive_particle). Its rot is the identity (its orientation does not shape it; a
+    sphere-ellipsoid pair reads it, and a fixed value keeps that pair's rounding the same in every
+    mode), written only when sphere_rot (it never changes, so the per-step pass leaves it)."""
+    if sphere_rot:
+        for a in range(3):
+            for b in range(3):
+                rot[p, a, b] = 1.0 if a == b else 0.0
+    ii = 1.0 / inertia[p, 0]
+    omega[p, 0] = angmom[p, 0] * ii
+    omega[p, 1] = angmom[p, 1] * ii
+    omega[p, 2] = angmom[p, 2] * ii
+
+
+@njit(cache=True, inline="always")
+def octant_geometry(p, pos, rot, axes, shape, poly, orot, oorg, ax6):
+    """The sphere as a poly-ellipsoid (dem.integrate derive_poly_geometry): the identity frame, its
+    centre, six equal radii."""
+    for a in range(3):
+        for b in range(3):
+            orot[p, a, b] = 1.0 if a == b else 0.0
+        oorg[p, a] = pos[p, a]
+        ax6[p, 2 * a] = axes[p, a]
+        ax6[p, 2 * a + 1] = axes[p, a]

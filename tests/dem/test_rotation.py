@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from dem.integrate import free_rotor_drift
+from dem.rotation import free_rotor_drift
 
 T_PERIOD = 31.7331943529  # omega period for I = (5, 10, 13), omega0 = (0.1, 1, 0.1) (T13)
 FIRST_ZERO = 10.213329    # first zero of omega_2 (T13)
