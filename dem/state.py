@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit
 
 from dem.integrate import angular_velocity
-from dem.shapes import POLY_LEN, SPHERE
+from dem.shapes import POLY_LEN
 from dem.shapes.registry import bounding_radii, present
 
 # contact-history record (per pair, per particle): stored tangential spring [3], contact radius,
@@ -90,10 +90,6 @@ class State:
     @property
     def n(self):
         return len(self.gid)
-
-    @property
-    def all_spheres(self):
-        return bool(np.all(self.shape == SPHERE))
 
     @property
     def has_poly(self):

@@ -66,41 +66,41 @@ import operator
 import numpy as np
 from numba import njit
 
-from dem.shapes import POLY_LEN, SPHERE
-from dem.shapes.registry import bounding_radii
-from dem.state import HIST_LEN, csr_rows
+from dem.shapes import POLY_LEN
+from dem.shapes.registry import bounding_radii, shapes
+from dem.state import HIST_LEN, State, csr_rows
 from modes.base import call_entry
 from modes.decomposition import (DIRECTIONS, NEEDS, OPPOSITE, BlockGrid, border_lists, border_lists_kernel,
                                  direction_of, face_bits)
 from modes.wire import Traffic
 
-GHOST_SPHERE = ("gid", "material", "mass", "axes0", "inertia0", "pos", "vel", "angmom")
-GHOST_GENERAL = ("gid", "shape", "material", "mass", "axes", "inertia", "pos", "vel", "angmom", "quat")
-GHOST_POLY = GHOST_GENERAL + ("poly",)
+# the fields a ghost record may carry (a shape's ghost_fields: dem.shapes.shape.Shape) and their
+# widths [doubles]; axes0, inertia0: the first semi-axis and moment only (a shape whose three are equal)
 WIDTH = {"gid": 1, "shape": 1, "material": 1, "mass": 1, "axes0": 1, "inertia0": 1, "axes": 3, "inertia": 3,
          "pos": 3, "vel": 3, "angmom": 3, "quat": 4, "poly": POLY_LEN}
 # forward messages have tags of their own: one started at the end of a step may still be on its
 # way while a rebuild's migration or ghost choice exchanges its messages (EXCHANGE_TAG + k)
 EXCHANGE_TAG = 100
 FORWARD_TAG = 200
-# the fields a forward exchange refreshes
-MOVING_SPHERE = ("pos", "vel", "angmom")
-MOVING_GENERAL = ("pos", "vel", "angmom", "quat")
 
 
-def ghost_fields(all_spheres, has_poly):
-    """The fields a ghost carries: only what the scene's kernels read."""
-    return GHOST_POLY if has_poly else GHOST_SPHERE if all_spheres else GHOST_GENERAL
+def ghost_fields(kind):
+    """The fields a ghost carries in a scene of this kind (its most general shape code:
+    dem.forces.scene_kind): that shape's ghost_fields, only what the scene's kernels read."""
+    return shapes()[kind].ghost_fields
 
 
-def moving_fields(all_spheres):
-    """The fields a forward exchange refreshes (a sphere's orientation shapes nothing)."""
-    return MOVING_SPHERE if all_spheres else MOVING_GENERAL
+def moving_fields(kind):
+    """The fields a forward exchange refreshes in a scene of this kind (a sphere's orientation
+    shapes nothing)."""
+    return shapes()[kind].moving_fields
 
 
 def _owner_fields(state):
-    """The fields of a migrating particle (with its histories besides)."""
-    return GHOST_POLY if state.has_poly else GHOST_GENERAL
+    """The fields of a migrating particle (with its histories besides): every per-particle array of
+    a ghost but those derived (rbound) or made each step (force, torque); poly in a scene with
+    poly-ellipsoids only."""
+    return tuple(f for f in PER_PARTICLE if f not in ("rbound", "force", "torque") and (f != "poly" or state.has_poly))
 
 
 def _columns(state, fields, idx):
@@ -171,103 +171,86 @@ def unpack_moving(buf, g0, pos, vel, angmom, quat, with_quat):
                 quat[p, c] = buf[u, 9 + c]
 
 
-# the ghost records of ghost_fields: spheres, other shapes, a scene with poly-ellipsoids
-REC_SPHERE, REC_GENERAL, REC_POLY = 0, 1, 2
+def _record_kernels():
+    """The ghost records' pack and write kernels, generated from the registered shapes'
+    ghost_fields (numba compiles the straight-line code a programmer would write for each kind of
+    record, as dem.shapes.dispatch does for the contact kernels; not cached themselves: the
+    cached pack_ghost_rows and write_ghost_rows compile them in).
+
+    pack(idx, kind, gid_bits, shape, material, mass, axes, inertia, pos, vel, angmom, quat, poly,
+    out): out[u] = the record (ghost_fields(kind), in its order and widths) of row idx[u];
+    write(n, rows, gids, kind, gid, shape, axes, rbound, mass, inertia, material, pos, vel, quat,
+    angmom, force, torque, poly): row n + u of the arrays takes record rows[u]. A field the
+    record lacks takes what it means for the kind: its code for shape, the first semi-axis and
+    moment thrice for axes0 and inertia0, the unit quaternion (never read), a zero poly record;
+    rbound the largest semi-axis (the caller adds a poly-ellipsoid's offset); force and torque
+    zero."""
+    pack = ["def pack(idx, kind, gid_bits, shape, material, mass, axes, inertia, pos, vel, angmom, quat, poly, out):"]
+    write = ["def write(n, rows, gids, kind, gid, shape, axes, rbound, mass, inertia, material, pos, vel, quat,",
+             "          angmom, force, torque, poly):"]
+    source = {"gid": "gid_bits[p]"}
+    for s in shapes():
+        fields = s.ghost_fields
+        pack += [f"    if kind == {s.code}:", "        for u in range(idx.shape[0]):", "            p = idx[u]"]
+        write += [f"    if kind == {s.code}:", "        for u in range(rows.shape[0]):", "            p = n + u"]
+        c = 0
+        for f in fields:
+            w = WIDTH[f]
+            if w == 1:
+                src = source.get(f, f"{f[:-1]}[p, 0]" if f.endswith("0") else f"{f}[p]")
+                pack.append(f"            out[u, {c}] = {src}")
+            else:
+                pack += [f"            out[u, {c + a}] = {f}[p, {a}]" for a in range(w)]
+            if f == "gid":
+                write.append("            gid[p] = gids[u]")
+            elif f in ("shape", "material"):
+                write.append(f"            {f}[p] = np.{'int8' if f == 'shape' else 'int32'}(rows[u, {c}])")
+            elif f == "mass":
+                write.append(f"            mass[p] = rows[u, {c}]")
+            elif f.endswith("0"):
+                write += [f"            {f[:-1]}[p, {a}] = rows[u, {c}]" for a in range(3)]
+            else:
+                write += [f"            {f}[p, {a}] = rows[u, {c + a}]" for a in range(w)]
+            c += w
+        if "shape" not in fields:
+            write.append(f"            shape[p] = {s.code}")
+        if "quat" not in fields:
+            write += [f"            quat[p, {a}] = {1.0 if a == 0 else 0.0}" for a in range(4)]
+        if "poly" not in fields:
+            write += ["            for a in range(poly.shape[1]):", "                poly[p, a] = 0.0"]
+        write += [f"            {f}[p, {a}] = 0.0" for f in ("force", "torque") for a in range(3)]
+        write += ["            rbound[p] = max(axes[p, 0], axes[p, 1], axes[p, 2])"]
+        pack.append("        return")
+        write.append("        return")
+    namespace = {"np": np}
+    exec(compile("\n".join(pack + write) + "\n", "<modes.halo ghost records>", "exec"), namespace)
+    return njit(inline="always")(namespace["pack"]), njit(inline="always")(namespace["write"])
 
 
-def ghost_record(all_spheres, has_poly):
-    """The kind of ghost record (REC_*) of a scene: the fields of ghost_fields."""
-    return REC_POLY if has_poly else REC_SPHERE if all_spheres else REC_GENERAL
+_pack_records, _write_records = _record_kernels()
 
 
 @njit(cache=True, _nrt=False)
-def pack_ghost_rows(idx, rec, gid_bits, shape, material, mass, axes, inertia, pos, vel, angmom, quat, poly, out):
-    """out[u] = the ghost record (ghost_fields, in its order and widths) of row idx[u]: _columns in
-    one pass (a take per field cost ~2 us each, 20 us of a rebuild at 120 ghosts). gid_bits: the
-    gids [n] viewed as float64, so that they travel bit-exactly; out [len(idx), record width]."""
-    for u in range(idx.shape[0]):
-        p = idx[u]
-        out[u, 0] = gid_bits[p]
-        if rec == REC_SPHERE:
-            out[u, 1] = material[p]
-            out[u, 2] = mass[p]
-            out[u, 3] = axes[p, 0]
-            out[u, 4] = inertia[p, 0]
-            c = 5
-        else:
-            out[u, 1] = shape[p]
-            out[u, 2] = material[p]
-            out[u, 3] = mass[p]
-            for a in range(3):
-                out[u, 4 + a] = axes[p, a]
-                out[u, 7 + a] = inertia[p, a]
-            c = 10
-        for a in range(3):
-            out[u, c + a] = pos[p, a]
-            out[u, c + 3 + a] = vel[p, a]
-            out[u, c + 6 + a] = angmom[p, a]
-        c += 9
-        if rec != REC_SPHERE:
-            for a in range(4):
-                out[u, c + a] = quat[p, a]
-            c += 4
-        if rec == REC_POLY:
-            for a in range(poly.shape[1]):
-                out[u, c + a] = poly[p, a]
+def pack_ghost_rows(idx, kind, gid_bits, shape, material, mass, axes, inertia, pos, vel, angmom, quat, poly, out):
+    """out[u] = the ghost record (ghost_fields(kind), in its order and widths) of row idx[u]:
+    _columns in one pass (a take per field cost ~2 us each, 20 us of a rebuild at 120 ghosts).
+    gid_bits: the gids [n] viewed as float64, so that they travel bit-exactly; out [len(idx),
+    record width]."""
+    _pack_records(idx, kind, gid_bits, shape, material, mass, axes, inertia, pos, vel, angmom, quat, poly, out)
 
 
 @njit(cache=True, _nrt=False)
-def write_ghost_rows(n, rows, gids, rec, gid, shape, axes, rbound, mass, inertia, material, pos, vel, quat,
+def write_ghost_rows(n, rows, gids, kind, gid, shape, axes, rbound, mass, inertia, material, pos, vel, quat,
                      angmom, force, torque, poly):
     """Rows n..n+m-1 of the per-particle arrays (at least n + m rows each) take the ghosts of rows
-    [m, record width] (pack_ghost_rows' records; gids [m] their gids, the first column's bits). A
-    sphere's ghost takes its one semi-axis and moment thrice and the unit quaternion (never read);
-    a ghost's rbound is its largest semi-axis (the caller adds a poly-ellipsoid's offset:
-    dem.shapes.registry.bounding_radii); force and torque start at zero."""
-    for u in range(rows.shape[0]):
-        p = n + u
-        gid[p] = gids[u]
-        if rec == REC_SPHERE:
-            shape[p] = SPHERE
-            material[p] = np.int32(rows[u, 1])
-            mass[p] = rows[u, 2]
-            for a in range(3):
-                axes[p, a] = rows[u, 3]
-                inertia[p, a] = rows[u, 4]
-            c = 5
-        else:
-            shape[p] = np.int8(rows[u, 1])
-            material[p] = np.int32(rows[u, 2])
-            mass[p] = rows[u, 3]
-            for a in range(3):
-                axes[p, a] = rows[u, 4 + a]
-                inertia[p, a] = rows[u, 7 + a]
-            c = 10
-        r = axes[p, 0]
-        for a in range(3):
-            pos[p, a] = rows[u, c + a]
-            vel[p, a] = rows[u, c + 3 + a]
-            angmom[p, a] = rows[u, c + 6 + a]
-            force[p, a] = 0.0
-            torque[p, a] = 0.0
-            r = max(r, axes[p, a])
-        rbound[p] = r
-        c += 9
-        if rec == REC_SPHERE:
-            quat[p, 0] = 1.0
-            quat[p, 1] = 0.0
-            quat[p, 2] = 0.0
-            quat[p, 3] = 0.0
-        else:
-            for a in range(4):
-                quat[p, a] = rows[u, c + a]
-            c += 4
-        for a in range(poly.shape[1]):
-            poly[p, a] = rows[u, c + a] if rec == REC_POLY else 0.0
+    [m, record width] (pack_ghost_rows' records; gids [m] their gids, the first column's bits):
+    see _record_kernels for the fields a record lacks."""
+    _write_records(n, rows, gids, kind, gid, shape, axes, rbound, mass, inertia, material, pos, vel, quat, angmom,
+                   force, torque, poly)
 
 
 @njit(cache=True)
-def pack_border_messages(n, lo, hi, width, needs, faces, nbr_dirs, rec, ncol, gid_bits, shape, material, mass,
+def pack_border_messages(n, lo, hi, width, needs, faces, nbr_dirs, kind, ncol, gid_bits, shape, material, mass,
                          axes, inertia, pos, vel, angmom, quat, poly):
     """The ghost choice's messages of the direct exchange in one pass over the owned rows 0..n-1:
     for each neighbour i (direction nbr_dirs[i], ascending) its message, buf[offs[i]:offs[i + 1]]
@@ -294,13 +277,13 @@ def pack_border_messages(n, lo, hi, width, needs, faces, nbr_dirs, rec, ncol, gi
         send_idx[first[i]:first[i + 1]] = items[start[k]:start[k + 1]]
         buf[offs[i]] = counts[i]
         rows = buf[offs[i] + 1:offs[i + 1]].reshape((counts[i], ncol))
-        pack_ghost_rows(send_idx[first[i]:first[i + 1]], rec, gid_bits, shape, material, mass, axes, inertia, pos, vel,
+        pack_ghost_rows(send_idx[first[i]:first[i + 1]], kind, gid_bits, shape, material, mass, axes, inertia, pos, vel,
                         angmom, quat, poly, rows)
     return buf, offs, send_idx, counts
 
 
 @njit(cache=True, _nrt=False)
-def write_border_messages(n, recv, recv_bits, offs, nbr_dirs, ncol, rec, ghost_dirs, counts, gid, shape, axes, rbound,
+def write_border_messages(n, recv, recv_bits, offs, nbr_dirs, ncol, kind, ghost_dirs, counts, gid, shape, axes, rbound,
                           mass, inertia, material, pos, vel, quat, angmom, force, torque, poly):
     """The received ghost-choice messages (recv, neighbour i's at recv[offs[i]:offs[i + 1]], as
     pack_border_messages packs them; recv_bits the same buffer viewed as int64) into rows n.. of
@@ -311,7 +294,7 @@ def write_border_messages(n, recv, recv_bits, offs, nbr_dirs, ncol, rec, ghost_d
         m = np.int64(recv[offs[i]])
         counts[i] = m
         rows = recv[offs[i] + 1:offs[i + 1]].reshape((m, ncol))
-        write_ghost_rows(p, rows, recv_bits[offs[i] + 1:offs[i + 1]:ncol], rec, gid, shape, axes, rbound, mass,
+        write_ghost_rows(p, rows, recv_bits[offs[i] + 1:offs[i + 1]:ncol], kind, gid, shape, axes, rbound, mass,
                          inertia, material, pos, vel, quat, angmom, force, torque, poly)
         ghost_dirs[p - n:p - n + m] = nbr_dirs[i]
         p += m
@@ -327,13 +310,15 @@ def compile_kernels():
     pack_moving(idx, a, a, a, q, True, buf)
     unpack_moving(buf, 0, a, a, a, q, True)
     one, i8, i32 = np.zeros(1), np.zeros(1, dtype=np.int8), np.zeros(1, dtype=np.int32)
-    rows = np.zeros((1, 41))
+    kind = len(shapes()) - 1       # the kind is an argument: one compilation serves them all
+    ncol = sum(WIDTH[f] for f in ghost_fields(kind))
+    rows = np.zeros((1, ncol))
     for poly in (np.zeros((1, 0)), np.zeros((1, POLY_LEN))):
-        pack_ghost_rows(idx, REC_POLY, one, i8, i32, one, a, a, a, a, a, q, poly, rows)
-        write_ghost_rows(0, rows, idx, REC_POLY, idx, i8, a, one, one, a, i32, a, a, q, a, a, a, poly)
-        buf, offs, _, counts = pack_border_messages(1, np.zeros(3), np.ones(3), 0.1, NEEDS, 63, idx, REC_POLY, 41, one,
+        pack_ghost_rows(idx, kind, one, i8, i32, one, a, a, a, a, a, q, poly, rows)
+        write_ghost_rows(0, rows, idx, kind, idx, i8, a, one, one, a, i32, a, a, q, a, a, a, poly)
+        buf, offs, _, counts = pack_border_messages(1, np.zeros(3), np.ones(3), 0.1, NEEDS, 63, idx, kind, ncol, one,
                                                     i8, i32, one, a, a, a, a, a, q, poly)
-        write_border_messages(0, buf, buf.view(np.int64), offs, idx, 41, REC_POLY, idx, counts, idx, i8, a, one, one, a,
+        write_border_messages(0, buf, buf.view(np.int64), offs, idx, ncol, kind, idx, counts, idx, i8, a, one, one, a,
                               i32, a, a, q, a, a, a, poly)
     border_lists(a, np.zeros(3), np.ones(3), 0.1)
     for cuts in (None, ([0.5], [], [])):
@@ -538,7 +523,7 @@ class Halo:
             rounds.append(sorted(sweep))
         return rounds
 
-    def build(self, state, width, all_spheres):
+    def build(self, state, width, kind):
         """Choose the ghosts (a neighbour-rebuild step): drop old ghosts, send the particles within
         `width` of the block faces to the neighbours that need them with their full records,
         append the received ones after the owned particles, and fix the forward exchange's plan
@@ -546,11 +531,10 @@ class Halo:
         rebuild. Returns the number of ghosts."""
         self.free()
         drop_ghosts(state)
-        rec = ghost_record(all_spheres, state.has_poly)
-        ncol, mwidth = self.record_widths(rec)
-        self.with_quat = not all_spheres
+        ncol, mwidth = self.record_widths(kind)
+        self.with_quat = "quat" in moving_fields(kind)
         if self.halo == "26":
-            return self._build_direct(state, width, rec, ncol, mwidth)
+            return self._build_direct(state, width, kind, ncol, mwidth)
         n = state.n_owned
         for dirs in self._round_dirs():
             # a sweep along one axis forwards the ghosts of the earlier sweeps too, so edge and
@@ -564,25 +548,24 @@ class Halo:
                 near = (x - self.lo[axis] < width) if DIRECTIONS[k][axis] < 0 else (self.hi[axis] - x < width)
                 lists.append(np.flatnonzero(near))
             for k, idx in zip(dirs, lists):
-                outgoing[k] = (self._records(state, rec, idx, ncol),)
+                outgoing[k] = (self._records(state, kind, idx, ncol),)
             incoming = self.exchange(outgoing, (ncol,), dirs=dirs)
             counts = [len(incoming[k][0]) for k in dirs]
             send_idx = np.concatenate(lists).astype(np.int64) if lists else np.zeros(0, dtype=np.int64)
             self.rounds.append(_Round(self.cart, dirs, self.ranks, send_idx, [len(x) for x in lists], counts, state.n,
                                       mwidth, (self.wire, self.remote), self.entries))
-            self._append(state, incoming, rec)
+            self._append(state, incoming, kind)
         # after the sweeps an edge or corner ghost was forwarded: its owner is found by place
         self.ghost_dirs = None
         return state.n - n
 
     @staticmethod
     @functools.lru_cache(maxsize=None)
-    def record_widths(rec):
-        """The widths [doubles] of a ghost record (REC_*) and of a forward exchange's row."""
-        fields = (GHOST_SPHERE, GHOST_GENERAL, GHOST_POLY)[rec]
-        return (sum(WIDTH[f] for f in fields), sum(WIDTH[f] for f in moving_fields(rec == REC_SPHERE)))
+    def record_widths(kind):
+        """The widths [doubles] of a scene kind's ghost record and of its forward exchange's row."""
+        return (sum(WIDTH[f] for f in ghost_fields(kind)), sum(WIDTH[f] for f in moving_fields(kind)))
 
-    def _build_direct(self, state, width, rec, ncol, mwidth):
+    def _build_direct(self, state, width, kind, ncol, mwidth):
         """The direct exchange's ghost choice (--halo 26) in two numba calls and one message each
         way per neighbour: pack_border_messages selects the border particles and packs their
         records into the messages, write_border_messages writes the received ones after the owned
@@ -593,7 +576,7 @@ class Halo:
         n = state.n_owned
         nbr_dirs = self.neighbour_dirs
         send, offs, send_idx, send_counts = call_entry(self.entries, pack_border_messages, (
-            n, self.lo, self.hi, float(width), NEEDS, self.faces, nbr_dirs, rec, ncol, state.gid.view(np.float64),
+            n, self.lo, self.hi, float(width), NEEDS, self.faces, nbr_dirs, kind, ncol, state.gid.view(np.float64),
             state.shape, state.material, state.mass, state.axes, state.inertia, state.pos, state.vel, state.angmom,
             state.quat, state.poly))
         recv, roffs = self._swap(self.neighbours, [send[offs[i]:offs[i + 1]] for i in range(len(nbr_dirs))])
@@ -602,9 +585,9 @@ class Halo:
         recv_counts = np.zeros(len(nbr_dirs), dtype=np.int64)
         if m:
             view = self._grow(state, m)
-            call_entry(self.entries, write_border_messages, (n, recv, recv.view(np.int64), roffs, nbr_dirs, ncol, rec,
+            call_entry(self.entries, write_border_messages, (n, recv, recv.view(np.int64), roffs, nbr_dirs, ncol, kind,
                                                              self.ghost_dirs, recv_counts, *view))
-            self._finish_append(state, view, rec)
+            self._finish_append(state, view)
         self.rounds.append(_Round(self.cart, self.neighbour_list, self.ranks, send_idx, send_counts, recv_counts, n,
                                   mwidth, (self.wire, self.remote), self.entries))
         return m
@@ -648,15 +631,15 @@ class Halo:
             rd.free()
         self.rounds = []
 
-    def _records(self, state, rec, idx, ncol):
+    def _records(self, state, kind, idx, ncol):
         """The ghost records [len(idx), ncol] of rows idx (pack_ghost_rows)."""
         out = np.empty((len(idx), ncol))
         call_entry(self.entries, pack_ghost_rows, (
-            np.ascontiguousarray(idx, dtype=np.int64), rec, state.gid.view(np.float64), state.shape, state.material,
+            np.ascontiguousarray(idx, dtype=np.int64), kind, state.gid.view(np.float64), state.shape, state.material,
             state.mass, state.axes, state.inertia, state.pos, state.vel, state.angmom, state.quat, state.poly, out))
         return out
 
-    def _append(self, state, incoming, rec):
+    def _append(self, state, incoming, kind):
         """Append the ghosts of the incoming records (pack_ghost_rows') after the state's rows, in
         place (_grow, write_ghost_rows). Against a concatenation per field (31 us a rebuild at 127
         ghosts, 2 ranks, 1521 falling ellipsoids), and the records' split into fields before it
@@ -667,8 +650,8 @@ class Halo:
         rows = np.concatenate(parts) if len(parts) > 1 else parts[0]
         view = self._grow(state, len(rows))
         gids = np.ascontiguousarray(rows[:, 0]).view(np.int64)
-        call_entry(self.entries, write_ghost_rows, (state.n, rows, gids, rec, *view))
-        self._finish_append(state, view, rec)
+        call_entry(self.entries, write_ghost_rows, (state.n, rows, gids, kind, *view))
+        self._finish_append(state, view)
 
     def _grow(self, state, m):
         """The per-particle arrays (PER_PARTICLE order) with room for m rows after the state's n:
@@ -689,13 +672,13 @@ class Halo:
         return [a[:n + m] for a in held]
 
     @staticmethod
-    def _finish_append(state, view, rec):
+    def _finish_append(state, view):
         """The state's arrays become the views; a poly-ellipsoid's bounding sphere holds its octant
         origin's offset too."""
         n = state.n
         for f, a in zip(PER_PARTICLE, view):
             setattr(state, f, a)
-        if rec == REC_POLY:
+        if state.has_poly:
             state.rbound[n:] = bounding_radii(state.axes[n:], state.shape[n:], state.poly[n:])
 
     # --- migration ----------------------------------------------------------------------------
@@ -797,8 +780,8 @@ def redistribute(cart, grid, state, coords):
     return int(np.count_nonzero(dest != me))
 
 
-PER_PARTICLE = ("gid", "shape", "axes", "rbound", "mass", "inertia", "material", "pos", "vel", "quat",
-                "angmom", "force", "torque", "poly")
+# a ghost's per-particle arrays: the state's but the wall history (owned particles only)
+PER_PARTICLE = tuple(f for f in State.PER_PARTICLE if f != "wall_hist")
 _PER_PARTICLE_OF = operator.attrgetter(*PER_PARTICLE)  # a state's per-particle arrays, in one call
 
 

@@ -35,7 +35,7 @@ from dem.state import HIST_LEN
 from modes.base import ModeError, register
 from modes.decomposition import (BlockGrid, DecompositionError, balanced_grid, blended_grid, block_counts,
                                  border_width, extent_grid, fit_skin, load_profiles)
-from modes.halo import Halo, drop_ghosts, ghost_fields, ghost_record
+from modes.halo import Halo, drop_ghosts, ghost_fields
 from modes.newton import NewtonPlan, cross_layout, ghost_owner_directions
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
@@ -218,7 +218,7 @@ class _Blocks:
 
     def ghosts(self, rebuild):
         if rebuild:
-            self.halo.build(self.state, self.width, self.all_spheres)
+            self.halo.build(self.state, self.width, self.kind)
         else:
             self.halo.forward(self.state)
 
@@ -376,8 +376,8 @@ class _Blocks:
         cart, root = self.cart, self.cart.Get_rank() == 0
         info.update(newton=self.newton, balance=self.balance if self.update_grid else None)
         info["mpi_library"] = self.mpi.Get_library_version().strip().splitlines()[0]
-        info["ghost_fields"] = list(ghost_fields(self.all_spheres, self.state.has_poly))
-        record, moving = Halo.record_widths(ghost_record(self.all_spheres, self.state.has_poly))
+        info["ghost_fields"] = list(ghost_fields(self.kind))
+        record, moving = Halo.record_widths(self.kind)
         info["ghost_bytes_per_particle"] = 8 * record  # the paper: 624 per ellipsoid
         info["forward_bytes_per_ghost"] = 8 * moving
         wires = cart.gather(self.wire.as_dict() if self.wire is not None else None, root=0)

@@ -63,7 +63,6 @@ class SerialMode:
         self.law = law_tables(scene.materials)
         self.touches_walls = True   # MPI: whether this block touches a wall (modes/mpi.py)
         self.no_walls = (np.zeros((0, 3)), np.zeros(0))
-        self.all_spheres = self.state.all_spheres
         self.kind = scene_kind(self.state.shape, self.state.has_poly)
         self.skin_fraction = DEFAULT_SKIN if skin is None else float(skin)
         self.skin = self.skin_fraction * 2.0 * float(self.state.rbound.max()) if self.state.n else 0.0

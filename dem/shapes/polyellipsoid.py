@@ -8,7 +8,7 @@ and octant frame (DESIGN.md). Contact geometry: dem.contact.polyellipsoid (octan
 polyellipsoid_wall_contact: the octant facing the wall), on the octant geometry
 (octant_geometry below, through dem.integrate.derive_poly_geometry): pair_geometry and
 wall_geometry below, which dem.forces calls through the registry's dispatch
-(dem.shapes.dispatch); its ghosts carry the record (modes.halo GHOST_POLY). Its rotation is the
+(dem.shapes.dispatch); its ghosts carry the record (ghost_fields). Its rotation is the
 ellipsoid's (turn, derive).
 """
 import numpy as np
@@ -114,8 +114,10 @@ def generate(a, draw):
 # cost model (Shape; `bench perf --what split`, 2 cores): an overlapping pair (the octant active set)
 # 0.29 us on packed 2000, as an ellipsoid pair's; its per-particle pass and walls taken as the ellipsoid's
 SHAPE = Shape("polyellipsoid", POLY, ("a+", "a-", "b+", "b-", "c+", "c-"), semi_axes, body, bounding_radius,
-              smallest_semi_axis, equivalent_radius, snapshot_pose, generate, True, contact_cost=40.0,
-              pass_cost=2.4, wall_cost=2.2)
+              smallest_semi_axis, equivalent_radius, snapshot_pose, generate, True,
+              # the ellipsoid's and the record (41 doubles, 328 bytes); the record never changes
+              ghost_fields=ellipsoid.SHAPE.ghost_fields + ("poly",), moving_fields=ellipsoid.SHAPE.moving_fields,
+              contact_cost=40.0, pass_cost=2.4, wall_cost=2.2)
 
 
 @njit(cache=True, inline="always")

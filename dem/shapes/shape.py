@@ -3,8 +3,8 @@
 Each shape's module (dem.shapes.sphere, ellipsoid, polyellipsoid) makes one Shape and holds the
 kernels of its contact geometry, pair_geometry and wall_geometry (the same arguments in every
 module), which dem.forces calls through a dispatch built from the registry (dem.shapes.dispatch).
-Its integration (dem.integrate) and ghost record (modes.halo) still dispatch on the shape code
-where they are (docs/ARCHITECTURE.md, "Adding a shape"); each module's docstring names them.
+Its rotation (turn, derive, octant_geometry) is called likewise by dem.integrate; modes.halo builds
+the ghost records from its ghost_fields (docs/ARCHITECTURE.md, "Adding a shape").
 """
 from dataclasses import dataclass
 from typing import Callable
@@ -30,7 +30,11 @@ class Shape:
     from the octant origin in the octant frame [k, 3] [m]): the shape of k generated particles of
     largest semi-axis a [m] ([[generate]]), draw(key, default, size) giving the scene's [lo, hi]
     range `key` (default if absent) drawn uniformly (in the order the shape draws them: the scene's
-    seed fixes them); oriented: whether its orientation shapes it (generated ones turn at random).
+    seed fixes them); oriented: whether its orientation shapes it (generated ones turn at random);
+    ghost_fields: the per-particle fields (State's names; axes0, inertia0: the first semi-axis and
+    moment only) a ghost carries in a scene whose most general shape this is, enough for the
+    kernels of every shape up to it (modes.halo generates the records' pack and write from them);
+    moving_fields: those of them that change in a step (a forward exchange's).
 
     The thread schemes' cost model (modes.parallel: the dynamic cut of the pair list and the
     blocks of the per-particle pass), measured by `bench perf --what split` on the machine at hand:
@@ -49,6 +53,8 @@ class Shape:
     snapshot_pose: Callable
     generate: Callable
     oriented: bool
+    ghost_fields: tuple
+    moving_fields: tuple
     contact_cost: float
     pass_cost: float
     wall_cost: float

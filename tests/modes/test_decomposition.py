@@ -8,8 +8,9 @@ from dem.state import State
 from modes.decomposition import (DIRECTIONS, OPPOSITE, BlockGrid, DecompositionError, balanced_grid, blended_grid,
                                  block_counts, border_width, direction_of, extent_grid, face_bits, fit_skin,
                                  load_profiles, border_lists)
-from modes.halo import (GHOST_GENERAL, GHOST_POLY, GHOST_SPHERE, PER_PARTICLE, REC_GENERAL, REC_POLY, REC_SPHERE, WIDTH,
-                        Halo, _columns, _split, drop_ghosts, pack_moving, unpack_moving)
+from dem.shapes import ELLIPSOID, POLY, SPHERE
+from modes.halo import (PER_PARTICLE, WIDTH, Halo, _columns, _split, drop_ghosts, ghost_fields, pack_moving,
+                        unpack_moving)
 
 UNIT = ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
 
@@ -226,7 +227,7 @@ def test_ghost_rows_round_trip_bit_exact(rng, spheres):
     reinterpretation (ids above 2^62, where a float conversion would round), shape and material
     as small integers, a sphere's radius and moment once (axes0, inertia0) repeated to 3."""
     s = _state(rng, 50, spheres)
-    fields = GHOST_SPHERE if spheres else GHOST_GENERAL
+    fields = ghost_fields(SPHERE if spheres else ELLIPSOID)
     idx = np.array([3, 0, 49, 17, 17])
     got = _split(_columns(s, fields, idx), fields)
     assert np.array_equal(got["gid"], s.gid[idx])
@@ -234,20 +235,28 @@ def test_ghost_rows_round_trip_bit_exact(rng, spheres):
         assert np.array_equal(got[f], getattr(s, f)[idx]), f
 
 
-@pytest.mark.parametrize("rec", [REC_SPHERE, REC_GENERAL, REC_POLY])
+def test_ghost_record_widths():
+    """The records the shapes declare (Shape.ghost_fields, moving_fields) have the widths the halo
+    documents (modes.halo docstring): a scene of spheres 14 doubles a ghost (112 bytes) and 9 a
+    forward row (72 bytes); with ellipsoids 23 (184 bytes) and 13 (104 bytes); with poly-ellipsoids
+    the 18 of the record besides, 41 (328 bytes) and 13. The paper sends 624 bytes an ellipsoid."""
+    assert [Halo.record_widths(k) for k in (SPHERE, ELLIPSOID, POLY)] == [(14, 9), (23, 13), (41, 13)]
+
+
+@pytest.mark.parametrize("rec", [SPHERE, ELLIPSOID, POLY])
 def test_ghost_records_in_place_equal_the_fields(rng, rec):
     """pack_ghost_rows writes the records _columns writes (the same fields, order and bits), and a
     halo's _append of them after rows 0..n-1 gives every per-particle array the selected rows bit
     for bit, with a second _append into the same capacity arrays (no copy of the owned rows)
     after the first ghosts are dropped; a poly-ellipsoid's bounding radius holds its offset."""
-    s = _state(rng, 50, rec == REC_SPHERE)
-    if rec == REC_POLY:
-        from dem.shapes import POLY, POLY_LEN
+    s = _state(rng, 50, rec == SPHERE)
+    if rec == POLY:
+        from dem.shapes import POLY_LEN
         from dem.shapes.registry import bounding_radii
         s.shape[::3] = POLY
         s.poly = rng.random((50, POLY_LEN))
         s.rbound = bounding_radii(s.axes, s.shape, s.poly)
-    fields = {REC_SPHERE: GHOST_SPHERE, REC_GENERAL: GHOST_GENERAL, REC_POLY: GHOST_POLY}[rec]
+    fields = ghost_fields(rec)
     idx = np.array([3, 0, 39, 17, 17, 21])
     halo = Halo.__new__(Halo)
     halo.store, halo.entries, halo.held = {}, {}, None
@@ -263,29 +272,29 @@ def test_ghost_records_in_place_equal_the_fields(rng, rec):
             want = owned[f][np.concatenate([np.arange(40), pick])]
             if f in ("force", "torque"):
                 want[40:] = 0.0
-            if rec == REC_SPHERE and f == "quat":
+            if rec == SPHERE and f == "quat":
                 want[40:] = (1.0, 0.0, 0.0, 0.0)
             assert np.array_equal(getattr(s, f), want), f
 
 
-@pytest.mark.parametrize("rec", [REC_SPHERE, REC_GENERAL, REC_POLY])
+@pytest.mark.parametrize("rec", [SPHERE, ELLIPSOID, POLY])
 def test_border_messages_are_the_border_lists_records(rng, rec):
     """The direct exchange's fused ghost choice: pack_border_messages' message to each neighbour
     that exists is [count, the records pack_ghost_rows writes of border_lists' particles in that
     direction] and its send_idx those particles in neighbour order, bit for bit; the messages
     written back by write_border_messages after 40 owned rows give every per-particle array the
     rows write_ghost_rows gives, and each ghost its message's direction."""
-    from dem.shapes import POLY, POLY_LEN
+    from dem.shapes import POLY_LEN
     from dem.shapes.registry import bounding_radii
     from modes.decomposition import NEEDS
     from modes.halo import pack_border_messages, pack_ghost_rows, write_border_messages, write_ghost_rows
-    s = _state(rng, 60, rec == REC_SPHERE)
+    s = _state(rng, 60, rec == SPHERE)
     s.pos = rng.uniform(0.0, 1.0, (60, 3))
-    if rec == REC_POLY:
+    if rec == POLY:
         s.shape[::3] = POLY
         s.poly = rng.random((60, POLY_LEN))
         s.rbound = bounding_radii(s.axes, s.shape, s.poly)
-    ncol = sum(WIDTH[f] for f in {REC_SPHERE: GHOST_SPHERE, REC_GENERAL: GHOST_GENERAL, REC_POLY: GHOST_POLY}[rec])
+    ncol = sum(WIDTH[f] for f in ghost_fields(rec))
     lo, hi, w = np.zeros(3), np.ones(3), 0.3
     dirs = np.array([k for k, d in enumerate(DIRECTIONS) if d[2] == 0 and d[1] >= 0], dtype=np.int64)
     faces = face_bits(dirs)
