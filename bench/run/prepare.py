@@ -89,7 +89,7 @@ import numpy as np
 
 from dem.quaternion import quat_to_matrices
 from dem.scene import build_scene, load_scene, wall_planes, WALL_FACES
-from dem.shapes import POLY, SPHERE
+from dem.shapes.registry import present, shapes
 from dem.state import H_FT, H_N, HIST_LEN, State
 from dem.timestep import choose_time_step
 from modes.serial import SerialMode
@@ -425,7 +425,7 @@ def _tiles_for(scene, build):
     """The tiling of a compress build too large for one cell (None: build directly)."""
     if build.get("method") != "compress" or not build.get("tile", True) or scene.n <= CELL_MAX:
         return None
-    if np.any(scene.state.shape == POLY) or "doc" not in scene.extras:
+    if not all(s.mirrors for s, _ in present(scene.state.shape)) or "doc" not in scene.extras:
         return None
     return tiling(scene.n)
 
@@ -474,7 +474,8 @@ def mirror_tile(cell, tiles):
     parts = {f: [] for f in ("pos", "vel", "quat", "angmom", "wall")}
     counts = np.diff(s.hist_start)
     hp, hv, hs = [], [], [np.zeros(1, dtype=np.int64)]
-    spheres = s.shape[:n] == SPHERE
+    # a shape whose orientation shapes nothing (a sphere) keeps its quaternion in every copy
+    unturned = ~np.array([shape.oriented for shape in shapes()])[s.shape[:n]]
     for c, idx in enumerate(copies):
         mirror = np.array([-1.0 if i % 2 else 1.0 for i in idx])
         det = float(np.prod(mirror))
@@ -492,7 +493,7 @@ def mirror_tile(cell, tiles):
         else:
             d = np.array([-1.0, 1.0, 1.0]) if det < 0 else np.ones(3)
             q = quats_of_matrices(mirror[None, :, None] * rot * d[None, None, :])
-            q[spheres] = s.quat[:n][spheres]
+            q[unturned] = s.quat[:n][unturned]
         parts["quat"].append(q)
         # wall history: a face of the cell maps to the copy's face on the mirrored side, kept where that
         # face is on the outside of the tiled box

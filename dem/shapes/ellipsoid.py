@@ -70,6 +70,7 @@ SHAPE = Shape("ellipsoid", ELLIPSOID, ("a", "b", "c"), semi_axes, body, bounding
               # spheres and ellipsoids: 23 doubles a ghost (184 bytes), 13 a forward exchange's row
               ghost_fields=("gid", "shape", "material", "mass", "axes", "inertia", "pos", "vel", "angmom", "quat"),
               moving_fields=("pos", "vel", "angmom", "quat"),
+              mirrors=True,
               contact_cost=40.0, pass_cost=2.4, wall_cost=2.2)
 
 

@@ -117,6 +117,8 @@ SHAPE = Shape("polyellipsoid", POLY, ("a+", "a-", "b+", "b-", "c+", "c-"), semi_
               smallest_semi_axis, equivalent_radius, snapshot_pose, generate, True,
               # the ellipsoid's and the record (41 doubles, 328 bytes); the record never changes
               ghost_fields=ellipsoid.SHAPE.ghost_fields + ("poly",), moving_fields=ellipsoid.SHAPE.moving_fields,
+              # its mirror swaps a+ and a- (another poly-ellipsoid unless its record is mirrored too)
+              mirrors=False,
               contact_cost=40.0, pass_cost=2.4, wall_cost=2.2)
 
 

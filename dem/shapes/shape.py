@@ -34,7 +34,9 @@ class Shape:
     ghost_fields: the per-particle fields (State's names; axes0, inertia0: the first semi-axis and
     moment only) a ghost carries in a scene whose most general shape this is, enough for the
     kernels of every shape up to it (modes.halo generates the records' pack and write from them);
-    moving_fields: those of them that change in a step (a forward exchange's).
+    moving_fields: those of them that change in a step (a forward exchange's); mirrors: whether its
+    mirror image through a plane of its body frame is itself, turned (the build stage mirror-tiles
+    a rested cell of such shapes: bench.run.prepare).
 
     The thread schemes' cost model (modes.parallel: the dynamic cut of the pair list and the
     blocks of the per-particle pass), measured by `bench perf --what split` on the machine at hand:
@@ -55,6 +57,7 @@ class Shape:
     oriented: bool
     ghost_fields: tuple
     moving_fields: tuple
+    mirrors: bool
     contact_cost: float
     pass_cost: float
     wall_cost: float

@@ -36,6 +36,7 @@ SHAPE = Shape("sphere", SPHERE, ("r",), semi_axes, ellipsoid.body, ellipsoid.bou
               # a scene of spheres: 14 doubles a ghost (112 bytes), 9 a forward exchange's row
               ghost_fields=("gid", "material", "mass", "axes0", "inertia0", "pos", "vel", "angmom"),
               moving_fields=("pos", "vel", "angmom"),
+              mirrors=True,
               contact_cost=10.0, pass_cost=1.0, wall_cost=0.15)
 
 
