@@ -66,7 +66,7 @@ import operator
 import numpy as np
 from numba import njit
 
-from dem.shapes import POLY_LEN
+from dem.shapes import ELLIPSOID, POLY, POLY_LEN
 from dem.shapes.registry import bounding_radii, shapes
 from dem.state import HIST_LEN, State, csr_rows
 from modes.base import call_entry
@@ -199,8 +199,9 @@ def _record_kernels():
             if w == 1:
                 src = source.get(f, f"{f[:-1]}[p, 0]" if f.endswith("0") else f"{f}[p]")
                 pack.append(f"            out[u, {c}] = {src}")
-            else:
-                pack += [f"            out[u, {c + a}] = {f}[p, {a}]" for a in range(w)]
+            else:  # bounded by the array too: never past a narrower one (a scene without the record)
+                pack += [f"            for a in range(min({w}, {f}.shape[1])):",
+                         f"                out[u, {c} + a] = {f}[p, a]"]
             if f == "gid":
                 write.append("            gid[p] = gids[u]")
             elif f in ("shape", "material"):
@@ -210,7 +211,8 @@ def _record_kernels():
             elif f.endswith("0"):
                 write += [f"            {f[:-1]}[p, {a}] = rows[u, {c}]" for a in range(3)]
             else:
-                write += [f"            {f}[p, {a}] = rows[u, {c + a}]" for a in range(w)]
+                write += [f"            for a in range(min({w}, {f}.shape[1])):",
+                          f"                {f}[p, a] = rows[u, {c} + a]"]
             c += w
         if "shape" not in fields:
             write.append(f"            shape[p] = {s.code}")
@@ -310,10 +312,10 @@ def compile_kernels():
     pack_moving(idx, a, a, a, q, True, buf)
     unpack_moving(buf, 0, a, a, a, q, True)
     one, i8, i32 = np.zeros(1), np.zeros(1, dtype=np.int8), np.zeros(1, dtype=np.int32)
-    kind = len(shapes()) - 1       # the kind is an argument: one compilation serves them all
-    ncol = sum(WIDTH[f] for f in ghost_fields(kind))
-    rows = np.zeros((1, ncol))
-    for poly in (np.zeros((1, 0)), np.zeros((1, POLY_LEN))):
+    # the kind is an argument: one compilation for each width of the poly record serves them all
+    for kind, poly in ((ELLIPSOID, np.zeros((1, 0))), (POLY, np.zeros((1, POLY_LEN)))):
+        ncol = sum(WIDTH[f] for f in ghost_fields(kind))
+        rows = np.zeros((1, ncol))
         pack_ghost_rows(idx, kind, one, i8, i32, one, a, a, a, a, a, q, poly, rows)
         write_ghost_rows(0, rows, idx, kind, idx, i8, a, one, one, a, i32, a, a, q, a, a, a, poly)
         buf, offs, _, counts = pack_border_messages(1, np.zeros(3), np.ones(3), 0.1, NEEDS, 63, idx, kind, ncol, one,
