@@ -1,10 +1,10 @@
 """The sphere: one radius r [m], held as the ellipsoid (r, r, r), whose orientation shapes nothing.
 
 Contact geometry: pair_geometry and wall_geometry below (dem.contact.sphere, closed form), which
-dem.forces calls through the registry's dispatch (dem.shapes.dispatch); a scene of spheres only
-has a loop of its own
-(dem.forces _resolve_spheres, finish_range with spheres=True: no rotation of the shape), its
-ghosts a shorter record (modes.halo GHOST_SPHERE). Mass properties, radii and snapshot are the
+dem.forces calls through the registry's dispatch (dem.shapes.dispatch); rotation: turn and derive
+below (the exact exp map), which dem.integrate calls likewise. A scene of spheres only has a loop
+of its own (dem.forces _resolve_spheres, finish_range with spheres=True: no rotation of the
+shape) and a shorter ghost record (ghost_fields). Mass properties, radii and snapshot are the
 ellipsoid's with a = b = c.
 """
 import numpy as np
