@@ -55,7 +55,7 @@ from dem.contact.hertz_factor import hertz_factor
 from dem.contact.law import hertz_mindlin
 from dem.contact.sphere import sphere_contact
 from dem.integrate import derive_particle, derive_poly_geometry, integrate_particle
-from dem.shapes import ELLIPSOID, POLY, SPHERE
+from dem.shapes import POLY, SPHERE
 from dem.shapes.dispatch import by_shape
 from dem.state import H_FT, H_A, H_LAM, H_N
 
@@ -87,12 +87,11 @@ FINISHED = ("n_wall_contacts", "wall_worst_ratio", "wall_worst_particle", "kinet
 
 
 def scene_kind(shape, has_poly):
-    """The scene's kind, which picks its pair loop (a scene pays only for the solvers its shapes
-    use): the most general shape code it holds, SPHERE when every particle is a sphere, POLY when
-    it has poly-ellipsoids, else ELLIPSOID."""
-    if has_poly:
-        return POLY
-    return SPHERE if bool(np.all(shape == SPHERE)) else ELLIPSOID
+    """The scene's kind, which picks its pair loop and its ghost record (a scene pays only for the
+    solvers its shapes use): the most general shape code it holds (the registry orders the codes
+    so), at least POLY in a scene with the poly record."""
+    kind = int(shape.max()) if len(shape) else SPHERE
+    return max(kind, POLY) if has_poly else kind
 
 
 def body_arrays(state, rot, omega):

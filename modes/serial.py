@@ -21,7 +21,7 @@ from dem.forces import (SUM, STORE, TAKEN, TERMS, body_arrays, finish_range, law
 from dem.integrate import derive_all
 from dem.neighbor import cell_order, find_pairs
 from dem.pairs import DEFAULT_SKIN, PairList
-from dem.shapes import POLY, SPHERE
+from dem.shapes import SPHERE
 from modes.base import ModeError, call_entry, register
 
 
@@ -64,6 +64,7 @@ class SerialMode:
         self.touches_walls = True   # MPI: whether this block touches a wall (modes/mpi.py)
         self.no_walls = (np.zeros((0, 3)), np.zeros(0))
         self.kind = scene_kind(self.state.shape, self.state.has_poly)
+        self.octants = self.state.has_poly   # every particle's octant geometry derived (dem.integrate)
         self.skin_fraction = DEFAULT_SKIN if skin is None else float(skin)
         self.skin = self.skin_fraction * 2.0 * float(self.state.rbound.max()) if self.state.n else 0.0
         self.max_overlap_ratio = 0.0
@@ -132,7 +133,7 @@ class SerialMode:
         if self.rot is None or self.rot.shape[0] != n:
             self.rot = np.zeros((n, 3, 3))
             self.omega = np.zeros((n, 3))
-            g = n if self.kind == POLY else 0
+            g = n if self.octants else 0
             self.oorg = np.zeros((g, 3))
             self.orot = np.zeros((g, 3, 3))
             self.ax6 = np.zeros((g, 6))
@@ -142,7 +143,7 @@ class SerialMode:
     def derive(self, lo, hi):
         """Derived quantities of particles lo..hi-1 (all of them after a rebuild; ghosts after a
         forward exchange)."""
-        derive_all(lo, hi, self.bodies, self.polys, self.kind == POLY)
+        derive_all(lo, hi, self.bodies, self.polys, self.octants)
 
     def sync_history(self):
         """Write the pair list's contact history into the state's per-particle rows (the form that
@@ -279,7 +280,7 @@ class SerialMode:
         walls = self.walls()  # the scene's planes may be replaced between rebuilds (a build moves them)
         return self.kernel_call("finish", finish_range, (
             0, self.state.n_owned, self.kind == SPHERE, self.deliver, self.adj, self.bodies, walls, self.polys,
-            self.gravity, self.dt, self.kind == POLY, self.pairs.ref, self.out), key=(id(walls[0]), id(walls[1])))
+            self.gravity, self.dt, self.octants, self.pairs.ref, self.out), key=(id(walls[0]), id(walls[1])))
 
     @property
     def worst_contact(self):

@@ -16,7 +16,7 @@ import numba
 
 from dem.contact.ellipsoid import OUT_LEN
 from dem.forces import SPLIT, SPLIT_TAKEN, STORE
-from dem.shapes import POLY, SPHERE
+from dem.shapes import SPHERE
 from dem.neighbor import grid_cutoff
 from modes.base import ModeError, register
 from modes import parallel as par
@@ -294,7 +294,7 @@ class ThreadsMode(SerialMode):
     # --- the rest of the step --------------------------------------------------------------------
     def derive(self, lo, hi):
         if self.threaded == "step" and hi > lo:
-            par.derive_threads(self.threads, lo, hi, self.bodies, self.polys, self.kind == POLY)
+            par.derive_threads(self.threads, lo, hi, self.bodies, self.polys, self.octants)
         else:
             super().derive(lo, hi)
 
@@ -302,7 +302,7 @@ class ThreadsMode(SerialMode):
         if self.threaded != "step":
             return super().finish()
         return par.finish_threads(self.threads, self.finish_blocks, self.kind == SPHERE, self.deliver, self.adj,
-                                  self.bodies, self.walls(), self.polys, self.gravity, self.dt, self.kind == POLY,
+                                  self.bodies, self.walls(), self.polys, self.gravity, self.dt, self.octants,
                                   self.pairs.ref, self.outs, self.fin)
 
     def step(self):
