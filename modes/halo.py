@@ -100,7 +100,12 @@ def _owner_fields(state):
     """The fields of a migrating particle (with its histories besides): every per-particle array of
     a ghost but those derived (rbound) or made each step (force, torque); poly in a scene with
     poly-ellipsoids only."""
-    return tuple(f for f in PER_PARTICLE if f not in ("rbound", "force", "torque") and (f != "poly" or state.has_poly))
+    return _migrant_fields(state.has_poly)
+
+
+@functools.lru_cache(maxsize=None)
+def _migrant_fields(has_poly):
+    return tuple(f for f in PER_PARTICLE if f not in ("rbound", "force", "torque") and (f != "poly" or has_poly))
 
 
 def _columns(state, fields, idx):

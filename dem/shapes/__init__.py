@@ -5,7 +5,8 @@ The plain constants live here, in the package's root, so that state, integration
 modules can all import them (no import circle). Each shape's own facts (the scene file's
 semi-axes, mass properties, bounding radius, smallest and volume-equivalent semi-axis, the pose
 and semi-axes a snapshot reports, how a generated scene makes it, its costs in the thread
-schemes' cost model) and the kernels of its contact geometry (pair and wall) live in its module:
+schemes' cost model, its ghost record, whether a build may mirror it) and its kernels (pair and
+wall geometry, support bound, rotation step, derived rotation, octant geometry) live in its module:
 dem.shapes.sphere, dem.shapes.ellipsoid, dem.shapes.polyellipsoid, each a dem.shapes.shape.Shape;
 dem.shapes.registry lists them and dispatches over the shapes a set of particles holds, and
 dem.shapes.dispatch builds the kernels' dispatch from it.

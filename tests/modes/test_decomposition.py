@@ -2,11 +2,14 @@
 who owns a particle and who receives it as a ghost (Yan & Regueiro §3), and the bit-exact
 packing of ghost rows and forward messages (modes/halo.py)."""
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
 from dem.state import State
+from tests.helpers import ROOT
 from modes.decomposition import (DIRECTIONS, OPPOSITE, BlockGrid, DecompositionError, balanced_grid, blended_grid,
                                  block_counts, border_width, direction_of, extent_grid, face_bits, fit_skin,
                                  load_profiles, border_lists)
@@ -351,11 +354,8 @@ def test_warm_up_kernels_stay_inside_their_arrays(tmp_path):
     (NUMBA_BOUNDSCHECK=1): no index past an array. A ghost record written past a scene's narrower
     poly array once corrupted the launcher's heap ("corrupted double-linked list", or a silent
     SIGSEGV: 3 of 80 launches) while every result stayed right."""
-    import subprocess
-    import sys
     code = ("from modes.halo import compile_kernels; from modes.newton import compile_kernels as newton; "
             "compile_kernels(); newton()")
     env = dict(os.environ, NUMBA_BOUNDSCHECK="1", NUMBA_CACHE_DIR=str(tmp_path / "numba"))
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600,
-                         cwd=os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600, cwd=ROOT)
     assert res.returncode == 0, res.stderr[-2000:]
