@@ -11,8 +11,9 @@ summation order of DESIGN.md's determinism rule, each entry 2 k + (1 if the part
 k's j end), so the gather needs no other lookup.
 
 Across a rebuild the history is carried from the old list to the new one by the pair's global
-ids (carry_history_sorted merges two lists sorted by (gid_i, gid_j); carry_history_rows searches
-the owned end's old adjacency row), so memory order may change in between. A particle that
+ids (carry_history_sorted merges the two lists in (gid_i, gid_j) order: a list kept in another
+order, the pairs each thread found, is seen in it through a sorted view), so memory order may
+change in between. A particle that
 migrates (MPI) takes its history along in the state's per-particle CSR (dem.state: rows keyed by
 partner gid, the form that moves with a particle and is saved in caches): leaver_history_csr
 writes the leaving particles' rows from the old list, and at the next build the pairs whose
@@ -99,8 +100,9 @@ def _adjacency(pi, pj, gid, n_owned, mark, every):
 
 
 @njit(cache=True)
-def _counting_sort(key, n, a, b, a_out, b_out):
-    """(a, b) [m] stably sorted by key [m] (integers in 0..n-1) into a_out, b_out: O(m + n)."""
+def _counting_sort(key, n, a, b, a_out, b_out, c=None, c_out=None):
+    """(a, b) [m], and c [m] where given, stably sorted by key [m] (integers in 0..n-1) into a_out,
+    b_out (c_out): O(m + n)."""
     count = np.zeros(n + 1, dtype=np.int64)
     for k in range(key.shape[0]):
         count[key[k] + 1] += 1
@@ -110,6 +112,8 @@ def _counting_sort(key, n, a, b, a_out, b_out):
         r = key[k]
         a_out[count[r]] = a[k]
         b_out[count[r]] = b[k]
+        if c is not None:
+            c_out[count[r]] = c[k]
         count[r] += 1
 
 
@@ -130,21 +134,77 @@ def gid_ranks(gid):
 
 
 @njit(cache=True)
-def sort_by_gid(pi, pj, gid, pi_out, pj_out):
-    """The pairs (pi, pj) [m] in ascending (gid[pi], gid[pj]) order, into pi_out, pj_out: two stable
-    counting sorts over the gid ranks of the n local particles (gid_ranks), by j then by i,
-    O(m + n), or O(m + n log n) when the particles are not stored in gid order."""
+def sort_by_gid(pi, pj, gid, pi_out, pj_out, idx=None, idx_out=None):
+    """The pairs (pi, pj) [m] in ascending (gid[pi], gid[pj]) order, into pi_out, pj_out, and idx
+    [m] where given moved with them into idx_out: two stable counting sorts over the gid ranks of
+    the n local particles (gid_ranks), by j then by i, O(m + n), or O(m + n log n) when the
+    particles are not stored in gid order."""
     n = gid.shape[0]
     rank = gid_ranks(gid)
     tmp_i = np.empty_like(pi)
     tmp_j = np.empty_like(pj)
-    _counting_sort(rank[pj], n, pi, pj, tmp_i, tmp_j)
-    _counting_sort(rank[tmp_i], n, tmp_i, tmp_j, pi_out, pj_out)
+    if idx is None:
+        _counting_sort(rank[pj], n, pi, pj, tmp_i, tmp_j)
+        _counting_sort(rank[tmp_i], n, tmp_i, tmp_j, pi_out, pj_out)
+    else:
+        tmp_x = np.empty_like(idx)
+        _counting_sort(rank[pj], n, pi, pj, tmp_i, tmp_j, idx, tmp_x)
+        _counting_sort(rank[tmp_i], n, tmp_i, tmp_j, pi_out, pj_out, tmp_x, idx_out)
 
 
 def sort_pairs_by_gid(pi, pj, gid):
     """sort_by_gid in place: pi, pj [m] in ascending (gid[pi], gid[pj]) order."""
     sort_by_gid(pi.copy(), pj.copy(), gid, pi, pj)
+
+
+@njit(inline="always")
+def _at(order, a):
+    """The index of the list's a-th pair in ascending (gid_i, gid_j): a itself where the list is
+    stored in that order (order None: numba prunes the branch, so a sorted list pays nothing),
+    else order[a]."""
+    if order is None:
+        return a
+    return order[a]
+
+
+def sorted_view(pi, pj, gid, sort=sort_by_gid):
+    """A list kept in another order (the pairs each thread found: STORE schemes) seen in ascending
+    (gid[pi], gid[pj]): (spi, spj, order) [m], spi[a] = pi[order[a]] (sort_by_gid moving the
+    indices, or `sort` with its arguments), the order in which the history is carried and the
+    adjacency filled."""
+    spi, spj, order = np.empty_like(pi), np.empty_like(pj), np.empty_like(pi)
+    sort(pi, pj, gid, spi, spj, np.arange(pi.shape[0]), order)
+    return spi, spj, order
+
+
+@njit(cache=True)
+def adjacency_in_order(spi, spj, order, n_owned):
+    """pair_adjacency of a list seen in ascending (gid_i, gid_j) (spi, spj [m], pair order[a] of
+    the list at a; order None: the list itself): the entries are filled in that order, so each row
+    comes out in ascending partner gid with no sort (a particle's pairs as a j end, partner gid
+    below its own, precede its own run as the i end, in which the partners ascend). O(m + n_owned)."""
+    m = spi.shape[0]
+    start = np.zeros(n_owned + 1, dtype=np.int64)
+    for a in range(m):
+        if spi[a] < n_owned:
+            start[spi[a] + 1] += 1
+        if spj[a] < n_owned:
+            start[spj[a] + 1] += 1
+    for p in range(n_owned):
+        start[p + 1] += start[p]
+    fill = start[:-1].copy()
+    items = np.empty(start[n_owned], dtype=np.int64)
+    for a in range(m):
+        k = _at(order, a)
+        i = spi[a]
+        j = spj[a]
+        if i < n_owned:
+            items[fill[i]] = 2 * k
+            fill[i] += 1
+        if j < n_owned:
+            items[fill[j]] = 2 * k + 1
+            fill[j] += 1
+    return start, items
 
 
 @njit(cache=True)
@@ -272,82 +332,46 @@ def history_from_rows_where_present(pi, pj, gid, n_owned, hist_start, hist_partn
 
 
 @njit(cache=True, _nrt=False)
-def carry_history_sorted(pi, pj, gid, opi, opj, ogid, oon, ohist, hist, on):
-    """History of the new pairs (pi, pj [m], ascending (gid[pi], gid[pj])) from the old list
-    (opi, opj [m_old] in the same order over the old ids ogid, on flags oon, rows ohist): one merge
-    of the two sorted key sequences, O(m + m_old). A pair new to the list starts without history."""
-    carry_history_sorted_range(0, pi.shape[0], pi, pj, gid, opi, opj, ogid, oon, ohist, hist, on)
+def carry_history_sorted(spi, spj, gid, order, opi, opj, ogid, oorder, oon, ohist, hist, on):
+    """History of the new pairs from the old list: one merge of the two lists' key sequences in
+    ascending (gid_i, gid_j), O(m + m_old). The new list in that order is (spi, spj [m]) over the
+    ids gid, its a-th pair being pair order[a] of the list (order None: the list itself, sorted),
+    whose row of hist [m, HIST_LEN] and flag of on [m] are written; the old one likewise (opi, opj
+    [m_old] sorted over ogid, oorder) with its flags oon and rows ohist. A pair new to the list
+    starts without history."""
+    carry_history_sorted_range(0, spi.shape[0], spi, spj, gid, order, opi, opj, ogid, oorder, oon, ohist, hist, on)
 
 
 @njit(cache=True, _nrt=False)
-def carry_history_sorted_range(k0, k1, pi, pj, gid, opi, opj, ogid, oon, ohist, hist, on):
-    """carry_history_sorted for the new pairs k0..k1-1: the merge starts at the first old pair whose
-    key is not below pair k0's (a binary search), so that threads can carry ranges of the list
-    (modes.parallel.carry_threads)."""
+def carry_history_sorted_range(a0, a1, spi, spj, gid, order, opi, opj, ogid, oorder, oon, ohist, hist, on):
+    """carry_history_sorted for the new pairs a0..a1-1 of the sorted order: the merge starts at the
+    first old pair whose key is not below pair a0's (a binary search), so that threads can carry
+    ranges of the list (modes.parallel.carry_threads)."""
     mo = opi.shape[0]
     u = 0
-    if k0 < k1:
-        a0 = gid[pi[k0]]
-        b0 = gid[pj[k0]]
+    if a0 < a1:
+        g0 = gid[spi[a0]]
+        h0 = gid[spj[a0]]
         lo, hi = 0, mo
         while lo < hi:
             mid = (lo + hi) >> 1
             ga = ogid[opi[mid]]
-            if ga < a0 or (ga == a0 and ogid[opj[mid]] < b0):
+            if ga < g0 or (ga == g0 and ogid[opj[mid]] < h0):
                 lo = mid + 1
             else:
                 hi = mid
         u = lo
-    for k in range(k0, k1):
-        a = gid[pi[k]]
-        b = gid[pj[k]]
+    for a in range(a0, a1):
+        g = gid[spi[a]]
+        h = gid[spj[a]]
+        k = _at(order, a)
         on[k] = 0
-        while u < mo and (ogid[opi[u]] < a or (ogid[opi[u]] == a and ogid[opj[u]] < b)):
+        while u < mo and (ogid[opi[u]] < g or (ogid[opi[u]] == g and ogid[opj[u]] < h)):
             u += 1
-        if u < mo and ogid[opi[u]] == a and ogid[opj[u]] == b and oon[u]:
-            _take_row(hist, on, k, ohist, u)
-
-
-@njit(cache=True)
-def carry_history_rows(pi, pj, gid, n_owned, oadj_start, oadj_items, opi, opj, ogid, oon, ohist, hist, on):
-    """History of the new pairs (pi, pj [m], any order) from the old list over the old ids ogid [n_old]
-    (particles in any memory order): the owned end's old row of the old adjacency (oadj_start,
-    oadj_items: ascending partner gid) is searched for the partner's gid. A pair new to the list
-    starts without history."""
-    top = 0
-    for p in range(ogid.shape[0]):
-        top = max(top, ogid[p])
-    for p in range(gid.shape[0]):
-        top = max(top, gid[p])
-    where = np.full(top + 1, -1, dtype=np.int64)
-    for p in range(oadj_start.shape[0] - 1):
-        where[ogid[p]] = p
-    carry_history_rows_range(0, pi.shape[0], where, pi, pj, gid, n_owned, oadj_start, oadj_items, opi, opj, ogid,
-                             oon, ohist, hist, on)
-
-
-@njit(cache=True)
-def carry_history_rows_range(k0, k1, where, pi, pj, gid, n_owned, oadj_start, oadj_items, opi, opj, ogid, oon,
-                             ohist, hist, on):
-    """carry_history_rows for the new pairs k0..k1-1, given where [max gid + 1] (each old owned
-    particle's old index by gid, -1 elsewhere), so that threads can carry ranges of the list
-    (modes.parallel.carry_rows_threads)."""
-    for k in range(k0, k1):
-        own, partner = _owned_end(pi[k], pj[k], gid, n_owned)
-        on[k] = 0
-        o = where[gid[own]]
-        if o < 0:
-            continue
-        for u in range(oadj_start[o], oadj_start[o + 1]):
-            e = oadj_items[u]
-            kk = e >> 1
-            g = ogid[opi[kk]] if e & 1 else ogid[opj[kk]]
-            if g == partner:
-                if oon[kk]:
-                    _take_row(hist, on, k, ohist, kk)
-                break
-            if g > partner:
-                break
+        if u < mo and ogid[opi[u]] == g and ogid[opj[u]] == h:
+            ku = _at(oorder, u)
+            if oon[ku]:
+                _take_row(hist, on, k, ohist, ku)
 
 
 class PairList:
@@ -360,24 +384,26 @@ class PairList:
     (built on demand where nothing gathers: sorted lists sum as they resolve); near [n_owned] int8
     the wall list (dem.forces.wall_candidates); ref [n_owned, 3] the owned positions at the
     rebuild [m]; gid the local particles' global ids at the rebuild [n]; offsets [T+1] the pairs
-    each thread found (thread schemes resolve their own pairs); rebuilds counts the builds.
-    build_adjacency, build_adjacency_of, carry_rows and sort_pairs are the list's loops
-    (pair_adjacency, pair_adjacency_of, carry_history_rows, sort_pairs_by_gid, same arguments); a
+    each thread found (thread schemes resolve their own pairs); rebuilds counts the builds;
+    view = (spi, spj, order) the list in ascending (gid_i, gid_j) (sorted_view; order None where
+    the list itself is sorted), in which the next rebuild carries its history.
+    build_adjacency, build_adjacency_of, sort_pairs and sort_view are the list's loops
+    (adjacency_in_order, pair_adjacency_of, sort_pairs_by_gid, sorted_view, same arguments); a
     thread mode sets its own on the instance (modes.threads: modes.parallel's, with identical
     results)."""
 
-    build_adjacency = staticmethod(pair_adjacency)
+    build_adjacency = staticmethod(adjacency_in_order)
     build_adjacency_of = staticmethod(pair_adjacency_of)
-    carry_rows = staticmethod(carry_history_rows)
     sort_pairs = staticmethod(sort_pairs_by_gid)
+    sort_view = staticmethod(sorted_view)
 
     def __init__(self, capacity=1024):
         self._cur = self._alloc(capacity)
         self._spare = self._alloc(capacity)
         self._pf = np.zeros((capacity, PF_LEN))
         self.m = 0
-        self.sorted = False
         self._views(0)
+        self.view = (self.pi, self.pj, None)
         self.offsets = np.zeros(2, dtype=np.int64)
         self._adj = (np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64))
         self.gid = np.zeros(0, dtype=np.int64)
@@ -437,7 +463,7 @@ class PairList:
     def adjacency(self):
         """(adj_start [n_owned+1], adj_items): each owned particle's pairs in ascending partner gid."""
         if self._adj is None:
-            self._adj = self.build_adjacency(self.pi, self.pj, self.gid, self.n_owned)
+            self._adj = self.build_adjacency(*self.view, self.n_owned)
         return self._adj
 
     def set(self, m, gid, n_owned, hist_start, hist_partner, hist_val, pos, by_gid=False, carry=False,
@@ -450,11 +476,11 @@ class PairList:
         the others were in the old list (a pair that can touch has both ends there, one of them
         owned, the other owned or a ghost). by_gid: first sort the pairs by (gid_i, gid_j),
         the order in which one thread can sum each particle's forces as it resolves them; the
-        adjacency is then built only on demand. carry_sorted: the merge of two gid-sorted lists
+        adjacency is then built only on demand. Else the list keeps the order it was found in
+        (the pairs each thread found), is seen sorted through its view (sort_view) and its
+        adjacency is built at once. carry_sorted: the merge of two lists seen in gid order
         (carry_history_sorted's arguments; default carry_history_sorted, threads: their own)."""
-        old, old_m, old_gid, old_sorted = self._cur, self.m, self.gid, self.sorted
-        merge = carry and by_gid and old_sorted
-        old_adj = self.adjacency() if carry and not merge else None
+        old, old_m, old_gid, old_view = self._cur, self.m, self.gid, self.view
         self._cur, self._spare = self._spare, old
         if self._pf.shape[0] < self._cur[0].shape[0]:
             self._pf = np.zeros((self._cur[0].shape[0], PF_LEN))
@@ -464,17 +490,14 @@ class PairList:
             self.sort_pairs(self.pi, self.pj, gid)
         self.gid = gid.copy()
         self.n_owned = n_owned
-        self.sorted = by_gid
-        self._adj = None if by_gid else self.build_adjacency(self.pi, self.pj, gid, n_owned)
-        opi, opj, ohist, oon = (a[:old_m] for a in old)
+        self.view = (self.pi, self.pj, None) if by_gid else self.sort_view(self.pi, self.pj, gid)
+        self._adj = None if by_gid else self.build_adjacency(*self.view, n_owned)
         if not carry:
             history_from_csr(self.pi, self.pj, gid, n_owned, hist_start, hist_partner, hist_val, self.hist, self.on)
-        elif merge:
-            (carry_sorted or carry_history_sorted)(self.pi, self.pj, gid, opi, opj, old_gid, oon, ohist, self.hist,
-                                                   self.on)
         else:
-            self.carry_rows(self.pi, self.pj, gid, n_owned, old_adj[0], old_adj[1], opi, opj, old_gid, oon,
-                            ohist, self.hist, self.on)
+            ohist, oon = old[2][:old_m], old[3][:old_m]
+            (carry_sorted or carry_history_sorted)(*self.view[:2], gid, self.view[2], *old_view[:2], old_gid,
+                                                   old_view[2], oon, ohist, self.hist, self.on)
         if carry and rows and len(hist_partner):
             history_from_rows_where_present(self.pi, self.pj, gid, n_owned, hist_start, hist_partner, hist_val,
                                             self.hist, self.on)

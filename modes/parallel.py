@@ -44,7 +44,7 @@ from numba.extending import intrinsic
 from dem.forces import SPLIT, SPLIT_TAKEN, finish_range, resolve_range, wall_candidates_range
 from dem.integrate import derive_all
 from dem.neighbor import HALF_SHELL, cell_of_point, grid_shape, scan_rows
-from dem.pairs import _counting_sort, carry_history_rows_range, carry_history_sorted_range, gid_ranks
+from dem.pairs import _at, _counting_sort, carry_history_sorted_range, gid_ranks
 from dem.shapes.registry import SHAPES
 
 SCHEMES = ("partition", "frogleap", "headtail", "static", "dynamic")
@@ -280,13 +280,14 @@ def compact_pairs(threads, pi_t, pj_t, offsets, pi, pj):
 
 
 @njit(cache=True, parallel=True)
-def carry_threads(threads, pi, pj, gid, opi, opj, ogid, oon, ohist, hist, on):
-    """dem.pairs.carry_history_sorted by T threads, each over a contiguous range of the new list
-    (equal pairs: the merge costs the same per pair); the same rows as one thread's merge."""
-    m = pi.shape[0]
+def carry_threads(threads, spi, spj, gid, order, opi, opj, ogid, oorder, oon, ohist, hist, on):
+    """dem.pairs.carry_history_sorted by T threads, each over a contiguous range of the new list's
+    sorted order (equal pairs: the merge costs the same per pair); the same rows as one thread's
+    merge."""
+    m = spi.shape[0]
     for t in prange(threads):
-        carry_history_sorted_range(t * m // threads, (t + 1) * m // threads, pi, pj, gid, opi, opj, ogid, oon, ohist,
-                                   hist, on)
+        carry_history_sorted_range(t * m // threads, (t + 1) * m // threads, spi, spj, gid, order, opi, opj, ogid,
+                                   oorder, oon, ohist, hist, on)
 
 
 @njit(cache=True, parallel=True)
@@ -298,36 +299,6 @@ def wall_threads(threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near):
         count[t] = wall_candidates_range(t * n_owned // threads, (t + 1) * n_owned // threads, pos, reach, wall_m,
                                          wall_d, wall_hist, near)
     return count.sum()
-
-
-@njit(cache=True, parallel=True)
-def carry_rows_threads(threads, pi, pj, gid, n_owned, oadj_start, oadj_items, opi, opj, ogid, oon, ohist, hist, on):
-    """dem.pairs.carry_history_rows by T threads: the old owned particles' index by gid built over
-    T blocks of them, then each thread carries a contiguous range of the new list (each pair reads
-    only the old list); the same rows as one thread's."""
-    top_t = np.zeros(threads, dtype=np.int64)
-    no = ogid.shape[0]
-    n = gid.shape[0]
-    for t in prange(threads):
-        top = 0
-        for p in range(t * no // threads, (t + 1) * no // threads):
-            top = max(top, ogid[p])
-        for p in range(t * n // threads, (t + 1) * n // threads):
-            top = max(top, gid[p])
-        top_t[t] = top
-    where = np.empty(top_t.max() + 1, dtype=np.int64)
-    nw = where.shape[0]
-    nr = oadj_start.shape[0] - 1
-    for t in prange(threads):
-        for g in range(t * nw // threads, (t + 1) * nw // threads):
-            where[g] = -1
-    for t in prange(threads):
-        for p in range(t * nr // threads, (t + 1) * nr // threads):
-            where[ogid[p]] = p
-    m = pi.shape[0]
-    for t in prange(threads):
-        carry_history_rows_range(t * m // threads, (t + 1) * m // threads, where, pi, pj, gid, n_owned, oadj_start,
-                                 oadj_items, opi, opj, ogid, oon, ohist, hist, on)
 
 
 @njit(cache=True, inline="always")
@@ -394,9 +365,10 @@ def offsets_by_row_threads(count, nrow, start):
 
 
 @njit(cache=True, parallel=True)
-def sort_by_gid_threads(threads, pi, pj, gid):
-    """dem.pairs.sort_by_gid by T threads, in place: pi, pj [m] in ascending (gid[pi], gid[pj])
-    order (keys distinct: the one order one thread's sort gives). The ranks of the particles
+def sort_by_gid_threads(threads, pi, pj, gid, pi_out, pj_out, idx=None, idx_out=None):
+    """dem.pairs.sort_by_gid by T threads: pi, pj [m] in ascending (gid[pi], gid[pj]) order into
+    pi_out, pj_out (which may be pi, pj: in place), and idx [m] where given moved with them into
+    idx_out (keys distinct: the one order one thread's sort gives). The ranks of the particles
     (gid_ranks) fall in T buckets of equal rank ranges; each thread counts and moves a contiguous
     range of the pairs into the buckets of their first end (counts per thread and bucket, rows
     COUNT_PAD apart), then each bucket is sorted by its own two stable counting sorts, by the
@@ -430,6 +402,7 @@ def sort_by_gid_threads(threads, pi, pj, gid):
     _offsets_by_row(count, threads, start)   # bucket-major, then thread: each thread's first slot in each bucket
     ta = np.empty(m, dtype=np.int64)
     tb = np.empty(m, dtype=np.int64)
+    tx = np.empty(m if idx is not None else 0, dtype=np.int64)
     for t in prange(threads):
         cur = -1
         u = 0
@@ -442,9 +415,12 @@ def sort_by_gid_threads(threads, pi, pj, gid):
                 u = count[t, b]
             ta[u] = pi[k]
             tb[u] = pj[k]
+            if idx is not None:
+                tx[u] = idx[k]
             u += 1
     tc = np.empty(m, dtype=np.int64)
     td = np.empty(m, dtype=np.int64)
+    ty = np.empty(m if idx is not None else 0, dtype=np.int64)
     for b in prange(threads):
         k0 = start[b]
         k1 = start[b + 1]
@@ -458,25 +434,32 @@ def sort_by_gid_threads(threads, pi, pj, gid):
                 r = rank[tb[k]] - first
                 key[k - k0] = r
                 top = max(top, r)
-            _counting_sort(key, top + 1, ta[k0:k1], tb[k0:k1], tc[k0:k1], td[k0:k1])
-            for k in range(k0, k1):
-                key[k - k0] = rank[tc[k]] - first
-            _counting_sort(key, (n * (b + 1) + threads - 1) // threads - first, tc[k0:k1], td[k0:k1], pi[k0:k1],
-                           pj[k0:k1])
+            span = (n * (b + 1) + threads - 1) // threads - first
+            if idx is None:
+                _counting_sort(key, top + 1, ta[k0:k1], tb[k0:k1], tc[k0:k1], td[k0:k1])
+                for k in range(k0, k1):
+                    key[k - k0] = rank[tc[k]] - first
+                _counting_sort(key, span, tc[k0:k1], td[k0:k1], pi_out[k0:k1], pj_out[k0:k1])
+            else:
+                _counting_sort(key, top + 1, ta[k0:k1], tb[k0:k1], tc[k0:k1], td[k0:k1], tx[k0:k1], ty[k0:k1])
+                for k in range(k0, k1):
+                    key[k - k0] = rank[tc[k]] - first
+                _counting_sort(key, span, tc[k0:k1], td[k0:k1], pi_out[k0:k1], pj_out[k0:k1], ty[k0:k1],
+                               idx_out[k0:k1])
 
 
 @njit(cache=True, parallel=True)
-def adjacency_threads(threads, pi, pj, gid, n_owned):
-    """dem.pairs.pair_adjacency by T threads (the marked rows only: adjacency_marked_threads): each
-    counts the ends of a contiguous range of the pairs per particle, a prefix over (particle, thread) gives
-    its write offsets, so rows fill in pair order as on one thread; then the rows are sorted by
-    partner gid over T blocks of particles (partners are distinct: the one order)."""
-    m = pi.shape[0]
+def adjacency_in_order_threads(threads, spi, spj, order, n_owned):
+    """dem.pairs.adjacency_in_order by T threads: each counts the ends of a contiguous range of the
+    sorted order per particle, a prefix over (particle, thread) gives its write offsets, and each
+    fills its range's entries in that order, so every row comes out as one thread's, in ascending
+    partner gid, with no sort (the marked rows only: adjacency_marked_threads)."""
+    m = spi.shape[0]
     count = np.zeros((threads, n_owned), dtype=np.int64)
     for t in prange(threads):
-        for k in range(t * m // threads, (t + 1) * m // threads):
-            i = pi[k]
-            j = pj[k]
+        for a in range(t * m // threads, (t + 1) * m // threads):
+            i = spi[a]
+            j = spj[a]
             if i < n_owned:
                 count[t, i] += 1
             if j < n_owned:
@@ -484,24 +467,17 @@ def adjacency_threads(threads, pi, pj, gid, n_owned):
     start = np.empty(n_owned + 1, dtype=np.int64)
     offsets_by_row_threads(count, n_owned, start)
     items = np.empty(start[n_owned], dtype=np.int64)
-    keys = np.empty(start[n_owned], dtype=np.int64)
     for t in prange(threads):
-        for k in range(t * m // threads, (t + 1) * m // threads):
-            i = pi[k]
-            j = pj[k]
+        for a in range(t * m // threads, (t + 1) * m // threads):
+            k = _at(order, a)
+            i = spi[a]
+            j = spj[a]
             if i < n_owned:
-                u = count[t, i]
-                items[u] = 2 * k
-                keys[u] = gid[j]
-                count[t, i] = u + 1
+                items[count[t, i]] = 2 * k
+                count[t, i] += 1
             if j < n_owned:
-                u = count[t, j]
-                items[u] = 2 * k + 1
-                keys[u] = gid[i]
-                count[t, j] = u + 1
-    for t in prange(threads):
-        for p in range(t * n_owned // threads, (t + 1) * n_owned // threads):
-            _insertion_sort_row(keys, items, start[p], start[p + 1])
+                items[count[t, j]] = 2 * k + 1
+                count[t, j] += 1
     return start, items
 
 
@@ -511,8 +487,8 @@ def adjacency_marked_threads(threads, pi, pj, gid, n_owned, mark):
     threads in one pass over the pairs: each collects the marked ends of a contiguous range of the
     pairs (their particle and 2 k + end), then one thread places these few entries, in pair order,
     into the rows and sorts each row by partner gid (partners are distinct: the one order, as
-    adjacency_threads gives). Where few particles are marked (SPLIT: those whose pairs fall in two
-    ranges, 535 of 12k packed ellipsoids at 2 threads) adjacency_threads' two passes over every
+    adjacency_in_order_threads gives). Where few particles are marked (SPLIT: those whose pairs fall in two
+    ranges, 535 of 12k packed ellipsoids at 2 threads) the full adjacency's two passes over every
     pair took 0.165 ms."""
     m = pi.shape[0]
     cap = 2 * ((m + threads - 1) // threads) + 2

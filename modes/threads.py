@@ -11,6 +11,8 @@ copies) with the scan and the compaction of the threads' lists in one call, the 
 the history carry, the wall list and the range cut, and from 3 threads on the list's sort by gid
 (modes.parallel.SORT_THREADS_FROM), each with the one result the serial loop gives.
 """
+import functools
+
 import numpy as np
 import numba
 
@@ -18,6 +20,7 @@ from dem.contact.ellipsoid import OUT_LEN
 from dem.forces import SPLIT, SPLIT_TAKEN, STORE
 from dem.shapes import SPHERE
 from dem.neighbor import grid_cutoff
+from dem.pairs import sorted_view
 from modes.base import ModeError, register
 from modes import parallel as par
 from modes.serial import SerialMode
@@ -84,15 +87,17 @@ class ThreadsMode(SerialMode):
     def _fresh(self):
         super()._fresh()
         t = self.threads
-        # the pair list's own loops (adjacency, history carry by rows, from SORT_THREADS_FROM threads
-        # its sort by gid) by the T threads
+        # the pair list's own loops (adjacency, from SORT_THREADS_FROM threads its sort by gid and
+        # sorted view) by the T threads
         p = self.pairs
         if t >= par.SORT_THREADS_FROM:
-            p.sort_pairs = lambda pi, pj, gid: par.sort_by_gid_threads(t, pi, pj, gid)
-        p.build_adjacency = lambda pi, pj, gid, n_owned: par.adjacency_threads(t, pi, pj, gid, n_owned)
+            sort = functools.partial(par.sort_by_gid_threads, t)
+            p.sort_pairs = lambda pi, pj, gid: sort(pi, pj, gid, pi, pj)
+            p.sort_view = lambda pi, pj, gid: sorted_view(pi, pj, gid, sort)
+        p.build_adjacency = lambda spi, spj, order, n_owned: par.adjacency_in_order_threads(t, spi, spj, order,
+                                                                                           n_owned)
         p.build_adjacency_of = lambda pi, pj, gid, n_owned, mark: par.adjacency_marked_threads(t, pi, pj, gid,
                                                                                                 n_owned, mark)
-        p.carry_rows = lambda *a: par.carry_rows_threads(t, *a)
         # per-thread scratch and results, each row PAD doubles apart: rows closer than a cache line
         # would be written by two threads at once (false sharing on every pair: measured 14 %)
         self.outs = np.zeros((t, max(OUT_LEN, PAD)))

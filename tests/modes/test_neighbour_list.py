@@ -1,14 +1,16 @@
 """The neighbour list with a skin (issue 11): kept between rebuilds with its contact history,
 rebuilt when a particle has moved half the skin, bit-identical to the paper's every-step estimate
 in every mode, and a step between rebuilds that allocates nothing."""
+import functools
+
 import numpy as np
 import pytest
 
 from bench.run.prepare import load_prepared
 from dem.timestep import choose_time_step
-from dem.pairs import (DEFAULT_SKIN, PairList, history_from_csr, history_to_csr, pair_adjacency,
-                       pair_adjacency_of, sort_by_gid)
-from modes.parallel import adjacency_marked_threads, sort_by_gid_threads
+from dem.pairs import (DEFAULT_SKIN, PairList, adjacency_in_order, history_from_csr, history_to_csr,
+                       pair_adjacency, pair_adjacency_of, sort_by_gid, sorted_view)
+from modes.parallel import adjacency_in_order_threads, adjacency_marked_threads, sort_by_gid_threads
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 
@@ -116,6 +118,32 @@ def test_adjacency_sorted_by_partner_gid(rng):
         assert partners == sorted(partners)
         assert len(es) == int(np.sum(pi == q) + np.sum(pj == q))
 
+
+
+@pytest.mark.parametrize("stored", ["sorted", "ghost tail"])
+def test_adjacency_in_order_needs_no_sort(rng, stored):
+    """Filled in the list's (gid_i, gid_j) order, each row of the adjacency comes out in ascending
+    partner gid with no sort (a particle's pairs as the j end, whose partners have lower gids, come
+    before its own run as the i end): dem.pairs.adjacency_in_order and modes.parallel's at 1-3
+    threads must equal pair_adjacency (fill in any order, then sort each row) array for array, for
+    a sorted list (order None) and for the same pairs shuffled and seen through their sorted view,
+    with the particles stored in gid order or not (ghosts after the owned ones, as under MPI)."""
+    n, n_owned = 90, 70
+    gid = np.sort(rng.permutation(900)[:n]).astype(np.int64)
+    if stored == "ghost tail":
+        gid[n_owned:] = rng.permutation(gid[n_owned:])
+    pi, pj = _random_pairs(rng, n, 600, gid)
+    o = np.lexsort((gid[pj], gid[pi]))
+    pi, pj = pi[o], pj[o]
+    shuffle = rng.permutation(len(pi))
+    qi, qj = pi[shuffle], pj[shuffle]
+    view = sorted_view(qi, qj, gid)
+    for (ai, aj), args in (((pi, pj), (pi, pj, None)), ((qi, qj), view)):
+        ref = pair_adjacency(ai, aj, gid, n_owned)
+        assert len(ref[1]) > 0
+        got = [adjacency_in_order(*args, n_owned)] + [adjacency_in_order_threads(t, *args, n_owned) for t in (1, 2, 3)]
+        for start, items in got:
+            assert np.array_equal(start, ref[0]) and np.array_equal(items, ref[1])
 
 
 def _random_pairs(rng, n, m, gid):
@@ -231,7 +259,9 @@ def test_carry_by_ranges_equals_one_merge(rng):
     """Threads carry a rebuild's history over T ranges of the new list, each merge starting at a
     binary search in the old one (modes.parallel.carry_threads): the rows and flags must equal one
     thread's merge (dem.pairs.carry_history_sorted) bit for bit, for T = 1..5, including ranges
-    that start on a pair absent from the old list."""
+    that start on a pair absent from the old list. Lists kept in another order (STORE schemes)
+    carry through their sorted views (dem.pairs.sorted_view): both lists shuffled, each pair must
+    get the row it gets in the sorted carry."""
     from dem.pairs import carry_history_sorted
     from modes.parallel import carry_threads
     n = 90
@@ -250,13 +280,25 @@ def test_carry_by_ranges_equals_one_merge(rng):
     pi = np.array([q[0] for q in both], dtype=np.int64)
     pj = np.array([q[1] for q in both], dtype=np.int64)
     ref_hist, ref_on = np.zeros((len(pi), 8)), np.zeros(len(pi), dtype=np.int8)
-    carry_history_sorted(pi, pj, gid, opi, opj, gid, oon, ohist, ref_hist, ref_on)
+    carry_history_sorted(pi, pj, gid, None, opi, opj, gid, None, oon, ohist, ref_hist, ref_on)
     assert 0 < ref_on.sum() < len(pi)
     for threads in range(1, 6):
         hist, on = np.full((len(pi), 8), np.nan), np.full(len(pi), 7, dtype=np.int8)
-        carry_threads(threads, pi, pj, gid, opi, opj, gid, oon, ohist, hist, on)
+        carry_threads(threads, pi, pj, gid, None, opi, opj, gid, None, oon, ohist, hist, on)
         assert np.array_equal(on, ref_on)
         assert np.array_equal(hist[on == 1], ref_hist[ref_on == 1])
+    # both lists in shuffled order, seen sorted through their views
+    new_perm, old_perm = rng.permutation(len(pi)), rng.permutation(len(opi))
+    qi, qj = pi[new_perm], pj[new_perm]
+    oview = sorted_view(opi[old_perm], opj[old_perm], gid)
+    view = sorted_view(qi, qj, gid)
+    assert np.array_equal(view[0], pi) and np.array_equal(oview[0], opi)
+    for threads in range(0, 4):
+        hist, on = np.full((len(pi), 8), np.nan), np.full(len(pi), 7, dtype=np.int8)
+        args = (*view[:2], gid, view[2], *oview[:2], gid, oview[2], oon[old_perm], ohist[old_perm], hist, on)
+        carry_threads(threads, *args) if threads else carry_history_sorted(*args)
+        assert np.array_equal(on, ref_on[new_perm])
+        assert np.array_equal(hist[on == 1], ref_hist[new_perm][on == 1])
 
 
 def test_marked_adjacency_rows_and_gid_sort(rng):
@@ -281,8 +323,12 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
         assert np.array_equal(si, pi[ref]) and np.array_equal(sj, pj[ref])
         for threads in (1, 2, 3, 7):  # modes.parallel's, in place, by T buckets of ranks: the same order
             ti, tj = pi.copy(), pj.copy()
-            sort_by_gid_threads(threads, ti, tj, gid)
+            sort_by_gid_threads(threads, ti, tj, gid, ti, tj)
             assert np.array_equal(ti, si) and np.array_equal(tj, sj)
+            # the sorted view: the pairs' indices moved with them (sort_by_gid's own with idx)
+            view = sorted_view(pi, pj, gid, functools.partial(sort_by_gid_threads, threads))
+            assert all(np.array_equal(a, b) for a, b in zip(view, (si, sj, ref)))
+        assert all(np.array_equal(a, b) for a, b in zip(sorted_view(pi, pj, gid), (si, sj, ref)))
         full = pair_adjacency(si, sj, gid, 60)
         mark = (rng.random(60) < 0.2).astype(np.int8)
         part = pair_adjacency_of(si, sj, gid, 60, mark)
