@@ -194,7 +194,9 @@ class ThreadsMode(SerialMode):
 
     def _cut(self):
         """The ranges of the list (the weights of split_pairs' estimate, or self.weights as measured
-        times rescaled them: cut_ranges), the particles that gather and those each range zeroes."""
+        times rescaled them: cut_ranges), the particles that gather and those each range zeroes.
+        Where every pair of a fresh list weighs the same (uniform_weight) the cut is made at equal
+        pairs with no pass over them, and self.weights is that one weight [float]."""
         s = self.state
         p = self.pairs
         t1 = self.threads + 1
@@ -205,9 +207,14 @@ class ThreadsMode(SerialMode):
         home_items = np.empty(s.n_owned, dtype=np.int64)
         if self.weights is None:  # a fresh cut: the dynamic scheme's shares by the learnt speeds
             shares = 1.0 / self.speed if self.scheme == "dynamic" else self.equal
-            self.weights = par.split_pairs(self.code, self.threads, shares, p.pi, p.pj, s.gid, s.n_owned, s.pos,
-                                           s.rbound, s.shape, cross is not None, bounds, self.gat, home_start,
-                                           home_items)
+            self.weights = self.uniform_weight(cross is not None)
+            if self.weights is not None:
+                par.cut_ranges(None, self.threads, shares, p.pi, p.pj, s.gid, s.n_owned, bounds, self.gat, home_start,
+                               home_items)
+            else:
+                self.weights = par.split_pairs(self.code, self.threads, shares, p.pi, p.pj, s.gid, s.n_owned, s.pos,
+                                               s.rbound, s.shape, cross is not None, bounds, self.gat, home_start,
+                                               home_items)
         else:
             par.cut_ranges(self.weights, self.threads, self.equal, p.pi, p.pj, s.gid, s.n_owned, bounds, self.gat,
                            home_start, home_items)
@@ -219,6 +226,26 @@ class ThreadsMode(SerialMode):
             self.ranges = (SPLIT_TAKEN, s.n_owned, self.gat, home_start, home_items, terms,
                            np.searchsorted(cross, bounds).astype(np.int64))
         self.window_n = 0
+
+    def uniform_weight(self, taken):
+        """The one weight [float] every pair of a fresh list has in the cut where they all weigh the
+        same (modes.parallel.pair_weights), else None: 1 for the static scheme; under the dynamic
+        one, with skin 0 (each candidate's bounding spheres overlap: the list's reach is the bounding
+        radius), no terms taken (SPLIT_TAKEN weighs the pairs with a ghost end 1) and one shape among
+        the local particles, that shape's CONTACT_COST; the partition scheme weighs rows."""
+        if self.code == par.STATIC:
+            return 1.0
+        if self.code != par.DYNAMIC or taken or self.skin > 0:
+            return None
+        cost = par.uniform_contact_cost(self.state.shape)
+        return cost if cost > 0 else None
+
+    def range_work(self):
+        """The estimated weight of each range of the current cut [T]."""
+        b = self.pairs.offsets
+        if isinstance(self.weights, float):
+            return self.weights * np.diff(b).astype(np.float64)
+        return np.array([self.weights[b[t]:b[t + 1]].sum() for t in range(self.threads)])
 
     def rebalance(self):
         """The dynamic scheme's feedback: after each window of REBALANCE_WINDOW steps with one cut
@@ -234,8 +261,7 @@ class ThreadsMode(SerialMode):
         med = np.median(self.window, axis=0)
         if med.min() <= 0 or med.max() <= REBALANCE_ABOVE * med.mean():
             return
-        b = self.pairs.offsets
-        work = np.array([self.weights[b[t]:b[t + 1]].sum() for t in range(self.threads)])
+        work = self.range_work()
         if work.min() <= 0:
             return
         rate = med / work
@@ -251,8 +277,7 @@ class ThreadsMode(SerialMode):
         above the mean (bench run, 60 steps, median)."""
         if self.scheme != "dynamic" or self.deliver != SPLIT or self.weights is None:
             return
-        b = self.pairs.offsets
-        work = np.array([self.weights[b[t]:b[t + 1]].sum() for t in range(self.threads)])
+        work = self.range_work()
         busy = self.busy_rows[:, 0].astype(np.float64)
         if work.min() <= 0 or busy.min() <= 0:
             return
@@ -269,6 +294,8 @@ class ThreadsMode(SerialMode):
 
     def _recut(self):
         """Re-make the ranges from the weights rescaled by self.recut (within the resolution's time)."""
+        if isinstance(self.weights, float):   # one weight for all: each pair's own from now on
+            self.weights = np.full(self.pairs.m, self.weights)
         par.rescale_weights(self.weights, self.pairs.offsets, self.recut)
         self.recut = None
         self._cut()

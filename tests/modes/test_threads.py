@@ -9,8 +9,10 @@ import pytest
 from bench.run.prepare import load_prepared
 from dem.timestep import choose_time_step
 from dem.forces import SPLIT, STORE
-from modes.parallel import (DYNAMIC, PARTITION, SCHEMES, STATIC, WEIGHT_BLOCK, _offsets_by_row, cut_at_equal_weight,
-                            finish_cuts, offsets_by_row_threads, scheme_rows, split_pairs)
+from dem.shapes import ELLIPSOID
+from modes.parallel import (CONTACT_COST, DYNAMIC, PARTITION, SCHEMES, STATIC, WEIGHT_BLOCK, _offsets_by_row,
+                            cut_at_equal_weight, cut_ranges, finish_cuts, offsets_by_row_threads, scheme_rows,
+                            split_pairs)
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 from tests.helpers import bench, one_line_error
@@ -166,6 +168,48 @@ def test_rebalance_scales_weights_towards_measured_cost():
         mode.rebalance()
         assert (mode.recut is None) if want is None else np.allclose(mode.recut, want, rtol=1e-12, atol=0)
         assert mode.window_n == 0
+
+
+@pytest.mark.parametrize("scheme", ["static", "dynamic"])
+def test_every_step_lists_cut_at_equal_pairs(scheme):
+    """With skin 0 (every step a rebuild) in a scene of one shape, every candidate pair's bounding
+    spheres overlap (the list's reach is the bounding radius), so every pair weighs the same in the
+    cut (static: 1; dynamic: the ellipsoid's CONTACT_COST) and the fresh cut is made at equal pairs
+    with no pass over the pairs (ThreadsMode.weights holds the one weight). The ranges, the
+    particles that gather and the home lists equal those of split_pairs' per-pair weights (equal
+    shares: the same cut), and 40 steps of packed 400 ellipsoids at 3 threads, with re-cuts from
+    unequal factors forced at two steps (the one weight becomes each pair's), equal serial's bit
+    for bit."""
+    sc = load_prepared("packed", particles=400)
+    dt = choose_time_step(sc).dt
+    ref = SerialMode().setup(sc, dt=dt, skin=0.0)
+    mode = ThreadsMode().setup(sc, dt=dt, threads=3, scheme=scheme, skin=0.0)
+    fresh_cut = mode.split
+    due = []
+
+    def split_then_recut(*args):   # a re-cut due at this step's resolution, after its fresh cut
+        fresh_cut(*args)
+        mode.recut = due.pop() if due else None
+
+    mode.split = split_then_recut
+    for k in range(40):
+        ref.step()
+        if k in (10, 25):
+            due.append(np.array([1.2, 0.9, 0.9]))
+        mode.step()
+        if k == 0:
+            code = SCHEMES.index(scheme)
+            assert mode.weights == (1.0 if scheme == "static" else float(CONTACT_COST[ELLIPSOID]))
+            s, p = mode.state, mode.pairs
+            got = [np.zeros(4, dtype=np.int64), np.zeros(s.n_owned, dtype=np.int8), np.zeros(4, dtype=np.int64),
+                   np.zeros(s.n_owned, dtype=np.int64)]
+            want = [a.copy() for a in got]
+            cut_ranges(None, 3, np.ones(3), p.pi, p.pj, s.gid, s.n_owned, *got)
+            split_pairs(code, 3, np.ones(3), p.pi, p.pj, s.gid, s.n_owned, s.pos, s.rbound, s.shape, False, *want)
+            assert 0 < got[0][1] < got[0][2] < p.m and got[1].sum() > 0
+            assert all(np.array_equal(a, b) for a, b in zip(got, want))
+    assert mode.recuts == 2 and isinstance(mode.weights, float)
+    assert_same(ref.snapshot(), mode.snapshot())
 
 
 def test_learn_speed_gives_the_next_fresh_cut_shares():
