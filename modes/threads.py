@@ -94,10 +94,12 @@ class ThreadsMode(SerialMode):
             sort = functools.partial(par.sort_by_gid_threads, t)
             p.sort_pairs = lambda pi, pj, gid: sort(pi, pj, gid, pi, pj)
             p.sort_view = lambda pi, pj, gid: sorted_view(pi, pj, gid, sort)
-        p.build_adjacency = lambda spi, spj, order, n_owned: par.adjacency_in_order_threads(t, spi, spj, order,
-                                                                                           n_owned)
-        p.build_adjacency_of = lambda pi, pj, gid, n_owned, mark: par.adjacency_marked_threads(t, pi, pj, gid,
-                                                                                                n_owned, mark)
+
+        def build_adjacency(spi, spj, order, n_owned, mark=None):
+            if mark is None:
+                return par.adjacency_in_order_threads(t, spi, spj, order, n_owned)
+            return par.adjacency_marked_threads(t, spi, spj, order, n_owned, mark)
+        p.build_adjacency = build_adjacency
         # per-thread scratch and results, each row PAD doubles apart: rows closer than a cache line
         # would be written by two threads at once (false sharing on every pair: measured 14 %)
         self.outs = np.zeros((t, max(OUT_LEN, PAD)))

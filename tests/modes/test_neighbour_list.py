@@ -304,7 +304,9 @@ def test_carry_by_ranges_equals_one_merge(rng):
 def test_marked_adjacency_rows_and_gid_sort(rng):
     """The gather of SPLIT reads the rows of the particles that gather only: pair_adjacency_of gives
     each marked particle exactly its pair_adjacency row (its pairs in ascending partner gid) and
-    the others none, and modes.parallel.adjacency_marked_threads the same arrays at 1-3 threads.
+    the others none, and the same arrays come from filling them in the list's gid order
+    (dem.pairs.adjacency_in_order given the mark; modes.parallel.adjacency_marked_threads at 1-3
+    threads), for the sorted list and through the sorted view of the same pairs shuffled.
     sort_by_gid orders the pairs by (gid_i, gid_j) as numpy's lexsort does, with the particles
     stored in gid order (ranks taken as indices) or not (owned ones sorted, ghosts after them in
     any order, as under MPI), and modes.parallel.sort_by_gid_threads the same order at 1-7
@@ -337,9 +339,18 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
             got = part[1][part[0][p]:part[0][p + 1]]
             want = full[1][full[0][p]:full[0][p + 1]] if mark[p] else full[1][:0]
             assert np.array_equal(got, want)
-        for threads in (1, 2, 3):  # the threads' one-pass version (modes.parallel): the same arrays
-            start, items = adjacency_marked_threads(threads, si, sj, gid, 60, mark)
-            assert np.array_equal(start, part[0]) and np.array_equal(items, part[1])
+        # filled in the list's gid order (dem.pairs.adjacency_in_order given the mark, and the
+        # threads' one-pass version, modes.parallel): the same arrays, for the sorted list and for the
+        # same pairs shuffled and seen through their sorted view
+        shuffle = rng.permutation(len(si))
+        view = sorted_view(si[shuffle], sj[shuffle], gid)
+        inv = np.argsort(shuffle)   # pair k of the sorted list is pair inv[k] of the shuffled one
+        want_view = (part[0], 2 * inv[part[1] >> 1] + (part[1] & 1))
+        for args, want in (((si, sj, None), part), (view, want_view)):
+            got = [adjacency_in_order(*args, 60, mark)] + [adjacency_marked_threads(t, *args, 60, mark)
+                                                           for t in (1, 2, 3)]
+            for start, items in got:
+                assert np.array_equal(start, want[0]) and np.array_equal(items, want[1])
 
 
 ALLOCATION_PROBE = """
