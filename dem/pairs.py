@@ -13,14 +13,14 @@ k's j end), so the gather needs no other lookup.
 Across a rebuild the history is carried from the old list to the new one by the pair's global
 ids (carry_history_sorted merges the two lists in (gid_i, gid_j) order: a list kept in another
 order, the pairs each thread found, is seen in it through a sorted view), so memory order may
-change in between. A particle that
-migrates (MPI) takes its history along in the state's per-particle CSR (dem.state: rows keyed by
-partner gid, the form that moves with a particle and is saved in caches): leaver_history_csr
-writes the leaving particles' rows from the old list, and at the next build the pairs whose
-owned end came with rows take them (history_from_rows_where_present), every other pair the
-carry (both ends hold identical rows); history_to_csr writes every particle's rows (caches,
-checkpoints) and history_from_csr reads them into a first list. This is LAMMPS' fix
-neigh/history in kind, which packs the history of the atoms exchange() sends.
+change in between. A particle that migrates (MPI) takes its history along in the state's
+per-particle CSR (dem.state: rows keyed by partner gid, the form that moves with a particle and
+is saved in caches): leaver_history_csr writes the leaving particles' rows from the old list,
+and at the next build the pairs whose owned end came with rows take them
+(history_from_rows_where_present), every other pair the carry (both ends hold identical rows);
+history_to_csr writes every particle's rows (caches, checkpoints) and history_from_csr reads
+them into a first list. This is LAMMPS' fix neigh/history in kind, which packs the history of
+the atoms exchange() sends.
 """
 import numpy as np
 from numba import njit
@@ -46,7 +46,8 @@ def pair_adjacency(pi, pj, gid, n_owned):
     """Each owned particle's pairs sorted by ascending partner gid: (start [n_owned+1], items [nnz]
     = 2 k + 1 where the particle is pair k's j end, 2 k where it is the i end). Rows are filled in
     pair order and then insertion-sorted (rows are short), so the order never depends on how the
-    pair list was produced."""
+    pair list was produced: the reference for the lists' own adjacency, whose rows are filled in
+    the list's gid order and need no sort (adjacency_in_order)."""
     return _adjacency(pi, pj, gid, n_owned, np.zeros(0, dtype=np.int8), True)
 
 
@@ -54,7 +55,7 @@ def pair_adjacency(pi, pj, gid, n_owned):
 def pair_adjacency_of(pi, pj, gid, n_owned, mark):
     """pair_adjacency's rows for the owned particles with mark[p] != 0 only (mark [n_owned] int8),
     the others empty: the rows a gather reads when only some particles gather (SPLIT: those whose
-    pairs fall in two threads' ranges)."""
+    pairs fall in two threads' ranges); the reference for adjacency_in_order given a mark."""
     return _adjacency(pi, pj, gid, n_owned, mark, False)
 
 
@@ -391,9 +392,8 @@ class PairList:
     the list itself is sorted), in which the next rebuild carries its history.
     build_adjacency, sort_pairs and sort_view are the list's loops (adjacency_in_order,
     sort_pairs_by_gid, sorted_view, same arguments; build_adjacency given a mark builds the marked
-    rows only); a
-    thread mode sets its own on the instance (modes.threads: modes.parallel's, with identical
-    results)."""
+    rows only); a thread mode sets its own on the instance (modes.threads: modes.parallel's, with
+    identical results)."""
 
     build_adjacency = staticmethod(adjacency_in_order)
     sort_pairs = staticmethod(sort_pairs_by_gid)
