@@ -145,12 +145,11 @@ def sort_by_gid(pi, pj, gid, pi_out, pj_out, idx=None, idx_out=None):
     tmp_i = np.empty_like(pi)
     tmp_j = np.empty_like(pj)
     if idx is None:
-        _counting_sort(rank[pj], n, pi, pj, tmp_i, tmp_j)
-        _counting_sort(rank[tmp_i], n, tmp_i, tmp_j, pi_out, pj_out)
+        tmp_x = None
     else:
         tmp_x = np.empty_like(idx)
-        _counting_sort(rank[pj], n, pi, pj, tmp_i, tmp_j, idx, tmp_x)
-        _counting_sort(rank[tmp_i], n, tmp_i, tmp_j, pi_out, pj_out, tmp_x, idx_out)
+    _counting_sort(rank[pj], n, pi, pj, tmp_i, tmp_j, idx, tmp_x)
+    _counting_sort(rank[tmp_i], n, tmp_i, tmp_j, pi_out, pj_out, tmp_x, idx_out)
 
 
 def sort_pairs_by_gid(pi, pj, gid):

@@ -421,6 +421,8 @@ def sort_by_gid_threads(threads, pi, pj, gid, pi_out, pj_out, idx=None, idx_out=
                 key[k - k0] = r
                 top = max(top, r)
             span = (n * (b + 1) + threads - 1) // threads - first
+            # two calls, not one with optional slices: a None that reaches a prange body crashed
+            # numba's parallel lowering (dem.pairs.sort_by_gid passes its optional arrays as they are)
             if idx is None:
                 _counting_sort(key, top + 1, ta[k0:k1], tb[k0:k1], tc[k0:k1], td[k0:k1])
                 for k in range(k0, k1):
