@@ -238,21 +238,27 @@ def test_learn_speed_gives_the_next_fresh_cut_shares():
 
 @pytest.mark.parametrize("code", [PARTITION, STATIC, DYNAMIC])
 @pytest.mark.parametrize("threads", [1, 2, 3, 5])
-def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads):
+@pytest.mark.parametrize("stored", ["reverse", "gid"])
+def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads, stored):
     """split_pairs on a random gid-sorted list of up to 600 pairs among particles 0..119 of 150 (30
-    without pairs), stored in reverse gid order: the T ranges start at row starts and cover the list
-    in order; gat[p] = 1 exactly for the particles that a range before their own (the range whose
-    rows span gid[p]) holds as a pair's later end (by brute force), which takes in every particle
-    with pairs in two ranges; every other particle is zeroed by exactly one range, its own, which
-    holds all its pairs; static ranges hold m/T pairs to within one row."""
+    without pairs), stored in reverse gid order (the home lists by a counting sort) or in gid order
+    (each range's home list from its interval of indices): the T ranges start at row starts and
+    cover the list in order; gat[p] = 1 exactly for the particles that a range before their own
+    (the range whose rows span gid[p]) holds as a pair's later end (by brute force), which takes in
+    every particle with pairs in two ranges; every other particle is zeroed by exactly one range,
+    its own, which holds all its pairs; static ranges hold m/T pairs to within one row."""
     rng = np.random.default_rng(7)
     n = 150
     i = rng.integers(0, 119, 600)
     j = np.minimum(i + rng.integers(1, 30, 600), 119)
     keys = np.unique(np.stack([i, j], axis=1), axis=0)
     keys = keys[keys[:, 0] < keys[:, 1]]
-    gid = np.arange(n)[::-1].copy()   # particle p has gid n-1-p: rows by gid, not by index
-    pi, pj = n - 1 - keys[:, 0], n - 1 - keys[:, 1]
+    if stored == "reverse":
+        gid = np.arange(n)[::-1].copy()   # particle p has gid n-1-p: rows by gid, not by index
+        pi, pj = n - 1 - keys[:, 0], n - 1 - keys[:, 1]
+    else:
+        gid = 3 * np.arange(n) + 5        # ascending, not the indices themselves
+        pi, pj = keys[:, 0], keys[:, 1]
     assert np.all(gid[pi] < gid[pj])
     m = len(pi)
     pos = rng.random((n, 3))
