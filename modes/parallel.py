@@ -45,7 +45,7 @@ from numba.extending import intrinsic
 from dem.forces import SPLIT, SPLIT_TAKEN, finish_range, resolve_range, wall_candidates_range
 from dem.integrate import derive_all
 from dem.neighbor import HALF_SHELL, cell_of_point, grid_shape, scan_rows
-from dem.pairs import _at, _counting_sort, carry_history_sorted_range, gid_ranks
+from dem.pairs import _at, carry_history_sorted_range
 from dem.shapes.registry import SHAPES
 
 SCHEMES = ("partition", "frogleap", "headtail", "static", "dynamic")
@@ -60,12 +60,6 @@ STATIC_BLOCK = 64     # rows or pairs per prange iteration of the static scheme
 DYNAMIC_ROWS = 16     # rows per dynamic hand-out
 DYNAMIC_PAIRS = 64    # candidate pairs per dynamic hand-out (the dynamic scheme with split=False)
 WEIGHT_BLOCK = 1024   # pairs per prange iteration of the range cut's per-pair loops (pair_weights)
-# The rebuild's sort of the list by gid runs on the T threads from this many on (sort_by_gid_threads):
-# its bucket passes and the buckets' own sorts are 0.50-0.54 ms of one thread's work where one
-# thread's two counting sorts (dem.pairs.sort_by_gid) take 0.35 ms, and 2 threads finish in
-# 0.31-0.32 ms (57k pairs of 12k packed ellipsoids, 2 cores); on 2500 (11k pairs) 0.09-0.10, 2
-# threads 0.076 against 0.057 ms: one thread's sort up to 2 threads, the threads' from 3.
-SORT_THREADS_FROM = 3
 COUNT_PAD = 8         # int64 counters between two threads' rows of counts (a cache line)
 OFFSETS_THREADS_FROM = 65536   # counts [T x rows] from which their write offsets are made by the threads
 # The cost model, from the registered shapes (dem.shapes.shape.Shape, measured by `bench perf --what
@@ -246,12 +240,13 @@ def scan_threads(code, threads, row_start, rows, grid, n_owned, pi_t, pj_t, coun
 
 @njit(cache=True)
 def find_pairs_threads(code, threads, cutoff, pos, rbound, gid, n_owned, row_start, rows, pi_t, pj_t, counts, tests,
-                       busy, offsets, pi, pj):
+                       busy, offsets):
     """The neighbour estimate by T threads in one call: the grid (grid_threads, cells of edge >=
-    cutoff), the scan under the scheme into pi_t, pj_t [T, cap] (scan_threads), offsets [T+1] of
-    the threads' pairs and, where pi, pj hold them, their compaction (compact_pairs). Returns
-    (m, the largest thread count): m = -1 when a thread's buffer was too small (grow cap to the
-    count and call again); m > len(pi): compact into larger buffers."""
+    cutoff) and the scan under the scheme into pi_t, pj_t [T, cap] (scan_threads), offsets [T+1] of
+    the threads' pairs in thread order. Returns (m, the largest thread count): m = -1 when a
+    thread's buffer was too small (grow cap to the count and call again). The pairs are then
+    placed into one list: in ascending (gid_i, gid_j) (place_by_gid) or in thread order
+    (compact_pairs)."""
     grid = grid_threads(threads, pos, rbound, gid, cutoff)
     dims, cell_start, cell_items, spos, srb, sgid, scell = grid
     scan_threads(code, threads, row_start, rows, (scell, dims, cell_start, cell_items, spos, srb, sgid), n_owned,
@@ -264,10 +259,7 @@ def find_pairs_threads(code, threads, cutoff, pos, rbound, gid, n_owned, row_sta
     offsets[0] = 0
     for t in range(threads):
         offsets[t + 1] = offsets[t] + counts[t]
-    m = offsets[threads]
-    if m <= pi.shape[0]:
-        compact_pairs(threads, pi_t, pj_t, offsets, pi, pj)
-    return m, top
+    return offsets[threads], top
 
 
 @njit(parallel=True, cache=True)
@@ -278,6 +270,60 @@ def compact_pairs(threads, pi_t, pj_t, offsets, pi, pj):
         for k in range(offsets[t + 1] - o):
             pi[o + k] = pi_t[t, k]
             pj[o + k] = pj_t[t, k]
+
+
+@njit(parallel=True, cache=True)
+def place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count, spi, spj, order):
+    """The threads' pairs (pi_t, pj_t [T, cap], thread t's offsets[t+1] - offsets[t] of them:
+    gid[pi] < gid[pj]) placed in ascending (gid_i, gid_j) into spi, spj [m], with no sort of the
+    whole list: a counting sort by the rank of the first end (rank [n]: gid_ranks) in which each
+    thread counts its own pairs per row (row_count [T, n], rows COUNT_PAD or more apart: any
+    contents) and moves them to their row (write offsets over (row, thread): offsets_by_row_threads),
+    then each thread orders a block of rows by the rank of the second end (insertion sort: a row of
+    packed ellipsoids holds about 5 pairs). Where order [m] is not empty, order[a] = the index of
+    spi[a]'s pair in the threads' list concatenated in thread order (compact_pairs): the sorted view
+    of a list kept in thread order (dem.pairs.sorted_view). The keys are distinct, so the order is
+    the one dem.pairs.sort_by_gid gives. This is the threads' sort of a rebuild, in place of the
+    copy into one list: one thread's two counting sorts took 0.065 of a 0.73 ms rebuild of 2500
+    packed ellipsoids at 2 threads and 0.335 ms on 12k (57k pairs); a bucket sort by the threads
+    was slower at 2 threads than one thread's (0.076 against 0.057 ms on 2500, 0.605 against
+    0.335 on 12k)."""
+    n = rank.shape[0]
+    viewed = order.shape[0] > 0
+    for t in prange(threads):
+        for r in range(n):
+            row_count[t, r] = 0
+        for k in range(offsets[t + 1] - offsets[t]):
+            row_count[t, rank[pi_t[t, k]]] += 1
+    start = np.empty(n + 1, dtype=np.int64)
+    offsets_by_row_threads(row_count, n, start)
+    for t in prange(threads):
+        o = offsets[t]
+        for k in range(offsets[t + 1] - o):
+            a = pi_t[t, k]
+            r = rank[a]
+            u = row_count[t, r]
+            row_count[t, r] = u + 1
+            spi[u] = a
+            spj[u] = pj_t[t, k]
+            if viewed:
+                order[u] = o + k
+    for b in prange(threads):
+        for r in range(b * n // threads, (b + 1) * n // threads):
+            lo = start[r]
+            for u in range(lo + 1, start[r + 1]):
+                v = spj[u]
+                key = rank[v]
+                x = order[u] if viewed else 0
+                w = u - 1
+                while w >= lo and rank[spj[w]] > key:
+                    spj[w + 1] = spj[w]
+                    if viewed:
+                        order[w + 1] = order[w]
+                    w -= 1
+                spj[w + 1] = v
+                if viewed:
+                    order[w + 1] = x
 
 
 @njit(cache=True, parallel=True)
@@ -348,92 +394,6 @@ def offsets_by_row_threads(count, nrow, start):
                 count[t, r] = acc
                 acc += c
     start[nrow] = base[threads]
-
-
-@njit(cache=True, parallel=True)
-def sort_by_gid_threads(threads, pi, pj, gid, pi_out, pj_out, idx=None, idx_out=None):
-    """dem.pairs.sort_by_gid by T threads: pi, pj [m] in ascending (gid[pi], gid[pj]) order into
-    pi_out, pj_out (which may be pi, pj: in place), and idx [m] where given moved with them into
-    idx_out (keys distinct: the one order one thread's sort gives). The ranks of the particles
-    (gid_ranks) fall in T buckets of equal rank ranges; each thread counts and moves a contiguous
-    range of the pairs into the buckets of their first end (counts per thread and bucket, rows
-    COUNT_PAD apart), then each bucket is sorted by its own two stable counting sorts, by the
-    second end's rank over the span the bucket holds, then by the first end's over the bucket's
-    ranks (dem.pairs._counting_sort). Work O(m/T + n/T + the spans) a thread, where one thread's
-    sort is O(m + n)."""
-    n = gid.shape[0]
-    m = pi.shape[0]
-    rank = gid_ranks(gid)
-    bucket = np.empty(n, dtype=np.int64)   # of each rank: a lookup (a division per pair made the passes 20 % slower)
-    for b in prange(threads):
-        for r in range((n * b + threads - 1) // threads, (n * (b + 1) + threads - 1) // threads):
-            bucket[r] = b
-    count = np.zeros((threads, threads + COUNT_PAD), dtype=np.int64)
-    for t in prange(threads):
-        # a run of pairs in one bucket counts in a register (the list's order keeps runs long); a
-        # counter in memory, read and written each pair, made the pass 2-3x slower
-        cur = -1
-        c = 0
-        for k in range(t * m // threads, (t + 1) * m // threads):
-            b = bucket[rank[pi[k]]]
-            if b != cur:
-                if cur >= 0:
-                    count[t, cur] += c
-                cur = b
-                c = 0
-            c += 1
-        if cur >= 0:
-            count[t, cur] += c
-    start = np.empty(threads + 1, dtype=np.int64)
-    _offsets_by_row(count, threads, start)   # bucket-major, then thread: each thread's first slot in each bucket
-    ta = np.empty(m, dtype=np.int64)
-    tb = np.empty(m, dtype=np.int64)
-    tx = np.empty(m if idx is not None else 0, dtype=np.int64)
-    for t in prange(threads):
-        cur = -1
-        u = 0
-        for k in range(t * m // threads, (t + 1) * m // threads):
-            b = bucket[rank[pi[k]]]
-            if b != cur:
-                if cur >= 0:
-                    count[t, cur] = u
-                cur = b
-                u = count[t, b]
-            ta[u] = pi[k]
-            tb[u] = pj[k]
-            if idx is not None:
-                tx[u] = idx[k]
-            u += 1
-    tc = np.empty(m, dtype=np.int64)
-    td = np.empty(m, dtype=np.int64)
-    ty = np.empty(m if idx is not None else 0, dtype=np.int64)
-    for b in prange(threads):
-        k0 = start[b]
-        k1 = start[b + 1]
-        if k1 > k0:
-            # bucket b holds the ranks from first = ceil(b n / T) on; a second end's rank is above
-            # its first end's, so above first
-            first = (n * b + threads - 1) // threads
-            key = np.empty(k1 - k0, dtype=np.int64)
-            top = 0
-            for k in range(k0, k1):
-                r = rank[tb[k]] - first
-                key[k - k0] = r
-                top = max(top, r)
-            span = (n * (b + 1) + threads - 1) // threads - first
-            # two calls, not one with optional slices: a None that reaches a prange body crashed
-            # numba's parallel lowering (dem.pairs.sort_by_gid passes its optional arrays as they are)
-            if idx is None:
-                _counting_sort(key, top + 1, ta[k0:k1], tb[k0:k1], tc[k0:k1], td[k0:k1])
-                for k in range(k0, k1):
-                    key[k - k0] = rank[tc[k]] - first
-                _counting_sort(key, span, tc[k0:k1], td[k0:k1], pi_out[k0:k1], pj_out[k0:k1])
-            else:
-                _counting_sort(key, top + 1, ta[k0:k1], tb[k0:k1], tc[k0:k1], td[k0:k1], tx[k0:k1], ty[k0:k1])
-                for k in range(k0, k1):
-                    key[k - k0] = rank[tc[k]] - first
-                _counting_sort(key, span, tc[k0:k1], td[k0:k1], pi_out[k0:k1], pj_out[k0:k1], ty[k0:k1],
-                               idx_out[k0:k1])
 
 
 @njit(cache=True, parallel=True)

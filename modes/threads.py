@@ -7,12 +7,11 @@ the scheme is frogleap or headtail: modes/parallel.py), and, unless `threaded = 
 paper's situation, for the Amdahl ceiling it reports), the per-particle pass (gather, walls,
 integration, derived quantities) in T contiguous blocks. A rebuild's own loops run on the T
 threads too (modes/parallel.py): the grid (bounding box, counting sort into cells, scan-ordered
-copies) with the scan and the compaction of the threads' lists in one call, the pair adjacency,
-the history carry, the wall list and the range cut, and from 3 threads on the list's sort by gid
-(modes.parallel.SORT_THREADS_FROM), each with the one result the serial loop gives.
+copies) with the scan in one call, the placing of the threads' pairs into the list in gid order
+(or, for the schemes that keep them in thread order, into its sorted view), the pair adjacency,
+the history carry, the wall list and the range cut, each with the one result the serial loop
+gives.
 """
-import functools
-
 import numpy as np
 import numba
 
@@ -20,7 +19,7 @@ from dem.contact.ellipsoid import OUT_LEN
 from dem.forces import SPLIT, SPLIT_TAKEN, STORE
 from dem.shapes import SPHERE
 from dem.neighbor import grid_cutoff
-from dem.pairs import sorted_view
+from dem.pairs import gid_ranks
 from modes.base import ModeError, register
 from modes import parallel as par
 from modes.serial import SerialMode
@@ -81,19 +80,21 @@ class ThreadsMode(SerialMode):
         self.work_imbalance = 1.0
         self.row_plan = None       # (n, row_start, rows) of the scheme (scheme_rows), kept while n holds
         self.pair_t = None     # the threads' pair buffers pi_t, pj_t [T, >= cap], kept between rebuilds
+        self.row_count = None  # the threads' counts per row of the list's placing [T, >= n + COUNT_PAD]
+        self.placed = None     # (m, None | view) of the last scan: its pair count, the list's sorted view
+        self.no_order = np.zeros(0, dtype=np.int64)
         super().setup(scene, dt, **kw)
         return self
 
     def _fresh(self):
         super()._fresh()
         t = self.threads
-        # the pair list's own loops (adjacency, from SORT_THREADS_FROM threads its sort by gid and
-        # sorted view) by the T threads
+        # the pair list's own loops by the T threads: its order by gid is made as the threads'
+        # pairs are placed into it (find_pairs: the list itself, or its sorted view), its adjacency
+        # here
         p = self.pairs
-        if t >= par.SORT_THREADS_FROM:
-            sort = functools.partial(par.sort_by_gid_threads, t)
-            p.sort_pairs = lambda pi, pj, gid: sort(pi, pj, gid, pi, pj)
-            p.sort_view = lambda pi, pj, gid: sorted_view(pi, pj, gid, sort)
+        p.sort_pairs = self._placed_sorted
+        p.sort_view = self._placed_view
 
         def build_adjacency(spi, spj, order, n_owned, mark=None):
             if mark is None:
@@ -147,19 +148,45 @@ class ThreadsMode(SerialMode):
                                np.empty((self.threads, self.cap), dtype=np.int64))
             pi_t, pj_t = self.pair_t
             m, top = par.find_pairs_threads(self.code, self.threads, cutoff, s.pos, radii, s.gid, s.n_owned, row_start,
-                                            rows, pi_t, pj_t, self.counts, self.tests, self.scan_busy, offsets, pi, pj)
+                                            rows, pi_t, pj_t, self.counts, self.tests, self.scan_busy, offsets)
             if m >= 0:
                 break
             self.cap = int(top * 1.25) + 64
-        if m > pi.shape[0]:
-            pi, pj = self.pairs.buffers(m)
+        pi, pj = self.pairs.buffers(m)
+        n = s.n
+        if self.row_count is None or self.row_count.shape[1] < n + par.COUNT_PAD:
+            self.row_count = np.empty((self.threads, n + par.COUNT_PAD), dtype=np.int64)
+        rank = gid_ranks(s.gid)
+        if self.deliver == SPLIT:   # the list itself in gid order
+            par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, self.row_count, pi, pj, self.no_order)
+            self.placed = (m, None)
+        else:                       # the list in thread order, seen in gid order through its view
             par.compact_pairs(self.threads, pi_t, pj_t, offsets, pi, pj)
+            view = (np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64))
+            par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, self.row_count, *view)
+            self.placed = (m, view)
         self.pairs.offsets = offsets
         self.cap = max(self.cap, int(top * 1.25) + 64)
         # plain floats: numpy's reductions of T numbers read 20 us a rebuild under line_profiler (2500 particles)
         tests = self.tests.tolist()
         self.work_imbalance = max(tests) / max(sum(tests) / len(tests), 1e-300)
         return m
+
+    def _placed_sorted(self, pi, pj, gid):
+        """The pair list's sort by gid (PairList.sort_pairs): find_pairs placed the pairs in that
+        order (modes.parallel.place_by_gid)."""
+        if self.placed is None or self.placed[0] != pi.shape[0] or self.placed[1] is not None:
+            raise ModeError("the threads' pair list was not placed in gid order by their neighbour scan")
+        self.placed = None
+
+    def _placed_view(self, pi, pj, gid):
+        """The pair list's sorted view (PairList.sort_view: spi, spj, order), placed with the list by
+        find_pairs (modes.parallel.place_by_gid)."""
+        if self.placed is None or self.placed[0] != pi.shape[0] or self.placed[1] is None:
+            raise ModeError("the threads' pair list has no sorted view from their neighbour scan")
+        view = self.placed[1]
+        self.placed = None
+        return view
 
     def wall_list(self, n_owned, pos, reach, wall_m, wall_d, wall_hist, near):
         """The rebuild's wall list (dem.forces.wall_candidates) by the T threads."""

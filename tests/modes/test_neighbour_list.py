@@ -1,7 +1,6 @@
 """The neighbour list with a skin (issue 11): kept between rebuilds with its contact history,
 rebuilt when a particle has moved half the skin, bit-identical to the paper's every-step estimate
 in every mode, and a step between rebuilds that allocates nothing."""
-import functools
 
 import numpy as np
 import pytest
@@ -9,8 +8,8 @@ import pytest
 from bench.run.prepare import load_prepared
 from dem.timestep import choose_time_step
 from dem.pairs import (DEFAULT_SKIN, PairList, adjacency_in_order, history_from_csr, history_to_csr,
-                       pair_adjacency, pair_adjacency_of, sort_by_gid, sorted_view)
-from modes.parallel import adjacency_in_order_threads, adjacency_marked_threads, sort_by_gid_threads
+                       gid_ranks, pair_adjacency, pair_adjacency_of, sort_by_gid, sorted_view)
+from modes.parallel import COUNT_PAD, adjacency_in_order_threads, adjacency_marked_threads, place_by_gid
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 
@@ -309,8 +308,9 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
     threads), for the sorted list and through the sorted view of the same pairs shuffled.
     sort_by_gid orders the pairs by (gid_i, gid_j) as numpy's lexsort does, with the particles
     stored in gid order (ranks taken as indices) or not (owned ones sorted, ghosts after them in
-    any order, as under MPI), and modes.parallel.sort_by_gid_threads the same order at 1-7
-    threads."""
+    any order, as under MPI), and modes.parallel.place_by_gid the same order at 1-7 threads from
+    the pairs split among the threads' buffers, with the sorted view of the pairs' concatenation
+    in thread order."""
     n = 80
     for stored in ("sorted", "ghost tail"):
         gid = np.sort(rng.permutation(900)[:n]).astype(np.int64)
@@ -323,12 +323,22 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
         sort_by_gid(pi.copy(), pj.copy(), gid, si, sj)
         ref = np.lexsort((gid[pj], gid[pi]))
         assert np.array_equal(si, pi[ref]) and np.array_equal(sj, pj[ref])
-        for threads in (1, 2, 3, 7):  # modes.parallel's, in place, by T buckets of ranks: the same order
-            ti, tj = pi.copy(), pj.copy()
-            sort_by_gid_threads(threads, ti, tj, gid, ti, tj)
+        rank = gid_ranks(gid)
+        for threads in (1, 2, 3, 7):  # the threads' pairs, thread t holding the t-th of T uneven parts
+            cuts = np.sort(rng.integers(0, len(pi) + 1, threads - 1))
+            offsets = np.concatenate([[0], cuts, [len(pi)]]).astype(np.int64)
+            cap = int(np.diff(offsets).max()) + 3
+            pi_t, pj_t = np.full((threads, cap), -1), np.full((threads, cap), -1)
+            for t in range(threads):
+                pi_t[t, :offsets[t + 1] - offsets[t]] = pi[offsets[t]:offsets[t + 1]]
+                pj_t[t, :offsets[t + 1] - offsets[t]] = pj[offsets[t]:offsets[t + 1]]
+            row_count = np.full((threads, n + COUNT_PAD), 99, dtype=np.int64)   # any contents
+            ti, tj = np.empty_like(pi), np.empty_like(pj)
+            place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count, ti, tj, np.zeros(0, dtype=np.int64))
             assert np.array_equal(ti, si) and np.array_equal(tj, sj)
-            # the sorted view: the pairs' indices moved with them (sort_by_gid's own with idx)
-            view = sorted_view(pi, pj, gid, functools.partial(sort_by_gid_threads, threads))
+            # the sorted view of their concatenation: the pairs' indices moved with them
+            view = (np.empty_like(pi), np.empty_like(pj), np.empty_like(pi))
+            place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count, *view)
             assert all(np.array_equal(a, b) for a, b in zip(view, (si, sj, ref)))
         assert all(np.array_equal(a, b) for a, b in zip(sorted_view(pi, pj, gid), (si, sj, ref)))
         full = pair_adjacency(si, sj, gid, 60)
