@@ -196,21 +196,36 @@ def grid_threads(threads, pos, rbound, gid, cutoff):
     return dims, cell_start, cell_items, spos, srb, sgid, scell
 
 
+@njit(inline="always")
+def _count_rows(pi, k0, k1, rank, row_count, t):
+    """row_count[t, rank[pi[k]]] += 1 for the pairs k0..k1-1 a thread has just written."""
+    for k in range(k0, k1):
+        row_count[t, rank[pi[k]]] += 1
+
+
 @njit(parallel=True, cache=True)
-def scan_threads(code, threads, row_start, rows, grid, n_owned, pi_t, pj_t, counts, tests, busy):
+def scan_threads(code, threads, row_start, rows, grid, n_owned, pi_t, pj_t, counts, tests, busy, rank, row_count):
     """Neighbour scan (dem.neighbor.scan_rows over the grid group) under a scheme into per-thread
     buffers pi_t, pj_t [T, cap]; counts [T], tests [T] (pair tests made) and busy [T] (cycles) per
-    thread."""
+    thread; row_count [T, >= n] each thread's pairs per row of the list in gid order (the rank [n]
+    of their first end: place_by_gid), counted as they are written (while in cache). A thread's
+    pairs past its buffer are counted but not written (counts[t] > cap: the caller scans again)."""
     n = grid[0].shape[0]
+    cap = pi_t.shape[1]
     counts[:] = 0
     tests[:] = 0
     busy[:] = 0
+    for t in prange(threads):
+        for r in range(n):
+            row_count[t, r] = 0
     if code == STATIC:
         for b in prange((n + STATIC_BLOCK - 1) // STATIC_BLOCK):
             t = get_thread_id()
             c0 = cycle_counter()
+            k0 = counts[t]
             c, w = scan_rows(rows, b * STATIC_BLOCK, min(n, (b + 1) * STATIC_BLOCK), grid, HALF_SHELL, n_owned,
-                             pi_t[t], pj_t[t], counts[t])
+                             pi_t[t], pj_t[t], k0)
+            _count_rows(pi_t[t], k0, min(c, cap), rank, row_count, t)
             counts[t] = c
             tests[t] += w
             busy[t] += cycle_counter() - c0
@@ -224,7 +239,9 @@ def scan_threads(code, threads, row_start, rows, grid, n_owned, pi_t, pj_t, coun
                 s = fetch_add(counter, 0, DYNAMIC_ROWS)
                 if s >= n:
                     break
+                k0 = c
                 c, dw = scan_rows(rows, s, min(n, s + DYNAMIC_ROWS), grid, HALF_SHELL, n_owned, pi_t[t], pj_t[t], c)
+                _count_rows(pi_t[t], k0, min(c, cap), rank, row_count, t)
                 w += dw
             counts[t] = c
             tests[t] = w
@@ -233,6 +250,7 @@ def scan_threads(code, threads, row_start, rows, grid, n_owned, pi_t, pj_t, coun
         for t in prange(threads):
             c0 = cycle_counter()
             c, w = scan_rows(rows, row_start[t], row_start[t + 1], grid, HALF_SHELL, n_owned, pi_t[t], pj_t[t], 0)
+            _count_rows(pi_t[t], 0, min(c, cap), rank, row_count, t)
             counts[t] = c
             tests[t] = w
             busy[t] = cycle_counter() - c0
@@ -240,17 +258,18 @@ def scan_threads(code, threads, row_start, rows, grid, n_owned, pi_t, pj_t, coun
 
 @njit(cache=True)
 def find_pairs_threads(code, threads, cutoff, pos, rbound, gid, n_owned, row_start, rows, pi_t, pj_t, counts, tests,
-                       busy, offsets):
+                       busy, offsets, rank, row_count):
     """The neighbour estimate by T threads in one call: the grid (grid_threads, cells of edge >=
     cutoff) and the scan under the scheme into pi_t, pj_t [T, cap] (scan_threads), offsets [T+1] of
-    the threads' pairs in thread order. Returns (m, the largest thread count): m = -1 when a
-    thread's buffer was too small (grow cap to the count and call again). The pairs are then
-    placed into one list: in ascending (gid_i, gid_j) (place_by_gid) or in thread order
-    (compact_pairs)."""
+    the threads' pairs in thread order and row_count [T, >= n] their counts per row by the rank [n]
+    of their first end. Returns (m, the largest thread count): m = -1 when a thread's buffer was
+    too small (grow cap to the count and call again). The pairs are then placed into one list in
+    ascending (gid_i, gid_j) (place_by_gid), or in thread order (compact_pairs) and into its sorted
+    view (place_by_gid)."""
     grid = grid_threads(threads, pos, rbound, gid, cutoff)
     dims, cell_start, cell_items, spos, srb, sgid, scell = grid
     scan_threads(code, threads, row_start, rows, (scell, dims, cell_start, cell_items, spos, srb, sgid), n_owned,
-                 pi_t, pj_t, counts, tests, busy)
+                 pi_t, pj_t, counts, tests, busy, rank, row_count)
     top = 0
     for t in range(threads):
         top = max(top, counts[t])
@@ -276,54 +295,78 @@ def compact_pairs(threads, pi_t, pj_t, offsets, pi, pj):
 def place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count, spi, spj, order):
     """The threads' pairs (pi_t, pj_t [T, cap], thread t's offsets[t+1] - offsets[t] of them:
     gid[pi] < gid[pj]) placed in ascending (gid_i, gid_j) into spi, spj [m], with no sort of the
-    whole list: a counting sort by the rank of the first end (rank [n]: gid_ranks) in which each
-    thread counts its own pairs per row (row_count [T, n], rows COUNT_PAD or more apart: any
-    contents) and moves them to their row (write offsets over (row, thread): offsets_by_row_threads),
-    then each thread orders a block of rows by the rank of the second end (insertion sort: a row of
-    packed ellipsoids holds about 5 pairs). Where order [m] is not empty, order[a] = the index of
-    spi[a]'s pair in the threads' list concatenated in thread order (compact_pairs): the sorted view
-    of a list kept in thread order (dem.pairs.sorted_view). The keys are distinct, so the order is
-    the one dem.pairs.sort_by_gid gives. This is the threads' sort of a rebuild, in place of the
-    copy into one list: one thread's two counting sorts took 0.065 of a 0.73 ms rebuild of 2500
-    packed ellipsoids at 2 threads and 0.335 ms on 12k (57k pairs); a bucket sort by the threads
-    was slower at 2 threads than one thread's (0.076 against 0.057 ms on 2500, 0.605 against
-    0.335 on 12k)."""
+    whole list: a counting sort by the rank of the first end (rank [n]: gid_ranks) from each
+    thread's pairs per row, counted by the scan (row_count [T, >= n], rows COUNT_PAD or more apart:
+    scan_threads; overwritten). Each thread moves its own pairs into row order within its own part
+    of the list (offsets[t] on), then each thread takes a block of rows, copies each row's pairs
+    from the T parts in thread order and orders them by the rank of the second end as it goes
+    (insertion: a row of packed ellipsoids holds about 5 pairs). Where order [m] is not empty,
+    order[a] = the index of spi[a]'s pair in the threads' list concatenated in thread order
+    (compact_pairs): the sorted view of a list kept in thread order (dem.pairs.sorted_view). The
+    keys are distinct, so the order is the one dem.pairs.sort_by_gid gives.
+
+    This is the threads' sort of a rebuild, in place of the copy into one list: one thread's two
+    counting sorts took 0.065 ms of a 0.73 ms rebuild of 2500 packed ellipsoids at 2 threads, and
+    0.335 ms on 12k (57k pairs); a bucket sort by the threads was slower at 2 threads than one
+    thread (0.076 against 0.057 ms on 2500). Moving every pair straight to its place in the list
+    had two threads write the same cache lines wherever their rows interleave (frogleap, headtail,
+    the dynamic scheme's chunks of rows): the frogleap's view took 0.056-0.102 ms a call on 2500,
+    this 0.067-0.068."""
     n = rank.shape[0]
+    m = offsets[threads]
     viewed = order.shape[0] > 0
+    ta = np.empty(m, dtype=np.int64)
+    tb = np.empty(m, dtype=np.int64)
+    tx = np.empty(m if viewed else 0, dtype=np.int64)
+    part = np.zeros((threads, threads + COUNT_PAD), dtype=np.int64)   # [thread, block of rows]: pairs
     for t in prange(threads):
-        for r in range(n):
-            row_count[t, r] = 0
-        for k in range(offsets[t + 1] - offsets[t]):
-            row_count[t, rank[pi_t[t, k]]] += 1
-    start = np.empty(n + 1, dtype=np.int64)
-    offsets_by_row_threads(row_count, n, start)
-    for t in prange(threads):
+        acc = 0
+        for b in range(threads):
+            here = 0
+            for r in range(b * n // threads, (b + 1) * n // threads):
+                c = row_count[t, r]
+                row_count[t, r] = acc
+                acc += c
+                here += c
+            part[t, b] = here
         o = offsets[t]
         for k in range(offsets[t + 1] - o):
             a = pi_t[t, k]
             r = rank[a]
-            u = row_count[t, r]
-            row_count[t, r] = u + 1
-            spi[u] = a
-            spj[u] = pj_t[t, k]
+            u = o + row_count[t, r]
+            row_count[t, r] += 1
+            ta[u] = a
+            tb[u] = pj_t[t, k]
             if viewed:
-                order[u] = o + k
+                tx[u] = o + k
+    # row_count[t, r] is now the end of row r in thread t's part, relative to offsets[t]
+    base = np.zeros(threads + 1, dtype=np.int64)
+    for b in range(threads):
+        base[b + 1] = base[b]
+        for t in range(threads):
+            base[b + 1] += part[t, b]
     for b in prange(threads):
+        u = base[b]
         for r in range(b * n // threads, (b + 1) * n // threads):
-            lo = start[r]
-            for u in range(lo + 1, start[r + 1]):
-                v = spj[u]
-                key = rank[v]
-                x = order[u] if viewed else 0
-                w = u - 1
-                while w >= lo and rank[spj[w]] > key:
-                    spj[w + 1] = spj[w]
+            lo = u
+            for t in range(threads):
+                o = offsets[t]
+                q0 = o + row_count[t, r - 1] if r > 0 else o
+                for q in range(q0, o + row_count[t, r]):
+                    v = tb[q]
+                    key = rank[v]
+                    x = tx[q] if viewed else 0
+                    w = u - 1
+                    while w >= lo and rank[spj[w]] > key:
+                        spj[w + 1] = spj[w]
+                        if viewed:
+                            order[w + 1] = order[w]
+                        w -= 1
+                    spj[w + 1] = v
                     if viewed:
-                        order[w + 1] = order[w]
-                    w -= 1
-                spj[w + 1] = v
-                if viewed:
-                    order[w + 1] = x
+                        order[w + 1] = x
+                    spi[u] = ta[q]
+                    u += 1
 
 
 @njit(cache=True, parallel=True)

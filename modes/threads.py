@@ -131,8 +131,9 @@ class ThreadsMode(SerialMode):
     # --- contact detection under the scheme ----------------------------------------------------
     def find_pairs(self, radii):
         """The neighbour estimate by the T threads in one call (modes.parallel.find_pairs_threads):
-        the grid (binning and scan-ordered copies), the scan under the scheme, the compaction of
-        the threads' lists in thread order."""
+        the grid (binning and scan-ordered copies), the scan under the scheme counting each thread's
+        pairs per row; then the threads place them into the list in gid order (SPLIT), or into the
+        list in thread order and its sorted view (modes.parallel.place_by_gid)."""
         s = self.state
         n = s.n
         if self.row_plan is None or self.row_plan[0] != n:
@@ -141,22 +142,21 @@ class ThreadsMode(SerialMode):
         # rows are scan-order positions; explicit schemes index them, static/dynamic use identity
         cutoff = grid_cutoff(self.neighbor, radii)
         offsets = np.empty(self.threads + 1, dtype=np.int64)
-        pi, pj = self.pairs.buffers(0)
+        if self.row_count is None or self.row_count.shape[1] < n + par.COUNT_PAD:
+            self.row_count = np.empty((self.threads, n + par.COUNT_PAD), dtype=np.int64)
+        rank = gid_ranks(s.gid)
         while True:
             if self.pair_t is None or self.pair_t[0].shape[1] < self.cap:
                 self.pair_t = (np.empty((self.threads, self.cap), dtype=np.int64),
                                np.empty((self.threads, self.cap), dtype=np.int64))
             pi_t, pj_t = self.pair_t
             m, top = par.find_pairs_threads(self.code, self.threads, cutoff, s.pos, radii, s.gid, s.n_owned, row_start,
-                                            rows, pi_t, pj_t, self.counts, self.tests, self.scan_busy, offsets)
+                                            rows, pi_t, pj_t, self.counts, self.tests, self.scan_busy, offsets, rank,
+                                            self.row_count)
             if m >= 0:
                 break
             self.cap = int(top * 1.25) + 64
         pi, pj = self.pairs.buffers(m)
-        n = s.n
-        if self.row_count is None or self.row_count.shape[1] < n + par.COUNT_PAD:
-            self.row_count = np.empty((self.threads, n + par.COUNT_PAD), dtype=np.int64)
-        rank = gid_ranks(s.gid)
         if self.deliver == SPLIT:   # the list itself in gid order
             par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, self.row_count, pi, pj, self.no_order)
             self.placed = (m, None)

@@ -332,9 +332,11 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
             for t in range(threads):
                 pi_t[t, :offsets[t + 1] - offsets[t]] = pi[offsets[t]:offsets[t + 1]]
                 pj_t[t, :offsets[t + 1] - offsets[t]] = pj[offsets[t]:offsets[t + 1]]
-            row_count = np.full((threads, n + COUNT_PAD), 99, dtype=np.int64)   # any contents
+            row_count = np.full((threads, n + COUNT_PAD), 99, dtype=np.int64)   # the scan's counts, padded
+            for t in range(threads):
+                row_count[t, :n] = np.bincount(rank[pi[offsets[t]:offsets[t + 1]]], minlength=n)
             ti, tj = np.empty_like(pi), np.empty_like(pj)
-            place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count, ti, tj, np.zeros(0, dtype=np.int64))
+            place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count.copy(), ti, tj, np.zeros(0, dtype=np.int64))
             assert np.array_equal(ti, si) and np.array_equal(tj, sj)
             # the sorted view of their concatenation: the pairs' indices moved with them
             view = (np.empty_like(pi), np.empty_like(pj), np.empty_like(pi))
