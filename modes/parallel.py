@@ -667,14 +667,14 @@ def cut_ranges(w, threads, shares, pi, pj, gid, n_owned, bounds, gat, home_start
     Two parallel regions. In the first each thread reads pj and gid[pj] of its range's pairs once
     and keeps the later ends past its range in a list of its own (a pair's end is marked by one
     thread after every thread has read: marking in place needs gat zeroed in a region before),
-    and checks that its block of owned particles is stored in ascending gid. One thread then zeroes
-    gat and sets the marks (a few hundred). Where the owned particles are stored in gid order (the
-    threads mode's are: SerialMode.reorder) range t's particles are those of one index interval,
-    and each thread writes its range's home list from it in the second region; otherwise a
-    counting sort over T blocks of particles writes them (two more regions). Both give ascending
-    index within each range, as one thread's loop gives. The cut of 57k pairs of 12k packed
-    ellipsoids at 2 threads took 0.137 ms in four regions with the ranges' counters on one cache
-    line (false sharing), 0.109 with them padded apart."""
+    zeroes its block of gat and checks that the block is stored in ascending gid. One thread then
+    sets the marks (a few hundred). Where the owned particles are stored in gid order (the
+    threads mode's are, as scenes are built and after SerialMode.reorder) range t's particles are
+    those of one index interval, and each thread writes its range's home list from it in the second
+    region; otherwise a counting sort over T blocks of particles writes them (two more regions).
+    Both give ascending index within each range, as one thread's loop gives. The cut of 57k pairs
+    of 12k packed ellipsoids at 2 threads took 0.137 ms in four regions with the ranges' counters
+    on one cache line (false sharing), 0.109 with them padded apart, 0.040 this way."""
     if w is None:
         cut_at_equal_pairs(pi, threads, shares, bounds)
     else:
@@ -698,29 +698,31 @@ def cut_ranges(w, threads, shares, pi, pj, gid, n_owned, bounds, gat, home_start
                 later[t, c] = j
                 c += 1
         got[t, 0] = c
-        for p in range(max(1, t * n_owned // threads), (t + 1) * n_owned // threads):
-            if gid[p] < gid[p - 1]:
+        for p in range(t * n_owned // threads, (t + 1) * n_owned // threads):
+            gat[p] = 0
+            if p > 0 and gid[p] < gid[p - 1]:
                 got[t, 1] = 1
-                break
-    gat[:] = 0
     ordered = True
     for t in range(threads):
         ordered = ordered and got[t, 1] == 0
-        for c in range(got[t, 0]):
-            gat[later[t, c]] = 1
     if ordered:
-        # range t's particles: indices lo[t] .. lo[t+1]-1 (range 0 from the first, the last to the end)
+        # range t's particles: indices lo[t] .. lo[t+1]-1 (range 0 from the first, the last to the end);
+        # each range's count of those that gather as they are marked
         lo = np.empty(threads + 1, dtype=np.int64)
         lo[0] = 0
         for t in range(1, threads):
             lo[t] = np.searchsorted(gid[:n_owned], first[t])
         lo[threads] = n_owned
+        gathered = np.zeros(threads, dtype=np.int64)
+        for t in range(threads):
+            for c in range(got[t, 0]):
+                j = later[t, c]
+                if gat[j] == 0:
+                    gat[j] = 1
+                    gathered[np.searchsorted(lo, j, side="right") - 1] += 1
         home_start[0] = 0
         for t in range(threads):
-            gathered = 0
-            for p in range(lo[t], lo[t + 1]):
-                gathered += gat[p]
-            home_start[t + 1] = home_start[t] + (lo[t + 1] - lo[t]) - gathered
+            home_start[t + 1] = home_start[t] + (lo[t + 1] - lo[t]) - gathered[t]
         for t in prange(threads):
             u = home_start[t]
             for p in range(lo[t], lo[t + 1]):
@@ -728,6 +730,9 @@ def cut_ranges(w, threads, shares, pi, pj, gid, n_owned, bounds, gat, home_start
                     home_items[u] = p
                     u += 1
         return home_start[threads]
+    for t in range(threads):
+        for c in range(got[t, 0]):
+            gat[later[t, c]] = 1
     count = np.zeros((threads, threads + COUNT_PAD), dtype=np.int64)   # [particle block, range]
     home = np.empty(n_owned, dtype=np.int64)
     for b in prange(threads):
@@ -856,15 +861,17 @@ def derive_threads(threads, lo, hi, bodies, polys, poly_scene):
         derive_all(lo + (t * (hi - lo)) // threads, lo + ((t + 1) * (hi - lo)) // threads, bodies, polys, poly_scene)
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def finish_cuts(threads, n_owned, shape, near, cuts):
     """Cut the owned particles 0..n_owned-1 into T contiguous blocks of equal estimated cost of the
     per-particle pass, cuts [T+1]: a particle weighs its shape's (shape [n] codes) PASS_COST (a sphere 1,
     an ellipsoid or poly-ellipsoid 2.4) plus its WALL_COST when near [n_owned] puts it on the wall
-    list (0.15, 2.2). Where every particle weighs the same the blocks are equal to within one."""
+    list (0.15, 2.2). Where every particle weighs the same the blocks are equal to within one. The
+    weights by the T threads over blocks of the particles."""
     w = np.empty(n_owned)
-    for p in range(n_owned):
-        w[p] = _finish_weight(shape[p], near[p])
+    for t in prange(threads):
+        for p in range(t * n_owned // threads, (t + 1) * n_owned // threads):
+            w[p] = _finish_weight(shape[p], near[p])
     cut_at_equal_weight(w, np.zeros(0, dtype=np.int64), True, threads, np.ones(threads), cuts)
 
 
