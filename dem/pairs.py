@@ -120,17 +120,33 @@ def _counting_sort(key, n, a, b, a_out, b_out, c=None, c_out=None):
 
 @njit(cache=True)
 def gid_ranks(gid):
-    """rank [n]: the place of each of the n local particles in ascending gid order: the indices
-    themselves when the particles are stored in gid order (owned ones are, after reorder; the
-    argsort took 0.18 ms of 12k sorted gids), else by an argsort, O(n log n)."""
+    """rank [n]: the place of each of the n local particles in ascending gid order (gids distinct):
+    the indices themselves when the particles are stored in gid order (owned ones are, after
+    reorder; the argsort took 0.18 ms of 12k sorted gids), else the stored-in-order prefix merged
+    with the rest argsorted, O(n + g log g) for the g particles from the first out of order on (the
+    ghosts after the owned ones under MPI: 7000 local particles of which 1000 ghosts took 0.109 ms
+    in one argsort of them all)."""
     n = gid.shape[0]
     rank = np.empty(n, dtype=np.int64)
+    k = n   # gid[:k] ascending
     for p in range(1, n):
         if gid[p] < gid[p - 1]:
-            rank[np.argsort(gid)] = np.arange(n)
-            return rank
-    for p in range(n):
-        rank[p] = p
+            k = p
+            break
+    if k == n:
+        for p in range(n):
+            rank[p] = p
+        return rank
+    rest = np.argsort(gid[k:]) + k
+    a = 0
+    b = 0
+    for r in range(n):
+        if b == n - k or (a < k and gid[a] < gid[rest[b]]):
+            rank[a] = r
+            a += 1
+        else:
+            rank[rest[b]] = r
+            b += 1
     return rank
 
 
@@ -138,8 +154,8 @@ def gid_ranks(gid):
 def sort_by_gid(pi, pj, gid, pi_out, pj_out, idx=None, idx_out=None):
     """The pairs (pi, pj) [m] in ascending (gid[pi], gid[pj]) order, into pi_out, pj_out, and idx
     [m] where given moved with them into idx_out: two stable counting sorts over the gid ranks of
-    the n local particles (gid_ranks), by j then by i, O(m + n), or O(m + n log n) when the
-    particles are not stored in gid order."""
+    the n local particles (gid_ranks), by j then by i, O(m + n), plus O(g log g) where the g
+    particles from the first stored out of gid order on are not in gid order (gid_ranks)."""
     n = gid.shape[0]
     rank = gid_ranks(gid)
     tmp_i = np.empty_like(pi)

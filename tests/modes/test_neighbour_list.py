@@ -300,6 +300,18 @@ def test_carry_by_ranges_equals_one_merge(rng):
         assert np.array_equal(hist[on == 1], ref_hist[new_perm][on == 1])
 
 
+def test_gid_ranks_are_the_places_in_gid_order(rng):
+    """gid_ranks gives each particle its place in ascending gid, as numpy's double argsort does:
+    stored in gid order (the indices), owned ones in gid order and ghosts after them in any order
+    (the prefix merged with the rest sorted), all shuffled, one particle, none."""
+    gid = np.sort(rng.permutation(5000)[:700]).astype(np.int64)
+    tail = gid.copy()
+    tail[600:] = rng.permutation(tail[600:])
+    cases = [gid, tail, rng.permutation(gid), gid[:1], gid[:0], gid[::-1].copy()]
+    for g in cases:
+        assert np.array_equal(gid_ranks(g), np.argsort(np.argsort(g)))
+
+
 def test_marked_adjacency_rows_and_gid_sort(rng):
     """The gather of SPLIT reads the rows of the particles that gather only: pair_adjacency_of gives
     each marked particle exactly its pair_adjacency row (its pairs in ascending partner gid) and
