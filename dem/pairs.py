@@ -183,13 +183,13 @@ def _at(order, a):
     return order[a]
 
 
-def sorted_view(pi, pj, gid, sort=sort_by_gid):
+def sorted_view(pi, pj, gid):
     """A list kept in another order (the pairs each thread found: STORE schemes) seen in ascending
     (gid[pi], gid[pj]): (spi, spj, order) [m], spi[a] = pi[order[a]] (sort_by_gid moving the
-    indices, or `sort` with its arguments), the order in which the history is carried and the
-    adjacency filled."""
+    indices), the order in which the history is carried and the adjacency filled (the threads
+    make theirs as they place their pairs: modes.parallel place_by_gid)."""
     spi, spj, order = np.empty_like(pi), np.empty_like(pj), np.empty_like(pi)
-    sort(pi, pj, gid, spi, spj, np.arange(pi.shape[0]), order)
+    sort_by_gid(pi, pj, gid, spi, spj, np.arange(pi.shape[0]), order)
     return spi, spj, order
 
 
