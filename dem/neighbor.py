@@ -21,6 +21,26 @@ HALF_SHELL = np.array([(dx, dy, dz) for dz in (-1, 0, 1) for dy in (-1, 0, 1) fo
                        if (dz, dy, dx) > (0, 0, 0)], dtype=np.int64)
 
 
+def shell_runs(shell):
+    """The offsets [k, 3] of a stencil, in their order, as runs of cells adjacent along x: rows
+    (dy, dz, dx_first, dx_last) [r, 4]. Cells are numbered x fastest and the scan-ordered copies
+    hold them in that order, so a run's particles are one contiguous range of scan rows, found
+    with two reads of cell_start instead of two a cell. The own cell (0, 0, 0) leads the first run
+    (scan_rows starts it after the outer particle)."""
+    runs = [[0, 0, 0, 0]]
+    for dx, dy, dz in shell:
+        last = runs[-1]
+        if last[0] == dy and last[1] == dz and last[3] + 1 == dx:
+            last[3] = dx
+        else:
+            runs.append([dy, dz, dx, dx])
+    return np.array(runs, dtype=np.int64)
+
+
+# the half shell (and the own cell) as 5 runs along x: (0, 0, 0..1), (1, 0, -1..1), (-1..1, 1, -1..1)
+HALF_SHELL_RUNS = shell_runs(HALF_SHELL)
+
+
 @njit(cache=True)
 def grid_shape(n, lo, hi, cutoff):
     """Cells over the bounding box lo, hi [3] of n particles: (dims [3] int64, size [3]), edges
@@ -110,9 +130,13 @@ def sorted_copies(cell_items, cell_of, pos, rbound, gid):
 
 
 @njit(cache=True)
-def scan_rows(rows, r0, r1, grid, half_shell, n_owned, pi, pj, count):
+def scan_rows(rows, r0, r1, grid, runs, n_owned, pi, pj, count):
     """The one neighbour loop: for each outer particle at scan row u in `rows`, test the later
-    particles of its own cell and all particles of its 13 forward (half-shell) cells.
+    particles of its own cell and all particles of its 13 forward (half-shell) cells, visited as
+    runs (HALF_SHELL_RUNS [5, 4]: shell_runs) of cells adjacent along x, each one contiguous range
+    of scan rows: the same particles in the same order as cell by cell, with 5 lookups and bounds
+    checks a particle instead of 14 (on the 1521 falling ellipsoids, about one particle a cell,
+    they were most of the scan).
 
     Link-cell: cells of edge >= the largest bounding diameter, so no pair is missed or produced
     twice (Grest, Duenweg & Kremer 1989). All-pairs is the same loop over a single cell (the
@@ -136,17 +160,14 @@ def scan_rows(rows, r0, r1, grid, half_shell, n_owned, pi, pj, count):
         # the outer particle lives in registers: numba cannot tell the pair writes do not alias spos
         xa, ya, za, ra, ga = spos[u, 0], spos[u, 1], spos[u, 2], srb[u], sgid[u]
         ghost_a = a >= n_owned
-        for o in range(half_shell.shape[0] + 1):
-            if o == 0:
-                v0, v1 = u + 1, cell_start[c + 1]
-            else:
-                x = cx + half_shell[o - 1, 0]
-                y = cy + half_shell[o - 1, 1]
-                z = cz + half_shell[o - 1, 2]
-                if x < 0 or y < 0 or z < 0 or x >= nx or y >= ny or z >= nz:
-                    continue
-                d = x + nx * (y + ny * z)
-                v0, v1 = cell_start[d], cell_start[d + 1]
+        for o in range(runs.shape[0]):
+            y = cy + runs[o, 0]
+            z = cz + runs[o, 1]
+            if y < 0 or z < 0 or y >= ny or z >= nz:
+                continue
+            row = nx * (y + ny * z)
+            v0 = u + 1 if o == 0 else cell_start[row + max(cx + runs[o, 2], 0)]
+            v1 = cell_start[row + min(cx + runs[o, 3], nx - 1) + 1]
             tests += v1 - v0
             for v in range(v0, v1):
                 b = cell_items[v]
@@ -212,7 +233,7 @@ class CellGrid:
 
     def scan(self, rows, n_owned, pi, pj):
         """Serial scan of all rows; returns the pair count."""
-        return scan_rows(rows, 0, rows.shape[0], self.arrays, HALF_SHELL, n_owned, pi, pj, 0)[0]
+        return scan_rows(rows, 0, rows.shape[0], self.arrays, HALF_SHELL_RUNS, n_owned, pi, pj, 0)[0]
 
 
 def find_pairs(method, pos, radii, gid, n_owned, buffers):

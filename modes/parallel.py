@@ -44,7 +44,7 @@ from numba.extending import intrinsic
 
 from dem.forces import SPLIT, SPLIT_TAKEN, finish_range, resolve_range, wall_candidates_range
 from dem.integrate import derive_all
-from dem.neighbor import HALF_SHELL, cell_of_point, grid_shape, scan_rows
+from dem.neighbor import HALF_SHELL_RUNS, cell_of_point, grid_shape, scan_rows
 from dem.pairs import _at, carry_history_sorted_range
 from dem.shapes.registry import SHAPES
 
@@ -223,7 +223,7 @@ def scan_threads(code, threads, row_start, rows, grid, n_owned, pi_t, pj_t, coun
             t = get_thread_id()
             c0 = cycle_counter()
             k0 = counts[t]
-            c, w = scan_rows(rows, b * STATIC_BLOCK, min(n, (b + 1) * STATIC_BLOCK), grid, HALF_SHELL, n_owned,
+            c, w = scan_rows(rows, b * STATIC_BLOCK, min(n, (b + 1) * STATIC_BLOCK), grid, HALF_SHELL_RUNS, n_owned,
                              pi_t[t], pj_t[t], k0)
             _count_rows(pi_t[t], k0, min(c, cap), rank, row_count, t)
             counts[t] = c
@@ -240,7 +240,8 @@ def scan_threads(code, threads, row_start, rows, grid, n_owned, pi_t, pj_t, coun
                 if s >= n:
                     break
                 k0 = c
-                c, dw = scan_rows(rows, s, min(n, s + DYNAMIC_ROWS), grid, HALF_SHELL, n_owned, pi_t[t], pj_t[t], c)
+                c, dw = scan_rows(rows, s, min(n, s + DYNAMIC_ROWS), grid, HALF_SHELL_RUNS, n_owned, pi_t[t], pj_t[t],
+                                  c)
                 _count_rows(pi_t[t], k0, min(c, cap), rank, row_count, t)
                 w += dw
             counts[t] = c
@@ -249,7 +250,7 @@ def scan_threads(code, threads, row_start, rows, grid, n_owned, pi_t, pj_t, coun
     else:
         for t in prange(threads):
             c0 = cycle_counter()
-            c, w = scan_rows(rows, row_start[t], row_start[t + 1], grid, HALF_SHELL, n_owned, pi_t[t], pj_t[t], 0)
+            c, w = scan_rows(rows, row_start[t], row_start[t + 1], grid, HALF_SHELL_RUNS, n_owned, pi_t[t], pj_t[t], 0)
             _count_rows(pi_t[t], 0, min(c, cap), rank, row_count, t)
             counts[t] = c
             tests[t] = w

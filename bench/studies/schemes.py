@@ -51,7 +51,7 @@ from bench.run.prepare import load_prepared
 from bench.run.records import prepare_output
 from bench.run.records import write_rows_csv
 from bench.studies.paper import table_path
-from dem.neighbor import HALF_SHELL, CellGrid, scan_rows
+from dem.neighbor import HALF_SHELL_RUNS, CellGrid, scan_rows
 from dem.timestep import choose_time_step
 from modes.parallel import SCHEMES
 from modes.serial import SerialMode
@@ -172,7 +172,7 @@ def _serial_tests(mode):
     grid = CellGrid(mode.neighbor, s.pos, s.rbound, s.gid)
     rows = np.arange(s.n, dtype=np.int64)
     empty = np.empty(0, dtype=np.int64)
-    return int(scan_rows(rows, 0, s.n, grid.arrays, HALF_SHELL, s.n_owned, empty, empty, 0)[1])
+    return int(scan_rows(rows, 0, s.n, grid.arrays, HALF_SHELL_RUNS, s.n_owned, empty, empty, 0)[1])
 
 
 def add_paper(rows, paper):
