@@ -135,8 +135,8 @@ def scan_rows(rows, r0, r1, grid, runs, n_owned, pi, pj, count):
     particles of its own cell and all particles of its 13 forward (half-shell) cells, visited as
     runs (HALF_SHELL_RUNS [5, 4]: shell_runs) of cells adjacent along x, each one contiguous range
     of scan rows: the same particles in the same order as cell by cell, with 5 lookups and bounds
-    checks a particle instead of 14 (on the 1521 falling ellipsoids, about one particle a cell,
-    they were most of the scan).
+    checks a particle instead of 14 (the serial scan of 2500 rested packed ellipsoids 0.57 -> 0.19
+    ms, of 12k 3.3 -> 2.4 ms, of the 1521 falling ellipsoids 0.08 -> 0.056 ms).
 
     Link-cell: cells of edge >= the largest bounding diameter, so no pair is missed or produced
     twice (Grest, Duenweg & Kremer 1989). All-pairs is the same loop over a single cell (the
