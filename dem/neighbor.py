@@ -37,7 +37,8 @@ def shell_runs(shell):
     return np.array(runs, dtype=np.int64)
 
 
-# the half shell (and the own cell) as 5 runs along x: (0, 0, 0..1), (1, 0, -1..1), (-1..1, 1, -1..1)
+# the own cell and the half shell as 5 runs along x, (dy, dz, dx from, dx to): [0, 0, 0, 1],
+# [1, 0, -1, 1], then [dy, 1, -1, 1] for dy = -1, 0, 1
 HALF_SHELL_RUNS = shell_runs(HALF_SHELL)
 
 
@@ -136,7 +137,7 @@ def scan_rows(rows, r0, r1, grid, runs, n_owned, pi, pj, count):
     runs (HALF_SHELL_RUNS [5, 4]: shell_runs) of cells adjacent along x, each one contiguous range
     of scan rows: the same particles in the same order as cell by cell, with 5 lookups and bounds
     checks a particle instead of 14 (the serial scan of 2500 rested packed ellipsoids 0.57 -> 0.19
-    ms, of 12k 3.3 -> 2.4 ms, of the 1521 falling ellipsoids 0.08 -> 0.056 ms).
+    ms, of 12k 3.3-3.6 -> 2.4 ms, of the 1521 falling ellipsoids 0.08-0.13 -> 0.056-0.076 ms).
 
     Link-cell: cells of edge >= the largest bounding diameter, so no pair is missed or produced
     twice (Grest, Duenweg & Kremer 1989). All-pairs is the same loop over a single cell (the
