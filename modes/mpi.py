@@ -32,11 +32,11 @@ import numpy as np
 
 from dem.forces import SPLIT, STORE
 from dem.state import HIST_LEN
-from modes.base import ModeError, register
+from modes.base import ModeError, call_entry, register
 from modes.decomposition import (BlockGrid, DecompositionError, balanced_grid, blended_grid, block_counts,
                                  border_width, extent_grid, fit_skin, load_profiles)
 from modes.halo import Halo, drop_ghosts, ghost_fields
-from modes.newton import NewtonPlan, cross_layout, ghost_owner_directions
+from modes.newton import NewtonPlan, cross_plan, ghost_owner_directions
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 from modes.wire import WireModel, pingpong
@@ -209,12 +209,16 @@ class _Blocks:
         self.halo.free()  # a rebuild: the exchange started at the end of the last step is not needed
         self._free_plan()
         if self._refit_due(self.steps_done + 1):
+            self.owned_derived = False
             return self.refit_grid()
         found, self.leaving = self.leaving, None
         if not self.migration_due:  # no rank has a particle to send (decide): no message round either
             drop_ghosts(self.state)
             return 0
-        return self.halo.migrate(self.state, found)[0]
+        sent, received = self.halo.migrate(self.state, found)
+        if sent or received:  # the owned rows moved: their derived quantities are derived anew (build_list)
+            self.owned_derived = False
+        return sent
 
     def ghosts(self, rebuild):
         if rebuild:
@@ -276,10 +280,12 @@ class _Blocks:
         if ghost_dir is None or len(ghost_dir) != s.n - s.n_owned:  # else from the ghosts' places
             ghost_dir = ghost_owner_directions(self.grid, self.coords, s.pos[s.n_owned:s.n])
         self._free_plan()
-        self.plan = NewtonPlan(self.cart, self.halo.ranks, cross_layout(p.pi, p.pj, s.gid, s.n_owned, ghost_dir),
-                               (self.halo.wire, self.halo.remote), entries=self.halo.entries)
+        layout = call_entry(self.halo.entries, cross_plan, (p.pi, p.pj, p.hist, p.on, s.gid, s.n_owned, ghost_dir),
+                            True)
+        # with --skin 0 every list lives one step: its history rides on the step's terms (NewtonPlan)
+        self.plan = NewtonPlan(self.cart, self.halo.ranks, layout, (self.halo.wire, self.halo.remote),
+                               entries=self.halo.entries, carry_history=self.skin <= 0)
         self.counts_check = self.plan.count_checksum()  # summed in this step's allreduce (decide)
-        self.plan.take_sent(p)
         super().split(self.plan.cross, self.plan.terms)
 
     def resolve(self):
@@ -290,6 +296,8 @@ class _Blocks:
         if not self.newton:
             return super().resolve()
         plan, s, h = self.plan, self.state, self.halo
+        if not plan.m_sent and not plan.m_recv:  # no cross pair (a falling scene): no messages either
+            return super().resolve()
         a = self.resolve_stored("resolve_sent", plan.list, plan.m_sent)
         t0 = self.clock()
         plan.exchange(s.n_owned, h.startall, h.waitall)

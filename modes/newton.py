@@ -90,10 +90,12 @@ NDIR = len(DIRECTIONS)
 @njit(cache=True, _nrt=False)
 def pack_sent(sent, pos, n_owned, buf, terms):
     """The sent pairs' records sent = (pi, pj, hist, on, pf) [s] (resolved as their own list) into
-    the send buffer, buf[u] = (pair force, torque on the ghost end, on) (buf [s, TERMS]; the ghost
-    is j where pj >= n_owned, else i), and into the in-order pass's terms [cross pairs, TERMS] at
-    rows pos [s]: (pair force, torque on the owned end, on)."""
-    spi, spj, _, son, spf = sent
+    the send buffer, buf[u] = (pair force, torque on the ghost end, on) and, where buf is wider
+    (buf [s, TERMS + HIST_LEN]: a plan that carries history, NewtonPlan), the pair's contact
+    history after this resolution; and into the in-order pass's terms [cross pairs, TERMS] at rows
+    pos [s]: (pair force, torque on the owned end, on). The ghost is j where pj >= n_owned, else i."""
+    spi, spj, shist, son, spf = sent
+    with_hist = buf.shape[1] > TERMS
     for u in range(pos.shape[0]):
         ghost_j = spj[u] >= n_owned
         tg = PF_TJ if ghost_j else PF_TI
@@ -106,15 +108,37 @@ def pack_sent(sent, pos, n_owned, buf, terms):
             terms[r, 3 + c] = spf[u, to + c]
         buf[u, 6] = float(son[u])
         terms[r, 6] = float(son[u])
+        if with_hist:
+            for c in range(HIST_LEN):
+                buf[u, TERMS + c] = shist[u, c]
 
 
 @njit(cache=True, _nrt=False)
 def unpack_received(buf, pos, terms):
-    """The received terms buf [r, TERMS] (pair force, torque on this rank's end, on) into rows pos [r]
-    of the in-order pass's terms."""
+    """The received terms buf [r, TERMS (+ HIST_LEN)] (pair force, torque on this rank's end, on;
+    the history columns stay in buf) into rows pos [r] of the in-order pass's terms."""
     for u in range(pos.shape[0]):
         for c in range(TERMS):
             terms[pos[u], c] = buf[u, c]
+
+
+@njit(cache=True, _nrt=False)
+def put_back_history(sent_idx, shist, son, received_idx, pos_recv, terms, recv_buf, with_hist, hist, on):
+    """The cross pairs' history and touching flags back into the pair list's hist [m, HIST_LEN] and
+    on [m]: the sent pairs' rows sent_idx [s] from their own list (shist, son [s]), the received
+    pairs' flags (rows received_idx [r]) from the last terms received (terms at rows pos_recv [r])
+    and, with with_hist, their history from the last message, recv_buf [r, TERMS + HIST_LEN]."""
+    for u in range(sent_idx.shape[0]):
+        k = sent_idx[u]
+        for c in range(HIST_LEN):
+            hist[k, c] = shist[u, c]
+        on[k] = son[u]
+    for u in range(received_idx.shape[0]):
+        k = received_idx[u]
+        on[k] = np.int8(terms[pos_recv[u], 6])
+        if with_hist:
+            for c in range(HIST_LEN):
+                hist[k, c] = recv_buf[u, TERMS + c]
 
 
 def compile_kernels():
@@ -127,6 +151,8 @@ def compile_kernels():
     pack_sent((idx, idx, np.zeros((1, HIST_LEN)), on, pf), idx, 1, buf, buf)
     unpack_received(buf, idx, buf)
     cross_layout(idx, idx + 1, np.arange(2), 1, idx)
+    put_back_history(idx, np.zeros((1, HIST_LEN)), on, idx, idx, buf, np.zeros((1, TERMS + HIST_LEN)), True,
+                     np.zeros((1, HIST_LEN)), on)
     resolver_end(idx, idx)
 
 
@@ -163,20 +189,25 @@ def cross_layout(pi, pj, gid, n_owned, ghost_dir):
     resolved by the ghost's owner, grouped by the direction of the ghost's owner (sent[d],
     received[d] pairs in direction d), in list order within a group. ghost_dir [n - n_owned]: the
     direction (modes.decomposition.DIRECTIONS) of each ghost's owner."""
-    return _cross_layout(np.ascontiguousarray(pi, dtype=np.int64), np.ascontiguousarray(pj, dtype=np.int64),
-                         np.ascontiguousarray(gid, dtype=np.int64), int(n_owned),
-                         np.ascontiguousarray(ghost_dir, dtype=np.int64))
+    m = len(pi)
+    return cross_plan(np.ascontiguousarray(pi, dtype=np.int64), np.ascontiguousarray(pj, dtype=np.int64),
+                      np.zeros((m, HIST_LEN)), np.zeros(m, dtype=np.int8), np.ascontiguousarray(gid, dtype=np.int64),
+                      int(n_owned), np.ascontiguousarray(ghost_dir, dtype=np.int64))[:4]
 
 
 @njit(cache=True)
-def _cross_layout(pi, pj, gid, n_owned, ghost_dir):
-    """cross_layout as a counting sort in two passes over the list (numpy's twenty calls took 70 us
-    a rebuild at 400 particles a rank)."""
+def cross_plan(pi, pj, hist, on, gid, n_owned, ghost_dir):
+    """Everything a rebuild fixes for the reverse exchange of the list (pi, pj, hist, on) [m], in
+    one call (a counting sort in two passes over the list): the layout of cross_layout (sent_idx
+    [s], sent [26], received_idx [r], received [26]); the cross pairs in list order, cross
+    [s + r], and the rows of the sent and received pairs in it, pos_sent [s], pos_recv [r]; and
+    the sent pairs' own list with their history (spi, spj [s], shist [s, HIST_LEN], son [s])."""
     m = pi.shape[0]
     sent = np.zeros(NDIR, dtype=np.int64)
     received = np.zeros(NDIR, dtype=np.int64)
-    code = np.full(m, -1, dtype=np.int64)  # direction, + NDIR where the pair is received
+    code = np.empty(m, dtype=np.int64)  # -1 local, the direction where sent, + NDIR where received
     for k in range(m):
+        code[k] = -1
         i = pi[k]
         j = pj[k]
         j_ghost = j >= n_owned
@@ -195,51 +226,79 @@ def _cross_layout(pi, pj, gid, n_owned, ghost_dir):
     for d in range(1, NDIR):
         fill_s[d] = fill_s[d - 1] + sent[d - 1]
         fill_r[d] = fill_r[d - 1] + received[d - 1]
-    sent_idx = np.empty(sent.sum(), dtype=np.int64)
-    received_idx = np.empty(received.sum(), dtype=np.int64)
+    ns = fill_s[NDIR - 1] + sent[NDIR - 1]
+    nr = fill_r[NDIR - 1] + received[NDIR - 1]
+    sent_idx = np.empty(ns, dtype=np.int64)
+    received_idx = np.empty(nr, dtype=np.int64)
+    cross = np.empty(ns + nr, dtype=np.int64)
+    pos_sent = np.empty(ns, dtype=np.int64)
+    pos_recv = np.empty(nr, dtype=np.int64)
+    c = 0
     for k in range(m):
-        c = code[k]
-        if c < 0:
+        d = code[k]
+        if d < 0:
             continue
-        if c < NDIR:
-            sent_idx[fill_s[c]] = k
-            fill_s[c] += 1
+        cross[c] = k
+        if d < NDIR:
+            sent_idx[fill_s[d]] = k
+            pos_sent[fill_s[d]] = c
+            fill_s[d] += 1
         else:
-            received_idx[fill_r[c - NDIR]] = k
-            fill_r[c - NDIR] += 1
-    return sent_idx, sent, received_idx, received
+            received_idx[fill_r[d - NDIR]] = k
+            pos_recv[fill_r[d - NDIR]] = c
+            fill_r[d - NDIR] += 1
+        c += 1
+    spi = np.empty(ns, dtype=np.int64)
+    spj = np.empty(ns, dtype=np.int64)
+    shist = np.empty((ns, HIST_LEN))
+    son = np.empty(ns, dtype=np.int8)
+    for u in range(ns):
+        k = sent_idx[u]
+        spi[u] = pi[k]
+        spj[u] = pj[k]
+        for h in range(HIST_LEN):
+            shist[u, h] = hist[k, h]
+        son[u] = on[k]
+    return sent_idx, sent, received_idx, received, cross, pos_sent, pos_recv, spi, spj, shist, son
 
 
 class NewtonPlan:
     """The reverse exchange of one neighbour list (fixed at a rebuild): the sent pairs sent_idx
     [s] in groups per direction (sent [26]), the received pairs received_idx [r] likewise (received
-    [26]) (cross_layout), buffers and persistent requests to the neighbour ranks (ranks [26], None
-    where there is none). traffic (modes.wire.Traffic, of the wire model and the neighbour ranks
-    on another node, `links`): what one step sends."""
+    [26]), the cross pairs in list order and the sent pairs' own list (`layout`: cross_plan's
+    arrays), buffers and persistent requests to the neighbour ranks (ranks [26], None where there
+    is none). traffic (modes.wire.Traffic, of the wire model and the neighbour ranks on another
+    node, `links`): what one step sends.
 
-    def __init__(self, cart, ranks, layout, links=(None, frozenset()), entries=None):
+    carry_history: each step's message carries the sent pairs' contact history too (15 doubles a
+    pair, not 7), so that a rebuild finds the received pairs' history already here (put_back) and
+    sends no message of its own (send_history). For lists that live one step (--skin 0, every
+    step a rebuild): on 2 ranks of 500 packed ellipsoids a rebuild's round of history messages
+    took 17 us of a 670 us step (in-run timers)."""
+
+    def __init__(self, cart, ranks, layout, links=(None, frozenset()), entries=None, carry_history=False):
         self.cart = cart
         self.ranks = ranks
-        self.sent_idx, self.sent, self.received_idx, self.received = layout
+        (self.sent_idx, self.sent, self.received_idx, self.received, self.cross, self.pos_sent, self.pos_recv,
+         spi, spj, shist, son) = layout
         self.m_sent = len(self.sent_idx)
         self.m_recv = len(self.received_idx)
+        # the sent pairs' own list (pi, pj, hist, on, pf) [s], copied out of the pair list with their
+        # history (cross_plan): the first phase of a step resolves it as one contiguous range, with
+        # the loop every mode uses; its history is the authority until put_back
+        self.list = (spi, spj, shist, son, np.zeros((self.m_sent, PF_LEN)))
         # the in-order pass meets the cross pairs in list order: their rows of terms
-        if self.m_sent or self.m_recv:
-            self.cross = np.sort(np.concatenate([self.sent_idx, self.received_idx]))
-            self.pos_sent = np.searchsorted(self.cross, self.sent_idx)
-            self.pos_recv = np.searchsorted(self.cross, self.received_idx)
-        else:  # no cross pair (a numpy call or two less each: an empty plan took 15 us)
-            self.cross = self.pos_sent = self.pos_recv = self.received_idx
         self.terms = np.zeros((len(self.cross), TERMS))
-        self.list = None
-        self.send_buf = np.zeros((self.m_sent, TERMS))
-        self.recv_buf = np.zeros((self.m_recv, TERMS))
+        self.carry_history = bool(carry_history)
+        width = TERMS + HIST_LEN if carry_history else TERMS
+        self.send_buf = np.zeros((self.m_sent, width))
+        self.recv_buf = np.zeros((self.m_recv, width))
+        self.exchanged = False  # recv_buf holds the neighbours' terms (and history) of a step
         self.requests = []
         self.traffic = Traffic(*links)
         # the pack and unpack kernels' entry points (modes.base call_entry), shared by the plans of a
         # run when the caller passes its dict: a plan's first exchange checks its arrays' types
         self.entries = {} if entries is None else entries
-        self.checked = False
         # per neighbour that exists, in direction order: (direction, rank, pairs sent, received,
         # their first rows); the loops visit only these, a direction without a neighbour has none
         self.slots = []
@@ -254,7 +313,7 @@ class NewtonPlan:
                                                     tag=REVERSE_TAG + int(OPPOSITE[k])))
             if ns:
                 self.requests.append(cart.Send_init(self.send_buf[so:so + ns], dest=r, tag=REVERSE_TAG + k))
-                self.traffic.send(r, 8 * ns * TERMS)
+                self.traffic.send(r, 8 * ns * width)
             so += ns
             ro += nr
         if so != self.m_sent or ro != self.m_recv:
@@ -276,41 +335,36 @@ class NewtonPlan:
             total += ns * (1 + me * size + r) - nr * (1 + r * size + me)
         return float(total)
 
-    def take_sent(self, pairs):
-        """The sent pairs' own list (pi, pj, hist, on, pf) [s], copied out of the pair list
-        (dem.pairs.PairList) with their history: the first phase of a step resolves it as one
-        contiguous range, with the loop every mode uses; its history is the authority until
-        put_back."""
-        idx = self.sent_idx
-        self.list = (pairs.pi[idx], pairs.pj[idx], pairs.hist.take(idx, axis=0), pairs.on[idx],
-                     np.zeros((self.m_sent, PF_LEN)))
-
     def put_back(self, pairs):
         """The cross pairs' history and touching flags back into the pair list (before its history is
         read: a rebuild, a checkpoint): the sent pairs' from their own list, the received pairs' flags
-        from the last terms received (their history comes with send_history)."""
-        if self.list is not None and self.m_sent:
-            pairs.hist[self.sent_idx] = self.list[2]
-            pairs.on[self.sent_idx] = self.list[3]
-        if self.m_recv:
-            pairs.on[self.received_idx] = self.terms[self.pos_recv, 6].astype(np.int8)
+        from the last terms received, and with carry_history their history from the last message
+        (else it comes with send_history). One kernel call (put_back_history)."""
+        if self.m_sent or self.m_recv:
+            call_entry(self.entries, put_back_history, (self.sent_idx, self.list[2], self.list[3], self.received_idx,
+                                                        self.pos_recv, self.terms, self.recv_buf,
+                                                        self.carry_history and self.exchanged, pairs.hist,
+                                                        pairs.on), True)
 
     def exchange(self, n_owned, startall, waitall):
-        """Pack the sent pairs' terms (for the neighbours and for the in-order pass), start the
-        messages, wait for the neighbours' and put them in the in-order pass's terms."""
-        check = not self.checked
+        """Pack the sent pairs' terms (for the neighbours and for the in-order pass; with
+        carry_history their history too), start the messages, wait for the neighbours' and put
+        them in the in-order pass's terms."""
+        check = not self.exchanged
         call_entry(self.entries, pack_sent, (self.list, self.pos_sent, n_owned, self.send_buf, self.terms), check)
         startall(self.requests)
         waitall(self.requests)
         call_entry(self.entries, unpack_received, (self.recv_buf, self.pos_recv, self.terms), check)
-        self.checked = True
+        self.exchanged = True
 
     def send_history(self, hist, account):
         """The sent pairs' history rows of hist [m, HIST_LEN] (at their resolution's end) into the
         neighbours' received pairs' rows, and theirs into this list's (one message each way per
-        neighbour with pairs; called at a rebuild and before a checkpoint). account(rank, bytes) is
-        told of each message sent."""
-        if not self.m_sent and not self.m_recv:
+        neighbour with pairs; called at a rebuild and before a checkpoint, after put_back).
+        account(rank, bytes) is told of each message sent. Nothing where the last exchange carried
+        the history (carry_history): put_back has written it; every rank's plan has exchanged as
+        often as its neighbours' (the steps are collective), so both ends of a link skip alike."""
+        if (not self.m_sent and not self.m_recv) or (self.carry_history and self.exchanged):
             return
         from mpi4py import MPI
         out = hist.take(self.sent_idx, axis=0)

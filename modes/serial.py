@@ -81,6 +81,7 @@ class SerialMode:
         self.epoch = 0  # rebuilds so far: the kernels' arguments may take other types after one (kernel_call)
         self.rebuild_next = True
         self.rot = None
+        self.derived_store = None  # the capacity arrays behind rot, omega, oorg, orot, ax6 (ensure_derived)
         self.out = np.zeros(OUT_LEN)
         self.n0 = np.zeros(3)
         self.gat = np.zeros(0, dtype=np.int8)   # the particles that gather (threads: SPLIT)
@@ -132,13 +133,24 @@ class SerialMode:
         ghosts); a step between rebuilds allocates nothing."""
         n = self.state.n
         if self.rot is None or self.rot.shape[0] != n:
-            self.owned_derived = False
-            self.rot = np.zeros((n, 3, 3))
-            self.omega = np.zeros((n, 3))
+            store = self.derived_store
+            if store is None or store[0].shape[0] < n:
+                # where n changes at every rebuild (MPI: ghosts, migrants) the arrays are views of
+                # capacity arrays, so that the owned rows a step's pass derived stay where they are
+                # (build_list then derives the ghosts only): grown by a quarter, their rows kept
+                cap = n + n // 4 + 16 if self.migrates else n
+                g = cap if self.octants else 0
+                fresh = (np.zeros((cap, 3, 3)), np.zeros((cap, 3)), np.zeros((g, 3)), np.zeros((g, 3, 3)),
+                         np.zeros((g, 6)))
+                if store is None:
+                    self.owned_derived = False
+                else:
+                    for a, b in zip(fresh, store):
+                        a[:b.shape[0]] = b
+                store = self.derived_store = fresh
             g = n if self.octants else 0
-            self.oorg = np.zeros((g, 3))
-            self.orot = np.zeros((g, 3, 3))
-            self.ax6 = np.zeros((g, 6))
+            self.rot, self.omega = store[0][:n], store[1][:n]
+            self.oorg, self.orot, self.ax6 = store[2][:g], store[3][:g], store[4][:g]
         self.bodies = body_arrays(self.state, self.rot, self.omega)
         self.polys = (self.state.poly, self.oorg, self.orot, self.ax6)
 
@@ -344,10 +356,10 @@ class SerialMode:
         nc, calls, worst, worst_k, rsum = self.resolve()
         t2 = clock()
         n_wall, wall_worst, wall_p, ke, wg, n_bad, first_bad, disp2 = self.finish()
-        # the pass derived every owned particle's rot and omega; where particles never leave (not
-        # MPI) the next rebuild need not derive them again (issue 33: 16 us of a 308 us serial
-        # step of the 1521 falling ellipsoids at --skin 0)
-        self.owned_derived = not self.migrates
+        # the pass derived every owned particle's rot and omega: the next rebuild need not derive
+        # them again (issue 33: 16 us of a 308 us serial step of the 1521 falling ellipsoids at
+        # --skin 0) unless their rows move before it (re-sorting, migration: they clear this)
+        self.owned_derived = True
         pair_worst = worst
         if wall_worst > worst:
             worst = wall_worst

@@ -81,6 +81,23 @@ def test_restart_across_modes_bit_identical(tmp_path, tmp_path_factory, scene, f
     assert_same(ref, got)
 
 
+@pytest.mark.skipif(not HAS_MPI, reason="no mpiexec")
+@pytest.mark.parametrize("mapping", ["2-2-1-1-1", "2-2-1-1-2"])
+def test_every_step_estimate_checkpoints_the_resolvers_history(tmp_path, tmp_path_factory, mapping):
+    """With --skin 0 under Newton's third law the received pairs' history comes back with each
+    step's terms (modes.newton, carry_history), not in a message of the checkpoint's own: a
+    checkpoint of patch162 (resting contacts across the border, their tangential springs set)
+    written by 2 ranks (pure MPI and hybrid) and continued in serial gives the uninterrupted
+    serial run bit for bit; a history row left stale on the rank that does not resolve the pair
+    would change the continuation."""
+    ref, _, _ = uninterrupted(tmp_path_factory, "patch162", 120)
+    run(tmp_path / "a", "--scene", "patch162", "--steps", "60", "--checkpoint-every", "60", "--mapping", mapping,
+        "--skin", "0", "--newton", "on")
+    got, _, info = run(tmp_path / "b", "--restart", str(tmp_path / "a" / "checkpoint.npz"), "--steps", "60")
+    assert info["restart"]["written_by"] == mapping
+    assert_same(ref, got)
+
+
 def test_checkpoint_and_snapshot_cadence_follow_the_step_number(tmp_path):
     """Checkpoints every K steps and after the last one; a continued run keeps counting steps, so
     its snapshots are numbered as the uninterrupted run's would be."""

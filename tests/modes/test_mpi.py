@@ -402,6 +402,32 @@ def test_newton_resolves_each_cross_border_pair_once(tmp_path, tmp_path_factory,
     assert (steps_on.loc[forward, "msgs_sent"] == steps_off.loc[forward, "msgs_sent"] + 1).all()
 
 
+@pytest.mark.parametrize("mapping", ["2-2-1-1-1", "2-2-1-1-2"])
+def test_every_step_estimate_carries_history_with_the_terms(tmp_path, mapping):
+    """With --skin 0 each pair list lives one step, so the reverse exchange carries the sent pairs'
+    contact history with their terms (modes.newton NewtonPlan, carry_history: 7 + 8 doubles = 120
+    bytes a pair) and a rebuild sends no history message of its own. On the patch test (contacts
+    that last across the border, both ranks resolving some every step), pure MPI and hybrid: the
+    serial trajectory bit for bit, and each rank sends exactly one message a step more than with
+    newton off (the terms; before, two: the terms and, at the rebuild, the history), of a multiple
+    of 120 bytes more. (That the history that came back is the resolver's own, a checkpoint shows:
+    tests/bench/test_restart.py, test_every_step_estimate_checkpoints_the_resolvers_history.)"""
+    out = tmp_path / "serial"
+    res = bench("run", "--scene", "patch162", "--steps", "60", "--skin", "0", "--out", str(out), "--quiet")
+    assert res.returncode == 0, res.stderr
+    ref = dict(np.load(out / "state.npz"))
+    on, steps_on, info_on = mpi_run(tmp_path / "on", "patch162", 60, mapping, "--newton", "on", "--skin", "0")
+    off, steps_off, _ = mpi_run(tmp_path / "off", "patch162", 60, mapping, "--newton", "off", "--skin", "0")
+    assert info_on["newton"] is True and (steps_on["neighbor_rebuilt"] == 1).all()
+    assert_same(ref, on)
+    assert_same(ref, off)
+    assert steps_on["n_contacts"].sum() > 0
+    on_, off_ = steps_on.set_index(["step", "rank"]), steps_off.set_index(["step", "rank"])
+    assert (on_["msgs_sent"] == off_["msgs_sent"] + 1).all()
+    extra = on_["bytes_sent"] - off_["bytes_sent"]
+    assert (extra > 0).all() and (extra % 120 == 0).all()
+
+
 def test_newton_refused_for_storing_schemes(tmp_path):
     """Under frogleap and headtail every pair's forces are stored and gathered, so a cross pair's
     terms cannot be taken in its place: --newton on is refused in one line naming the scheme."""
