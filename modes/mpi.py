@@ -36,7 +36,7 @@ from modes.base import ModeError, call_entry, register
 from modes.decomposition import (BlockGrid, DecompositionError, balanced_grid, blended_grid, block_counts,
                                  border_width, extent_grid, fit_skin, load_profiles)
 from modes.halo import Halo, drop_ghosts, ghost_fields
-from modes.newton import NewtonPlan, cross_plan, ghost_owner_directions
+from modes.newton import NDIR, NewtonPlan, cross_plan, ghost_owner_directions
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 from modes.wire import WireModel, pingpong
@@ -56,6 +56,11 @@ TIME_WINDOW = 1000
 # the history rows of a rebuild where nobody leaves (never written: a migrant's rows are made anew)
 _NO_PARTNERS = np.zeros(0, dtype=np.int64)
 _NO_ROWS = np.zeros((0, HIST_LEN))
+# modes.newton cross_plan's arrays for a list without pairs, shared by every such plan: the empty
+# ones hold nothing to write, the two direction counts [26] are only read (NewtonPlan)
+_NONE = np.zeros(0, dtype=np.int64)
+_NO_CROSS_PAIRS = (_NONE, np.zeros(NDIR, dtype=np.int64), _NONE, np.zeros(NDIR, dtype=np.int64), _NONE, _NONE, _NONE,
+                   _NONE, _NONE, _NO_ROWS, np.zeros(0, dtype=np.int8))
 
 
 class _Blocks:
@@ -280,8 +285,11 @@ class _Blocks:
         if ghost_dir is None or len(ghost_dir) != s.n - s.n_owned:  # else from the ghosts' places
             ghost_dir = ghost_owner_directions(self.grid, self.coords, s.pos[s.n_owned:s.n])
         self._free_plan()
-        layout = call_entry(self.halo.entries, cross_plan, (p.pi, p.pj, p.hist, p.on, s.gid, s.n_owned, ghost_dir),
-                            True)
+        if p.m:
+            layout = call_entry(self.halo.entries, cross_plan, (p.pi, p.pj, p.hist, p.on, s.gid, s.n_owned,
+                                                                ghost_dir), True)
+        else:  # no pair (a falling scene): no cross pair either, without the kernel's call (~7 us in a run)
+            layout = _NO_CROSS_PAIRS
         # with --skin 0 every list lives one step: its history rides on the step's terms (NewtonPlan)
         self.plan = NewtonPlan(self.cart, self.halo.ranks, layout, (self.halo.wire, self.halo.remote),
                                entries=self.halo.entries, carry_history=self.skin <= 0)

@@ -355,7 +355,8 @@ class ThreadsMode(SerialMode):
     # --- the rest of the step --------------------------------------------------------------------
     def derive(self, lo, hi):
         if self.threaded == "step" and hi > lo:
-            par.derive_threads(self.threads, lo, hi, self.bodies, self.polys, self.octants)
+            self.kernel_call("derive_threads", par.derive_threads,
+                             (self.threads, lo, hi, self.bodies, self.polys, self.octants))
         else:
             super().derive(lo, hi)
 
