@@ -65,7 +65,9 @@ a mismatch ends the run with an error at the end of that step, never silently.
 History: the received pairs' contact history lives with the resolver. It travels back at each
 rebuild, and before a checkpoint, ahead of the list's history being carried to the next list or
 written to the per-particle rows (leaver_history, sync_history), so that both ends hold the same
-history, as without Newton: migration and checkpoints carry it unchanged.
+history, as without Newton: migration and checkpoints carry it unchanged. With --skin 0 (every
+list lives one step) it rides on each step's terms instead (NewtonPlan carry_history), and a
+rebuild sends no message for it.
 
 The owner of a ghost is the rank whose block holds its centre: at a rebuild migration has just
 put every particle in the block that holds it, and the ghosts are chosen at those positions.
