@@ -146,6 +146,35 @@ def hung_ranks(beats, procs, limit):
     return late if fresh else []
 
 
+# how long a SIGTERM waits for the launcher's end to show before it is taken as a plain SIGTERM
+LAUNCHER_END_S = 2.0
+
+
+def launcher_ended(launcher, wait=LAUNCHER_END_S):
+    """Whether `launcher` (the pid that started this process) has ended or is ending, checked after
+    a SIGTERM: this process is no longer its child, or its /proc entry is gone or a zombie. The
+    parent-death signal (PR_SET_PDEATHSIG) comes when the *thread* that started this process
+    exits: under SIGKILL a launcher's threads end one by one, and while some live this process is
+    re-parented to one of them, whose pid (getppid) is still the launcher's. So where neither
+    shows yet, it looks again every 10 ms for up to `wait` seconds; a launcher that lives on (it
+    forwarded the signal) is then alive: False. (CI once read "interrupted by SIGTERM" for a killed
+    launcher: the check came before the launcher's last thread had gone.)"""
+    end = time.monotonic() + wait
+    while True:
+        if os.getppid() != launcher:
+            return True
+        try:
+            with open(f"/proc/{launcher}/stat") as fh:
+                state = fh.read().rsplit(")", 1)[1].split()[0]
+        except (OSError, IndexError):
+            return True
+        if state in ("Z", "X", "x"):
+            return True
+        if time.monotonic() >= end:
+            return False
+        time.sleep(0.01)
+
+
 def rank_of_pid(beats, pid):
     for r, (_, rec) in beats.items():
         if rec.get("pid") == pid:
@@ -191,7 +220,7 @@ def main(argv):
         beats = read_beats(args.out)
         if got:
             name = signal.Signals(got[0]).name
-            if got[0] == signal.SIGTERM and os.getppid() != launcher:
+            if got[0] == signal.SIGTERM and launcher_ended(launcher):
                 name = f"the end of its launcher (bench run, pid {launcher}, killed)"
             step = max((rec.get("step", 0) for _, rec in beats.values()), default=0)
             verdict = ("interrupted", f"interrupted by {name} near step {step}: stopped the {args.procs} ranks; "

@@ -529,6 +529,57 @@ def test_mpi_run_parent_killed_leaves_no_orphan(tmp_path):
     assert run["steps_done"] == steps.groupby("rank")["step"].max().min()
 
 
+_LAUNCHER = """
+import ctypes, signal, subprocess, sys, threading, time
+from bench.run.lifeline import PR_SET_PDEATHSIG, _prctl
+subprocess.Popen([sys.executable, "-c", sys.argv[1], sys.argv[2]],
+                 preexec_fn=lambda: _prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM)))
+threading.Thread(target=time.sleep, args=(60,), daemon=True).start()
+time.sleep(1.0)
+ctypes.CDLL(None).pthread_exit(None)  # the main thread ends, the other lives on
+"""
+_CHILD = """
+import json, os, signal, sys, time
+from bench.run.supervise import launcher_ended
+launcher = os.getppid()
+got = []
+signal.signal(signal.SIGTERM, lambda s, f: got.append(s))
+t0 = time.time()
+while not got and time.time() - t0 < 20:
+    time.sleep(0.01)
+same = os.getppid() == launcher
+with open(sys.argv[1] + ".part", "w") as fh:
+    json.dump({"got": got, "same_parent": same, "ended": launcher_ended(launcher, wait=0.0)}, fh)
+os.replace(sys.argv[1] + ".part", sys.argv[1])
+"""
+
+
+def test_launcher_end_seen_while_its_last_threads_exit(tmp_path):
+    """The supervisor's parent-death SIGTERM comes when the launcher's thread that started it
+    exits; a killed launcher's threads end one by one, and until the last has, the supervisor is
+    re-parented within the launcher (its getppid unchanged). A launcher whose main thread ends
+    while another lives reproduces that state: the child gets SIGTERM with the same parent pid,
+    and launcher_ended still says the launcher ended (its /proc entry is a zombie). CI once
+    read "interrupted by SIGTERM" for a killed `bench run` this way. A live parent is not ended
+    (after the wait it was given), a pid that is not the parent is."""
+    from bench.run.supervise import launcher_ended
+    out = tmp_path / "child.json"
+    proc = subprocess.Popen([sys.executable, "-c", _LAUNCHER, _CHILD, str(out)], cwd=ROOT,
+                            env=dict(os.environ, PYTHONPATH=ROOT))
+    try:
+        deadline = time.time() + 60
+        while not out.exists() and time.time() < deadline:
+            time.sleep(0.05)
+        seen = json.loads(out.read_text())
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+    assert seen == {"got": [signal.SIGTERM], "same_parent": True, "ended": True}
+    t0 = time.monotonic()
+    assert launcher_ended(os.getppid(), wait=0.2) is False and time.monotonic() - t0 >= 0.2
+    assert launcher_ended(os.getpid()) is True
+
+
 @pytest.mark.parametrize("sig,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGHUP, 129)])
 def test_mpi_run_signal_reaches_the_ranks(tmp_path, sig, code):
     """SIGTERM, SIGINT (Ctrl-C) or SIGHUP of `bench run` with 2 ranks: forwarded to the ranks, one
