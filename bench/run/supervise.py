@@ -158,7 +158,8 @@ def launcher_ended(launcher, wait=LAUNCHER_END_S):
     re-parented to one of them, whose pid (getppid) is still the launcher's. So where neither
     shows yet, it looks again every 10 ms for up to `wait` seconds; a launcher that lives on (it
     forwarded the signal) is then alive: False. (CI once read "interrupted by SIGTERM" for a killed
-    launcher: the check came before the launcher's last thread had gone.)"""
+    launcher: the check came before the launcher's last thread had gone.) The supervisor stops the
+    ranks first and waits here only for what is left of the 2 s since the signal."""
     end = time.monotonic() + wait
     while True:
         if os.getppid() != launcher:
@@ -194,10 +195,10 @@ def main(argv):
     launcher = os.getppid()  # bench run: when it dies, the SIGTERM below is its death signal
     die_with_parent(signal.SIGTERM)
     become_subreaper()
-    got = []
+    got = []  # (signal, when it came [monotonic s])
 
     def on_signal(signum, frame):
-        got.append(signum)
+        got.append((signum, time.monotonic()))
     for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(s, on_signal)
 
@@ -219,12 +220,19 @@ def main(argv):
             pass
         beats = read_beats(args.out)
         if got:
-            name = signal.Signals(got[0]).name
-            if got[0] == signal.SIGTERM and launcher_ended(launcher):
+            # the ranks first: a Slurm job has KillWait seconds (5 in the tests' cluster) before every
+            # process of it is killed, and the records are kept only after the ranks stopped
+            sig, when = got[0]
+            stop(proc, beats)
+            name = signal.Signals(sig).name
+            if sig == signal.SIGTERM and launcher_ended(launcher, max(0.0, LAUNCHER_END_S - (time.monotonic()
+                                                                                               - when))):
                 name = f"the end of its launcher (bench run, pid {launcher}, killed)"
             step = max((rec.get("step", 0) for _, rec in beats.values()), default=0)
             verdict = ("interrupted", f"interrupted by {name} near step {step}: stopped the {args.procs} ranks; "
-                                      f"the records written are kept in {args.out}", 128 + got[0])
+                                      f"the records written are kept in {args.out}", 128 + sig)
+            rc = proc.returncode
+            break
         elif time.monotonic() - start > args.timeout:
             verdict = ("timeout", f"{args.procs} MPI ranks did not finish within {args.timeout:g} s; killed", 3)
         else:

@@ -16,12 +16,14 @@ local launcher judges it: bench.sweep.status.judge). Past `--timeout` seconds it
 (`timeout`). When Slurm signals the job (SIGTERM: its time limit, or scancel), the outcome is
 `timeout` or `cancelled` as `scontrol` gives the job's reason (TimeLimit or not), or `failed`
 naming the node and its ranks when Slurm reports one of the job's nodes down or not responding (a
-node lost mid-run), written before Slurm's KillWait ends. A node lost while Slurm still waits for
+node lost mid-run), written once the run has ended (its own records kept: steps.csv merged) or,
+at the latest, 1.5 s before Slurm's KillWait ends. A node lost while Slurm still waits for
 it (SlurmdTimeout) is found first by the run's own heartbeat watchdog (bench.run.supervise), whose
 line names the rank and its host.
 """
 import json
 import os
+import re
 import shlex
 import signal
 import socket
@@ -64,6 +66,21 @@ def _scontrol(*args):
     except (OSError, subprocess.TimeoutExpired):
         return []
     return [dict(kv.split("=", 1) for kv in line.split() if "=" in kv) for line in out.splitlines() if line.strip()]
+
+
+# what is left of Slurm's KillWait when the final status is written [s]
+KILL_WAIT_MARGIN_S = 1.5
+
+
+def kill_wait(default=30.0):
+    """Slurm's KillWait [s]: how long after its SIGTERM Slurm kills (SIGKILL) what is left of a job
+    (`scontrol show config`; Slurm's default, 30, where it cannot tell)."""
+    try:
+        out = subprocess.run(["scontrol", "show", "config"], capture_output=True, text=True, timeout=5).stdout
+    except (OSError, subprocess.TimeoutExpired):
+        return default
+    m = re.search(r"^KillWait\s*=\s*(\d+)", out, re.M)
+    return float(m.group(1)) if m else default
 
 
 def lost_nodes(nodelist):
@@ -118,14 +135,17 @@ def run_point(rep, timeout, cmd):
     proc = None
 
     def stopped(signum, frame):
+        t0 = time.monotonic()
         status, reason = slurm_verdict(rep)
+        if proc is not None:  # Slurm signalled the run too: it keeps its records (steps.csv) as it ends,
+            try:  # which the final status must follow, written before KillWait ends
+                proc.wait(timeout=max(0.5, kill_wait() - KILL_WAIT_MARGIN_S - (time.monotonic() - t0)))
+            except subprocess.TimeoutExpired:
+                pass
         _write(status_path, dict(base, status=status, reason=reason, load_after=os.getloadavg()[0],
                                  ended=time.strftime("%Y-%m-%dT%H:%M:%S%z")))
-        if proc is not None:
-            try:
-                proc.wait(timeout=5)  # Slurm signalled it too
-            except subprocess.TimeoutExpired:
-                proc.kill()
+        if proc is not None and proc.poll() is None:
+            proc.kill()
         os._exit(128 + signum)
 
     signal.signal(signal.SIGTERM, stopped)
