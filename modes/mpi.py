@@ -31,6 +31,7 @@ from collections import deque
 import numpy as np
 
 from dem.forces import SPLIT, STORE
+from dem.pairs import DEFAULT_SKIN
 from dem.state import HIST_LEN
 from modes.base import ModeError, call_entry, register
 from modes.decomposition import (BlockGrid, DecompositionError, balanced_grid, blended_grid, block_counts,
@@ -59,6 +60,10 @@ _NO_ROWS = np.zeros((0, HIST_LEN))
 # modes.newton cross_plan's arrays for a list without pairs, shared by every such plan: the empty
 # ones hold nothing to write, the two direction counts [26] are only read (NewtonPlan)
 _NONE = np.zeros(0, dtype=np.int64)
+# the halo skin of a run with --skin 0, a fraction of the largest bounding diameter (bench run's
+# default list skin, dem.pairs.DEFAULT_SKIN): the ghosts and owners are re-chosen only when a
+# particle has moved half of it (LAMMPS's comm cutoff: force cutoff + skin)
+DEFAULT_HALO_SKIN = DEFAULT_SKIN
 _NO_CROSS_PAIRS = (_NONE, np.zeros(NDIR, dtype=np.int64), _NONE, np.zeros(NDIR, dtype=np.int64), _NONE, _NONE, _NONE,
                    _NONE, _NONE, _NO_ROWS, np.zeros(0, dtype=np.int8))
 
@@ -70,7 +75,7 @@ class _Blocks:
     migrates = True
 
     def setup(self, scene, dt, cart=None, skin=None, halo="26", update_grid=0, balance="extent", wire=True,
-              newton=None, **kw):
+              newton=None, halo_skin=None, **kw):
         if balance not in BALANCE:
             raise ModeError(f"unknown balance {balance!r} ({', '.join(BALANCE)})")
         if newton is not None and not isinstance(newton, (bool, np.bool_)):
@@ -101,7 +106,24 @@ class _Blocks:
         except DecompositionError as e:
             raise ModeError(str(e)) from None
         self.skin_fraction = self.skin / (2.0 * float(s.rbound.max()))
-        self.width = base + self.skin
+        # the halo's own skin [m] (ghost layer, migration): the list's where it has one; with skin 0
+        # (neighbours every step) a halo skin lets the ghosts and owners stay over several steps
+        # (halo_skin, a fraction of the largest bounding diameter; default DEFAULT_HALO_SKIN)
+        if self.skin > 0:
+            if halo_skin is not None and float(halo_skin) != self.skin_fraction:
+                raise ModeError("a halo skin of its own needs --skin 0 (with a list skin the halo takes the list's)")
+            self.halo_skin = self.skin
+        else:
+            hs = (DEFAULT_HALO_SKIN if halo_skin is None else float(halo_skin)) * 2.0 * float(s.rbound.max())
+            try:
+                self.halo_skin = fit_skin(self.grid, base, hs, explicit=halo_skin is not None)
+            except DecompositionError as e:
+                raise ModeError(str(e).replace("a skin", "a halo skin")) from None
+        self.halo_skin_fraction = self.halo_skin / (2.0 * float(s.rbound.max()))
+        # skin 0 with a halo skin: the list is rebuilt every step, the halo only when some particle
+        # moved half the halo skin (SerialMode.step `relist`)
+        self.relist_every_step = self.skin <= 0 < self.halo_skin
+        self.width = base + self.halo_skin
         self.update_grid = int(update_grid)
         self.balance = balance
         self.compute_times = deque(maxlen=TIME_WINDOW)  # compuT of the steps since the last refit ("time")
@@ -145,6 +167,7 @@ class _Blocks:
     def _fresh(self):
         super()._fresh()
         self.plan = None   # the reverse exchange of the current list (newton)
+        self.ghost_dir = None  # the ghosts' owners' directions at the halo's last build (three sweeps)
         self.found_next = None
         self.migration_due = True
         if hasattr(self, "halo"):  # a warm-up twin exchanges through a halo of its own
@@ -228,6 +251,7 @@ class _Blocks:
     def ghosts(self, rebuild):
         if rebuild:
             self.halo.build(self.state, self.width, self.kind)
+            self.ghost_dir = None
         else:
             self.halo.forward(self.state)
 
@@ -243,6 +267,16 @@ class _Blocks:
     def sync_history(self):
         self._history_back()
         super().sync_history()
+
+    def relist(self):
+        """The list alone rebuilt on the ghosts just forwarded (skin 0 with a halo skin: the halo
+        and the owners stay): the received pairs' history back from their resolvers first, then
+        the list carries it by gid with no per-particle rows (nobody came), and its reference
+        positions stay those of the halo's rebuild, against which decide measures the moves."""
+        self._history_back()
+        ref = self.pairs.ref
+        self.build_list(rows=False)
+        self.pairs.ref = ref
 
     def leaver_history(self):
         """Before migration: the rows of the particles leaving this block only (as LAMMPS's fix
@@ -282,8 +316,10 @@ class _Blocks:
         s = self.state
         p = self.pairs
         ghost_dir = self.halo.ghost_dirs  # from the messages of the last build (direct exchange)
-        if ghost_dir is None or len(ghost_dir) != s.n - s.n_owned:  # else from the ghosts' places
-            ghost_dir = ghost_owner_directions(self.grid, self.coords, s.pos[s.n_owned:s.n])
+        if ghost_dir is None or len(ghost_dir) != s.n - s.n_owned:  # else from the ghosts' places at that build
+            if self.ghost_dir is None:  # (a relist's ghosts have moved since, some out of their owner's block)
+                self.ghost_dir = ghost_owner_directions(self.grid, self.coords, s.pos[s.n_owned:s.n])
+            ghost_dir = self.ghost_dir
         self._free_plan()
         if p.m:
             layout = call_entry(self.halo.entries, cross_plan, (p.pi, p.pj, p.hist, p.on, s.gid, s.n_owned,
@@ -327,7 +363,7 @@ class _Blocks:
         --skin 0 most rebuilds: the round cost ~20 us of a 2-rank rebuild of 1521 falling
         ellipsoids)."""
         d = self.decision
-        d[0] = 1.0 if self.skin <= 0 or max_disp2 >= (0.5 * self.skin) ** 2 else 0.0
+        d[0] = 1.0 if self.halo_skin <= 0 or max_disp2 >= (0.5 * self.halo_skin) ** 2 else 0.0
         d[1] = flag
         d[2] = ke
         d[3] = wg
@@ -390,7 +426,8 @@ class _Blocks:
             info.update(grid_updates=self.grid_updates, block_cuts_final=cuts)
             return info
         cart, root = self.cart, self.cart.Get_rank() == 0
-        info.update(newton=self.newton, balance=self.balance if self.update_grid else None)
+        info.update(newton=self.newton, balance=self.balance if self.update_grid else None,
+                    halo_skin=self.halo_skin_fraction, halo_skin_m=self.halo_skin)
         info["mpi_library"] = self.mpi.Get_library_version().strip().splitlines()[0]
         info["ghost_fields"] = list(ghost_fields(self.kind))
         record, moving = Halo.record_widths(self.kind)

@@ -192,10 +192,11 @@ class SerialMode:
         s = self.state
         return find_pairs(self.neighbor, s.pos, radii, s.gid, s.n_owned, self.pairs.buffers)
 
-    def build_list(self):
+    def build_list(self, rows=True):
         """The neighbour list: pairs within r_i + r_j + skin, their history (carried from the last
-        list, or from the state's rows on a first build and where particles migrate), and
-        the wall list (the particles within their bounding radius plus half the skin of a wall)."""
+        list, or from the state's rows on a first build and where particles migrate; rows=False:
+        no particle came since the state's rows were written, MPI's relist), and the wall list
+        (the particles within their bounding radius plus half the skin of a wall)."""
         self.epoch += 1  # the kernels' arguments may take other types now (kernel_call)
         clock = self.clock
         t0 = clock()
@@ -214,7 +215,7 @@ class SerialMode:
         # the first build takes the state's own (loaded) history; later ones carry the list's own,
         # and where particles migrated (MPI) the pairs of those that came take their rows (state)
         self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos,
-                       by_gid=self.deliver != STORE, carry=bool(self.pairs.rebuilds), rows=self.migrates,
+                       by_gid=self.deliver != STORE, carry=bool(self.pairs.rebuilds), rows=self.migrates and rows,
                        carry_sorted=self.carry_sorted)
         t3 = clock()
         self.pairs.near = np.zeros(s.n_owned, dtype=np.int8)
@@ -350,10 +351,13 @@ class SerialMode:
             tc = clock()
             self.ghosts(False)
             commu = clock() - tc
-            if self.state.n > self.state.n_owned:  # ghosts moved: their rotations and spins
+            if self.relist_every_step:  # MPI, skin 0 with a halo skin: the list alone, on the same particles
+                self.relist()
+            elif self.state.n > self.state.n_owned:  # ghosts moved: their rotations and spins
                 self.derive(self.state.n_owned, self.state.n)
         t1 = clock()
-        neighbor = t1 - t0 - commu - migra if rebuild else 0.0
+        relisted = rebuild or self.relist_every_step
+        neighbor = t1 - t0 - commu - migra if relisted else 0.0
         nc, calls, worst, worst_k, rsum = self.resolve()
         t2 = clock()
         n_wall, wall_worst, wall_p, ke, wg, n_bad, first_bad, disp2 = self.finish()
@@ -378,7 +382,8 @@ class SerialMode:
         return {"totalT": total, "commuT": commu, "migraT": migra, "compuT": total - commu - migra,
                 "neighborT": neighbor, "resolveT": t2 - t1,
                 "n_owned": s.n_owned, "n_ghost": s.n - s.n_owned, "n_contacts": nc, "n_wall_contacts": n_wall,
-                "n_candidates": self.pairs.m, "neighbor_rebuilt": int(rebuild), "n_migrated": sent,
+                "n_candidates": self.pairs.m, "neighbor_rebuilt": int(relisted),
+                "halo_rebuilt": int(rebuild and self.collective), "n_migrated": sent,
                 "bytes_sent": 0, "ellipsoid_calls": calls, "max_overlap_ratio": worst,
                 "pair_overlap_ratio_sum": rsum, "pair_worst_ratio": pair_worst,
                 "kinetic_energy": ke, "gravity_work": wg, "n_bad": n_bad,
@@ -389,6 +394,8 @@ class SerialMode:
 
     # --- the mode contract's rest (modes.base.Mode) ---------------------------------------------
     sums = (0.0, 0.0, 0.0)  # (flagged, kinetic energy [J], gravity work [J]) of the last step (decide)
+    # a step that does not rebuild the halo rebuilds the list all the same (relist; MPI at skin 0)
+    relist_every_step = False
 
     @classmethod
     def accepts(cls, mapping):
@@ -402,4 +409,5 @@ class SerialMode:
         if end:
             return {"neighbor_rebuilds": self.pairs.rebuilds, "grid_updates": None, "thread_recuts": None,
                     "block_cuts_final": None}
-        return {"skin": self.skin_fraction, "skin_m": self.skin, "newton": None, "balance": None}
+        return {"skin": self.skin_fraction, "skin_m": self.skin, "halo_skin": None, "halo_skin_m": None,
+                "newton": None, "balance": None}

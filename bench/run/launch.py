@@ -74,6 +74,14 @@ def launch_mpi(args, mapping, scene, out, ts):
         grid.check_width(width)
         if args.skin is not None:
             fit_skin(grid, width, args.skin * 2.0 * float(scene.state.rbound.max()), explicit=True)
+        halo_skin = getattr(args, "halo_skin", None)
+        if halo_skin is not None and args.skin != 0:
+            raise ModeError("--halo-skin needs --skin 0 (with a list skin the halo takes the list's)")
+        if halo_skin is not None:
+            try:
+                fit_skin(grid, width, halo_skin * 2.0 * float(scene.state.rbound.max()), explicit=True)
+            except DecompositionError as e:
+                raise ModeError(f"--halo-skin: {e}".replace("a skin", "a halo skin")) from None
     except DecompositionError as e:
         raise ModeError(str(e)) from None
     scheme = args.scheme or DEFAULT_SCHEME

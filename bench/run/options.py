@@ -163,7 +163,8 @@ def mode_options(mapping, args, scheme):
         opts.update(threads=mapping.threads, scheme=scheme, threaded=args.threaded)
     if mapping.procs > 1:
         opts.update(halo=args.halo, update_grid=args.update_grid, balance=args.balance,
-                    newton={"on": True, "off": False}.get(getattr(args, "newton", "auto")))
+                    newton={"on": True, "off": False}.get(getattr(args, "newton", "auto")),
+                    halo_skin=getattr(args, "halo_skin", None))
     return opts
 
 

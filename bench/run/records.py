@@ -33,7 +33,8 @@ class RecordError(OSError):
     """A record that could not be written (full disk, permissions); str() is one line."""
 
 STEP_COLUMNS = ["step", "rank", "totalT", "commuT", "migraT", "compuT", "neighborT", "resolveT",
-                "n_owned", "n_ghost", "n_contacts", "n_wall_contacts", "n_candidates", "neighbor_rebuilt", "n_migrated",
+                "n_owned", "n_ghost", "n_contacts", "n_wall_contacts", "n_candidates", "neighbor_rebuilt",
+                "halo_rebuilt", "n_migrated",
                 "bytes_sent", "msgs_sent", "wire_s", "bytes_internode", "msgs_internode", "wire_internode_s", "syncT",
                 "ellipsoid_calls", "max_overlap_ratio", "busy_max", "busy_mean",
                 "imbalance", "work_imbalance", "nsf", "rss_mb"]

@@ -158,6 +158,12 @@ FIELDS = (
           expects="a fraction in [0, 10]",
           sweep={"help": "neighbour-list skin of every point, fraction of the largest bounding diameter (default "
                          "bench run's, 0.1; 0: neighbours estimated every step, the paper's way)"}),
+    Field("halo_skin", "with --skin 0, the MPI halo's own skin, fraction of the largest bounding diameter: the "
+          "ghosts and the particles' owners are chosen anew only when a particle has moved half of it, the "
+          "neighbours still every step (default 0.1; 0: the halo every step too, as the paper's code)",
+          type=skin_fraction, metavar="F", point="given", scope="procs", expects="a fraction in [0, 10]",
+          sweep={"help": "MPI points with --skin 0: the halo's own skin, fraction of the largest bounding "
+                         "diameter (default bench run's, 0.1; 0: ghosts and migration every step)"}),
     Field("snapshot_every", "write DIR/snapshots/step<8-digit step>.vtu (or .vtk) + .npz every K steps",
           type=nonneg_int, default=0, metavar="K", takes="run"),
     Field("snapshot_format", "snapshot format: vtu (default: binary VTK XML, a snapshots.pvd time series for "
