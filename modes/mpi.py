@@ -168,6 +168,7 @@ class _Blocks:
         super()._fresh()
         self.plan = None   # the reverse exchange of the current list (newton)
         self.ghost_dir = None  # the ghosts' owners' directions at the halo's last build (three sweeps)
+        self.no_cross_plan = None  # the reverse exchange of every list without pairs (split)
         self.found_next = None
         self.migration_due = True
         if hasattr(self, "halo"):  # a warm-up twin exchanges through a halo of its own
@@ -315,21 +316,26 @@ class _Blocks:
             return super().split()
         s = self.state
         p = self.pairs
-        ghost_dir = self.halo.ghost_dirs  # from the messages of the last build (direct exchange)
-        if ghost_dir is None or len(ghost_dir) != s.n - s.n_owned:  # else from the ghosts' places at that build
-            if self.ghost_dir is None:  # (a relist's ghosts have moved since, some out of their owner's block)
-                self.ghost_dir = ghost_owner_directions(self.grid, self.coords, s.pos[s.n_owned:s.n])
-            ghost_dir = self.ghost_dir
         self._free_plan()
         if p.m:
+            ghost_dir = self.halo.ghost_dirs  # from the messages of the last build (direct exchange)
+            if ghost_dir is None or len(ghost_dir) != s.n - s.n_owned:  # else from the ghosts' places at that build
+                if self.ghost_dir is None:  # (a relist's ghosts have moved since, some out of their owner's block)
+                    self.ghost_dir = ghost_owner_directions(self.grid, self.coords, s.pos[s.n_owned:s.n])
+                ghost_dir = self.ghost_dir
             layout = call_entry(self.halo.entries, cross_plan, (p.pi, p.pj, p.hist, p.on, s.gid, s.n_owned,
                                                                 ghost_dir), True)
-        else:  # no pair (a falling scene): no cross pair either, without the kernel's call (~7 us in a run)
-            layout = _NO_CROSS_PAIRS
-        # with --skin 0 every list lives one step: its history rides on the step's terms (NewtonPlan)
-        self.plan = NewtonPlan(self.cart, self.halo.ranks, layout, (self.halo.wire, self.halo.remote),
-                               entries=self.halo.entries, carry_history=self.skin <= 0)
-        self.counts_check = self.plan.count_checksum()  # summed in this step's allreduce (decide)
+            # with --skin 0 every list lives one step: its history rides on the step's terms (NewtonPlan)
+            self.plan = NewtonPlan(self.cart, self.halo.ranks, layout, (self.halo.wire, self.halo.remote),
+                                   entries=self.halo.entries, carry_history=self.skin <= 0)
+        else:  # no pair (a falling scene): no cross pair either, no kernel's call (~7 us a rebuild) and one
+            if self.no_cross_plan is None:  # plan for all such lists (it holds no requests: ~6 us a rebuild)
+                self.no_cross_plan = NewtonPlan(self.cart, self.halo.ranks, _NO_CROSS_PAIRS,
+                                                (self.halo.wire, self.halo.remote), entries=self.halo.entries,
+                                                carry_history=self.skin <= 0)
+            self.plan = self.no_cross_plan
+        # summed in this step's allreduce (decide); 0 without cross pairs
+        self.counts_check = self.plan.count_checksum() if p.m else 0.0
         super().split(self.plan.cross, self.plan.terms)
 
     def resolve(self):

@@ -283,7 +283,8 @@ def run_record(args, scene, mapping, scheme, mode, ts, span, t_compile, comm=Non
             "mpi_transport": transport_info(),
             **recorded(args, mapping, "run.json"),  # threaded, pin, neighbor, preset, contact_method, halo, ...
             "preset_overrides": getattr(args, "preset_overrides", None) or None,
-            **_take(part, "skin", "skin_m"), "skin_requested": args.skin, **_take(part, "newton", "balance"),
+            **_take(part, "skin", "skin_m"), "skin_requested": args.skin,
+            **_take(part, "halo_skin", "halo_skin_m", "newton", "balance"),
             "dt": dt, "dt_auto": ts.auto,
             "dt_critical": ts.critical, "dt_details": ts.details, "walls": scene.walls,
             "gravity": scene.gravity.tolist(),

@@ -46,7 +46,8 @@ RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores"
                "syncT", "wireT", "above_wireT", "neighborT", "resolveT", "overhead_pct", "speedup", "efficiency",
                "edsf", "rss_mb", "err_max",
                "err_rms", "stable", "wall_s", "load_before", "load_after", "contact_method",
-               "skin", "preset", "binding", "foreign_cores", "foreign_cpu_s", "step_spread", "totalT_spread", "flag",
+               "skin", "halo_skin", "preset", "binding",
+               "foreign_cores", "foreign_cpu_s", "step_spread", "totalT_spread", "flag",
                "totalT_lo", "totalT_hi", "speedup_lo", "speedup_hi", "efficiency_lo", "efficiency_hi", "totalT_reps",
                "resolved", "nodes", "wire_internodeT"]
 
@@ -210,7 +211,8 @@ def summarise(point, rep_dirs, ref_state, t1, statuses=None):
         spreads.append((info.get("step_time") or {}).get("spread"))
         bindings.append(binding_word(info.get("affinity")))
         row.update(particles=info["particles"], steps=info["steps"], stable=info["stable"], skin=info.get("skin"),
-                   preset=info.get("preset") or "", nodes=len(info.get("nodes") or [info.get("host")]))
+                   halo_skin=info.get("halo_skin"), preset=info.get("preset") or "",
+                   nodes=len(info.get("nodes") or [info.get("host")]))
         state = dict(np.load(os.path.join(d, "state.npz")))
     for k in times[0]:
         row[k] = float(np.median([t[k] for t in times]))

@@ -19,7 +19,8 @@ from tests.helpers import GOOD, bench, make_scene, write
 RUN_JSON_KEYS = [
     "command", "argv", "scene", "scene_source", "particles", "steps", "mapping", "mode", "procs", "px", "py", "pz",
     "threads", "scheme", "threading", "affinity", "mpi_transport", "threaded", "pin", "neighbor", "preset",
-    "contact_method", "halo", "update_grid", "preset_overrides", "skin", "skin_m", "skin_requested", "newton",
+    "contact_method", "halo", "update_grid", "preset_overrides", "skin", "skin_m", "skin_requested", "halo_skin",
+    "halo_skin_m", "newton",
     "balance", "dt", "dt_auto", "dt_critical", "dt_details", "walls", "gravity", "materials", "environment",
     "warmup_s", "warmup_steps", "threading_layer", "build", "stable", "max_overlap_ratio", "status", "pid", "host",
     "restart", "checkpoint_every", "step_first", "step_last", "snapshot_format", "time_start", "stability_reason",
@@ -27,7 +28,7 @@ RUN_JSON_KEYS = [
     "kinetic_energy_initial", "kinetic_energy_final", "energy_balance", "guard", "load_s", "setup_s",
     "warmup_steps_s", "simulated_time", "time_end", "checkpoint"]
 # the keys among them that run_info() gives, at the start and at the end (end=True)
-START_KEYS = ["skin", "skin_m", "newton", "balance"]
+START_KEYS = ["skin", "skin_m", "halo_skin", "halo_skin_m", "newton", "balance"]
 END_KEYS = ["neighbor_rebuilds", "grid_updates", "thread_recuts", "block_cuts_final"]
 # a mapping no built-in mode accepts (zero threads: parse_mapping refuses it)
 NOBODY = Mapping(1, 1, 1, 1, 0)

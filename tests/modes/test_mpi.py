@@ -243,7 +243,8 @@ def test_placement_recorded_and_one_node_sends_nothing_across_nodes(tmp_path):
 def test_default_skin_fits_narrow_blocks_explicit_one_refused(tmp_path):
     """Ghost layers are the largest bounding diameter plus the skin wide: on blocks too narrow for
     the default skin it shrinks to fit (run.json says by how much); an explicit skin that does not
-    fit is refused in one line."""
+    fit is refused in one line. The same for the halo's own skin at --skin 0 (--halo-skin), which
+    without --skin 0 is refused in one line by bench run and bench sweep."""
     # blocks 2.1 mm wide along x, the largest bounding diameter 2 mm: room for a 0.1 mm skin (0.05 d)
     pair = [("sphere", [1e-3], [0.0011, 0.01, 0.0011], [0.1, 0.0, 0.0]),
             ("sphere", [1e-3], [0.00312, 0.01, 0.0011], [-0.1, 0.0, 0.0])]
@@ -252,6 +253,16 @@ def test_default_skin_fits_narrow_blocks_explicit_one_refused(tmp_path):
     assert info["skin"] == pytest.approx(0.05, rel=1e-6) and info["skin_requested"] is None
     one_line_error(bench("run", "--scene", scene, "--mapping", "2-2-1-1-1", "--skin", "0.5",
                          "--out", str(tmp_path / "o")), "use a skin of at most")
+    # with --skin 0 the halo's own skin fits the same way: the default shrinks, an explicit one is refused
+    _, _, info = mpi_run(tmp_path / "zero", scene, 50, "2-2-1-1-1", "--skin", "0")
+    assert info["skin"] == 0.0 and info["halo_skin"] == pytest.approx(0.05, rel=1e-6)
+    one_line_error(bench("run", "--scene", scene, "--mapping", "2-2-1-1-1", "--skin", "0", "--halo-skin", "0.5",
+                         "--out", str(tmp_path / "h")), "--halo-skin", "use a halo skin of at most")
+    # and it is the halo's own only with --skin 0 (a run, and a sweep before any point runs)
+    one_line_error(bench("run", "--scene", scene, "--mapping", "2-2-1-1-1", "--halo-skin", "0.02",
+                         "--out", str(tmp_path / "k")), "--halo-skin needs --skin 0")
+    one_line_error(bench("sweep", "--scene", scene, "--mappings", "2-2-1-1-1", "--halo-skin", "0.02",
+                         "--out", str(tmp_path / "s")), "--halo-skin needs --skin 0")
 
 
 MPI_ALLOCATION_PROBE = """
