@@ -5,7 +5,10 @@ rebuild step (DESIGN.md) migrates the particles that left the block (migraT; onl
 their contact history into per-particle rows, the others keep it in the list), then chooses the
 ghosts from the up to 26 neighbour blocks (commuT), inside a border layer as wide as the largest
 bounding diameter plus the skin, so that every pair that can touch before the next rebuild is
-present; the steps between only forward the ghosts' moving fields (commuT). Then the serial (or
+present; the steps between only forward the ghosts' moving fields (commuT). With skin 0 (the
+paper's every-step neighbour estimate) the halo keeps a skin of its own (halo_skin, default
+DEFAULT_HALO_SKIN): the list is rebuilt every step on the ghosts forwarded (relist), the halo
+(migration, ghost choice) only when a particle has moved half the halo skin. Then the serial (or
 threaded, for hybrid) step runs on owned + ghost particles. A pair with a ghost is resolved once,
 by one of its two ranks (a hash of the two gids picks which), which sends the other end's terms
 to its owner inside the resolution (newton, the default: modes/newton.py; that message is
