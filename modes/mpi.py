@@ -256,6 +256,12 @@ class _Blocks:
         if rebuild:
             self.halo.build(self.state, self.width, self.kind)
             self.ghost_dir = None
+            s = self.state
+            dirs = self.halo.ghost_dirs  # the direct exchange's, from its messages
+            if self.newton and (dirs is None or len(dirs) != s.n - s.n_owned):
+                # the three sweeps': from the ghosts' places now, at the build (a relist's ghosts move
+                # on, some out of their owner's block, before the list has a pair to need them)
+                self.ghost_dir = ghost_owner_directions(self.grid, self.coords, s.pos[s.n_owned:s.n])
         else:
             self.halo.forward(self.state)
 
@@ -323,8 +329,6 @@ class _Blocks:
         if p.m:
             ghost_dir = self.halo.ghost_dirs  # from the messages of the last build (direct exchange)
             if ghost_dir is None or len(ghost_dir) != s.n - s.n_owned:  # else from the ghosts' places at that build
-                if self.ghost_dir is None:  # (a relist's ghosts have moved since, some out of their owner's block)
-                    self.ghost_dir = ghost_owner_directions(self.grid, self.coords, s.pos[s.n_owned:s.n])
                 ghost_dir = self.ghost_dir
             layout = call_entry(self.halo.entries, cross_plan, (p.pi, p.pj, p.hist, p.on, s.gid, s.n_owned,
                                                                 ghost_dir), True)
