@@ -63,12 +63,12 @@ _NO_ROWS = np.zeros((0, HIST_LEN))
 # modes.newton cross_plan's arrays for a list without pairs, shared by every such plan: the empty
 # ones hold nothing to write, the two direction counts [26] are only read (NewtonPlan)
 _NONE = np.zeros(0, dtype=np.int64)
+_NO_CROSS_PAIRS = (_NONE, np.zeros(NDIR, dtype=np.int64), _NONE, np.zeros(NDIR, dtype=np.int64), _NONE, _NONE, _NONE,
+                   _NONE, _NONE, _NO_ROWS, np.zeros(0, dtype=np.int8))
 # the halo skin of a run with --skin 0, a fraction of the largest bounding diameter (bench run's
 # default list skin, dem.pairs.DEFAULT_SKIN): the ghosts and owners are re-chosen only when a
 # particle has moved half of it (LAMMPS's comm cutoff: force cutoff + skin)
 DEFAULT_HALO_SKIN = DEFAULT_SKIN
-_NO_CROSS_PAIRS = (_NONE, np.zeros(NDIR, dtype=np.int64), _NONE, np.zeros(NDIR, dtype=np.int64), _NONE, _NONE, _NONE,
-                   _NONE, _NONE, _NO_ROWS, np.zeros(0, dtype=np.int8))
 
 
 class _Blocks:
@@ -335,8 +335,8 @@ class _Blocks:
             # with --skin 0 every list lives one step: its history rides on the step's terms (NewtonPlan)
             self.plan = NewtonPlan(self.cart, self.halo.ranks, layout, (self.halo.wire, self.halo.remote),
                                    entries=self.halo.entries, carry_history=self.skin <= 0)
-        else:  # no pair (a falling scene): no cross pair either, no kernel's call (~7 us a rebuild) and one
-            if self.no_cross_plan is None:  # plan for all such lists (it holds no requests: ~6 us a rebuild)
+        else:  # no pair (a falling scene): no cross pair, no kernel's call (~7 us a rebuild), and one plan
+            if self.no_cross_plan is None:  # for every such list (it holds no requests: ~6 us a rebuild)
                 self.no_cross_plan = NewtonPlan(self.cart, self.halo.ranks, _NO_CROSS_PAIRS,
                                                 (self.halo.wire, self.halo.remote), entries=self.halo.entries,
                                                 carry_history=self.skin <= 0)

@@ -155,6 +155,16 @@ def apply_preset(args, fallback=PRESET_FALLBACK):
     return args
 
 
+def halo_skin_refusal(skin, halo_skin, preset=None):
+    """The one line refusing --halo-skin where the list has a skin (skin None: the preset's, else
+    bench run's default 0.1), or None: the halo has a skin of its own only with --skin 0."""
+    if halo_skin is None:
+        return None
+    if skin is None:
+        skin = PRESETS.get(preset or "", {}).get("skin")
+    return None if skin == 0 else "--halo-skin needs --skin 0 (with a list skin the halo takes the list's)"
+
+
 def mode_options(mapping, args, scheme):
     """The setup options of the mode that runs `mapping` (each mode refuses options it lacks)."""
     opts = {"neighbor": args.neighbor, "skin": getattr(args, "skin", None),

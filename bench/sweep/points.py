@@ -8,7 +8,7 @@ import hashlib
 import json
 from dataclasses import field, fields, make_dataclass
 
-from bench.run.options import PRESETS, too_few_ranks
+from bench.run.options import halo_skin_refusal, too_few_ranks
 from bench.run.spec import POINT_FIELDS, REQUIRED
 from modes.base import ModeError, parse_mapping
 from modes.parallel import SCHEMES, SPLIT_SCHEMES
@@ -89,9 +89,9 @@ def make_points(mappings, schemes, *values, **options):
             shared[f.name] = f.neutral if value is None and f.neutral is not REQUIRED else value
     if shared["skin"] is not None:
         shared["skin"] = float(shared["skin"])
-    skin = shared["skin"] if shared["skin"] is not None else PRESETS.get(shared["preset"] or "", {}).get("skin")
-    if shared["halo_skin"] is not None and skin != 0.0:
-        raise ModeError("--halo-skin needs --skin 0 (with a list skin the halo takes the list's)")
+    refusal = halo_skin_refusal(shared["skin"], shared["halo_skin"], shared["preset"])
+    if refusal:
+        raise ModeError(refusal)
     for s in schemes:
         if s not in SCHEMES:
             raise ModeError(f"unknown scheme {s!r} (schemes: {', '.join(SCHEMES)})")
