@@ -325,17 +325,23 @@ class _Blocks:
             return super().split()
         s = self.state
         p = self.pairs
-        self._free_plan()
         if p.m:
             ghost_dir = self.halo.ghost_dirs  # from the messages of the last build (direct exchange)
             if ghost_dir is None or len(ghost_dir) != s.n - s.n_owned:  # else from the ghosts' places at that build
                 ghost_dir = self.ghost_dir
             layout = call_entry(self.halo.entries, cross_plan, (p.pi, p.pj, p.hist, p.on, s.gid, s.n_owned,
                                                                 ghost_dir), True)
-            # with --skin 0 every list lives one step: its history rides on the step's terms (NewtonPlan)
-            self.plan = NewtonPlan(self.cart, self.halo.ranks, layout, (self.halo.wire, self.halo.remote),
-                                   entries=self.halo.entries, carry_history=self.skin <= 0)
+            # a relist (the halo, and so the neighbour ranks, kept) whose cross pairs' counts per
+            # direction are the last list's keeps that plan's requests (NewtonPlan.adopt); a halo's
+            # rebuild has freed it (migrate)
+            kept = self.plan
+            if kept is None or kept is self.no_cross_plan or not kept.adopt(layout):
+                self._free_plan()
+                # with --skin 0 every list lives one step: its history rides on the step's terms (NewtonPlan)
+                self.plan = NewtonPlan(self.cart, self.halo.ranks, layout, (self.halo.wire, self.halo.remote),
+                                       entries=self.halo.entries, carry_history=self.skin <= 0)
         else:  # no pair (a falling scene): no cross pair, no kernel's call (~7 us a rebuild), and one plan
+            self._free_plan()
             if self.no_cross_plan is None:  # for every such list (it holds no requests: ~6 us a rebuild)
                 self.no_cross_plan = NewtonPlan(self.cart, self.halo.ranks, _NO_CROSS_PAIRS,
                                                 (self.halo.wire, self.halo.remote), entries=self.halo.entries,

@@ -188,9 +188,13 @@ class SerialMode:
 
     def find_pairs(self, radii):
         """Candidate pairs whose spheres of radii [n] overlap, into the pair list's buffers (the
-        mode's loop strategy); returns their number."""
+        mode's loop strategy); returns their number. The estimate's kernel through its compiled
+        entry point (kernel_call)."""
         s = self.state
-        return find_pairs(self.neighbor, s.pos, radii, s.gid, s.n_owned, self.pairs.buffers)
+        return find_pairs(self.neighbor, s.pos, radii, s.gid, s.n_owned, self.pairs.buffers, self._estimate_call)
+
+    def _estimate_call(self, kernel, args):
+        return self.kernel_call("estimate_pairs", kernel, args)
 
     def build_list(self, rows=True):
         """The neighbour list: pairs within r_i + r_j + skin, their history (carried from the last
