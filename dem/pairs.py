@@ -168,9 +168,23 @@ def sort_by_gid(pi, pj, gid, pi_out, pj_out, idx=None, idx_out=None):
     _counting_sort(rank[tmp_i], n, tmp_i, tmp_j, pi_out, pj_out, tmp_x, idx_out)
 
 
+@njit(cache=True)
 def sort_pairs_by_gid(pi, pj, gid):
-    """sort_by_gid in place: pi, pj [m] in ascending (gid[pi], gid[pj]) order."""
-    sort_by_gid(pi.copy(), pj.copy(), gid, pi, pj)
+    """sort_by_gid in place: pi, pj [m] in ascending (gid[pi], gid[pj]) order, the two counting
+    sorts in one call (sort_by_gid's ten numpy and numba calls took ~15 us of a 1080-pair list's
+    sort on 2 ranks of 500 packed ellipsoids, a list every step with --skin 0)."""
+    n = gid.shape[0]
+    m = pi.shape[0]
+    rank = gid_ranks(gid)
+    key = np.empty(m, dtype=np.int64)
+    tmp_i = np.empty(m, dtype=np.int64)
+    tmp_j = np.empty(m, dtype=np.int64)
+    for k in range(m):
+        key[k] = rank[pj[k]]
+    _counting_sort(key, n, pi, pj, tmp_i, tmp_j)
+    for k in range(m):
+        key[k] = rank[tmp_i[k]]
+    _counting_sort(key, n, tmp_i, tmp_j, pi, pj)
 
 
 @njit(inline="always")

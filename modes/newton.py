@@ -332,7 +332,8 @@ class NewtonPlan:
         frees this plan and makes another). With --skin 0 and a halo skin (a list every step, the
         same ghosts) most lists cross as the one before: on 2 ranks of 500 packed ellipsoids the
         plan's requests and buffers took ~15 us a step to make and free."""
-        if not (np.array_equal(layout[1], self.sent) and np.array_equal(layout[3], self.received)):
+        # bytes, not np.array_equal: 26 counts each, compared in ~1 us where array_equal took ~8
+        if layout[1].tobytes() != self.sent.tobytes() or layout[3].tobytes() != self.received.tobytes():
             return False
         (self.sent_idx, self.sent, self.received_idx, self.received, self.cross, self.pos_sent, self.pos_recv,
          spi, spj, shist, son) = layout
