@@ -8,7 +8,7 @@ import pytest
 from bench.run.prepare import load_prepared
 from dem.timestep import choose_time_step
 from dem.pairs import (DEFAULT_SKIN, PairList, adjacency_in_order, history_from_csr, history_to_csr,
-                       gid_ranks, pair_adjacency, pair_adjacency_of, sort_by_gid, sorted_view)
+                       gid_ranks, pair_adjacency, pair_adjacency_of, sort_by_gid, sort_pairs_by_gid, sorted_view)
 from modes.parallel import COUNT_PAD, adjacency_in_order_threads, adjacency_marked_threads, place_by_gid
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
@@ -344,11 +344,11 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
     the others none, and the same arrays come from filling them in the list's gid order
     (dem.pairs.adjacency_in_order given the mark; modes.parallel.adjacency_marked_threads at 1-3
     threads), for the sorted list and through the sorted view of the same pairs shuffled.
-    sort_by_gid orders the pairs by (gid_i, gid_j) as numpy's lexsort does, with the particles
-    stored in gid order (ranks taken as indices) or not (owned ones sorted, ghosts after them in
-    any order, as under MPI), and modes.parallel.place_by_gid the same order at 1-7 threads from
-    the pairs split among the threads' buffers, with the sorted view of the pairs' concatenation
-    in thread order."""
+    sort_by_gid (and in place, sort_pairs_by_gid) orders the pairs by (gid_i, gid_j) as numpy's
+    lexsort does, with the particles stored in gid order (ranks taken as indices) or not (owned
+    ones sorted, ghosts after them in any order, as under MPI), and modes.parallel.place_by_gid
+    the same order at 1-7 threads from the pairs split among the threads' buffers, with the
+    sorted view of the pairs' concatenation in thread order."""
     n = 80
     for stored in ("sorted", "ghost tail"):
         gid = np.sort(rng.permutation(900)[:n]).astype(np.int64)
@@ -361,6 +361,9 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
         sort_by_gid(pi.copy(), pj.copy(), gid, si, sj)
         ref = np.lexsort((gid[pj], gid[pi]))
         assert np.array_equal(si, pi[ref]) and np.array_equal(sj, pj[ref])
+        ii, jj = pi.copy(), pj.copy()   # the list's own sort, in place in one call
+        sort_pairs_by_gid(ii, jj, gid)
+        assert np.array_equal(ii, si) and np.array_equal(jj, sj)
         rank = gid_ranks(gid)
         for threads in (1, 2, 3, 7):  # the threads' pairs, thread t holding the t-th of T uneven parts
             cuts = np.sort(rng.integers(0, len(pi) + 1, threads - 1))

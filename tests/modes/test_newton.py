@@ -134,6 +134,7 @@ def _checksum(rank, size, slots):
     plan = NewtonPlan.__new__(NewtonPlan)
     plan.cart = _Cart(rank, size)
     plan.slots = [(k, r, ns, nr, 0, 0) for k, r, ns, nr in slots]
+    plan.checksum = None
     return plan.count_checksum()
 
 
@@ -152,3 +153,47 @@ def test_count_checksum_is_zero_exactly_when_every_link_agrees():
     assert total(sent) == 0.0
     assert total({**sent, (0, 1): 6}) != 0.0             # rank 1 expects 6 from rank 0, which sends 5
     assert total({**sent, (0, 1): 6, (2, 1): 10}) != 0.0  # +1 on one link, -1 on another
+
+
+def test_a_plan_adopts_the_next_list_only_with_the_same_counts_per_direction():
+    """NewtonPlan.adopt (a relist at --skin 0 with a halo skin): a layout (cross_plan's arrays)
+    that sends and expects as many pairs in every direction as the plan is taken in place, the
+    plan's message buffers (bound to its persistent requests) and pair-force rows kept, its index
+    arrays, sent list and terms' rows replaced, and its exchange marked as not yet made (the
+    history it would put back is the old list's); a layout whose counts differ in any direction
+    is refused and leaves the plan as it was (the caller makes a new plan)."""
+    from dem.forces import PF_LEN, TERMS
+    from dem.state import HIST_LEN
+    from modes.newton import NDIR, NewtonPlan, cross_plan
+
+    def layout(pairs, n_owned, ghost_dir):
+        pi = np.array([p[0] for p in pairs], dtype=np.int64)
+        pj = np.array([p[1] for p in pairs], dtype=np.int64)
+        m = len(pairs)
+        return cross_plan(pi, pj, np.zeros((m, HIST_LEN)), np.zeros(m, dtype=np.int8),
+                          np.arange(10, dtype=np.int64), n_owned, ghost_dir)
+
+    gdir = np.full(4, 13, dtype=np.int64)          # every ghost (local 6..9) owned in direction 13
+    first = layout([(0, 6), (1, 7), (2, 3), (4, 8)], 6, gdir)
+    plan = NewtonPlan.__new__(NewtonPlan)
+    (plan.sent_idx, plan.sent, plan.received_idx, plan.received, plan.cross, plan.pos_sent, plan.pos_recv,
+     spi, spj, shist, son) = first
+    pf = np.zeros((len(plan.sent_idx), PF_LEN))
+    plan.list = (spi, spj, shist, son, pf)
+    plan.terms = np.zeros((len(plan.cross), TERMS))
+    plan.exchanged = True
+    assert plan.sent.shape == (NDIR,) and plan.sent.sum() + plan.received.sum() == 3   # 3 cross pairs
+
+    # the same cross pairs among other local ones (the resolver's hash of the gids splits them as
+    # before): their places in the list move, the counts per direction do not
+    same = layout([(0, 1), (0, 6), (1, 7), (3, 5), (4, 8)], 6, gdir)
+    assert np.array_equal(same[1], first[1]) and np.array_equal(same[3], first[3])
+    assert not np.array_equal(same[4], first[4])
+    assert plan.adopt(same)
+    assert plan.list[4] is pf and plan.cross is same[4] and plan.sent_idx is same[0] and not plan.exchanged
+    assert plan.terms.shape == (len(same[4]), TERMS)
+
+    fewer = layout([(0, 6), (2, 3)], 6, gdir)        # one cross pair: the counts differ
+    kept = plan.sent_idx
+    assert not plan.adopt(fewer)
+    assert plan.sent_idx is kept
