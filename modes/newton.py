@@ -341,6 +341,8 @@ class NewtonPlan:
         self.list = (spi, spj, shist, son, self.list[4])
         if self.terms.shape[0] != len(self.cross):
             self.terms = np.zeros((len(self.cross), TERMS))
+        else:  # as a new plan's: nothing of the last list's terms is read as this one's
+            self.terms[:] = 0.0
         self.exchanged = False
         return True
 

@@ -159,9 +159,10 @@ def test_a_plan_adopts_the_next_list_only_with_the_same_counts_per_direction():
     """NewtonPlan.adopt (a relist at --skin 0 with a halo skin): a layout (cross_plan's arrays)
     that sends and expects as many pairs in every direction as the plan is taken in place, the
     plan's message buffers (bound to its persistent requests) and pair-force rows kept, its index
-    arrays, sent list and terms' rows replaced, and its exchange marked as not yet made (the
-    history it would put back is the old list's); a layout whose counts differ in any direction
-    is refused and leaves the plan as it was (the caller makes a new plan)."""
+    arrays and sent list replaced, its terms' rows zeroed as a new plan's, and its exchange
+    marked as not yet made (the history it would put back is the old list's); a layout whose
+    counts differ in any direction is refused and leaves the plan as it was (the caller makes a
+    new plan)."""
     from dem.forces import PF_LEN, TERMS
     from dem.state import HIST_LEN
     from modes.newton import NDIR, NewtonPlan, cross_plan
@@ -180,7 +181,7 @@ def test_a_plan_adopts_the_next_list_only_with_the_same_counts_per_direction():
      spi, spj, shist, son) = first
     pf = np.zeros((len(plan.sent_idx), PF_LEN))
     plan.list = (spi, spj, shist, son, pf)
-    plan.terms = np.zeros((len(plan.cross), TERMS))
+    plan.terms = np.ones((len(plan.cross), TERMS))   # the last list's terms, left from its exchange
     plan.exchanged = True
     assert plan.sent.shape == (NDIR,) and plan.sent.sum() + plan.received.sum() == 3   # 3 cross pairs
 
@@ -191,7 +192,7 @@ def test_a_plan_adopts_the_next_list_only_with_the_same_counts_per_direction():
     assert not np.array_equal(same[4], first[4])
     assert plan.adopt(same)
     assert plan.list[4] is pf and plan.cross is same[4] and plan.sent_idx is same[0] and not plan.exchanged
-    assert plan.terms.shape == (len(same[4]), TERMS)
+    assert plan.terms.shape == (len(same[4]), TERMS) and not plan.terms.any()
 
     fewer = layout([(0, 6), (2, 3)], 6, gdir)        # one cross pair: the counts differ
     kept = plan.sent_idx
