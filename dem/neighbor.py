@@ -206,12 +206,32 @@ class PairBuffer:
         return True
 
 
-def grid_cutoff(method, rbound):
-    """The smallest cell edge of the neighbour method over bounding radii rbound [n]: inf for
-    all-pairs (one cell), the largest bounding diameter for link-cell."""
-    if is_allpairs(method):
+@njit(cache=True)
+def cell_edge(allpairs, rbound):
+    """The smallest cell edge [m] over bounding radii rbound [n]: inf for all-pairs (one cell), the
+    largest bounding diameter for link-cell (1 where there is no particle)."""
+    if allpairs:
         return np.inf
-    return 2.0 * float(rbound.max()) if rbound.shape[0] else 1.0
+    if rbound.shape[0] == 0:
+        return 1.0
+    top = rbound[0]
+    for p in range(1, rbound.shape[0]):
+        top = max(top, rbound[p])
+    return 2.0 * top
+
+
+@njit(cache=True)
+def cell_grid(pos, rbound, gid, cutoff):
+    """The grid of the neighbour loop over positions pos [n, 3], cells of edge >= cutoff [m]:
+    (dims, cell_start, cell_items, spos, srb, sgid, scell), bin_particles then sorted_copies."""
+    dims, _, _, cell_start, cell_items, cell_of = bin_particles(pos, cutoff)
+    spos, srb, sgid, scell = sorted_copies(cell_items, cell_of, pos, rbound, gid)
+    return dims, cell_start, cell_items, spos, srb, sgid, scell
+
+
+def grid_cutoff(method, rbound):
+    """The smallest cell edge of the neighbour method over bounding radii rbound [n] (cell_edge)."""
+    return cell_edge(is_allpairs(method), rbound)
 
 
 class CellGrid:
@@ -221,9 +241,8 @@ class CellGrid:
     largest bounding diameter over the particles' bounding box."""
 
     def __init__(self, method, pos, rbound, gid):
-        cutoff = grid_cutoff(method, rbound)
-        self.dims, _, _, self.cell_start, self.cell_items, cell_of = bin_particles(pos, cutoff)
-        self.spos, self.srb, self.sgid, self.scell = sorted_copies(self.cell_items, cell_of, pos, rbound, gid)
+        (self.dims, self.cell_start, self.cell_items, self.spos, self.srb, self.sgid,
+         self.scell) = cell_grid(pos, rbound, gid, grid_cutoff(method, rbound))
 
     @property
     def arrays(self):
@@ -244,17 +263,7 @@ def estimate_pairs(allpairs, pos, radii, gid, n_owned, pi, pj):
     grid's three and the scan's took four: on 2 ranks of 500 packed ellipsoids with --skin 0 (345
     particles a rank, a list every step) the calls' own cost was ~15 us of a ~75 us estimate."""
     n = pos.shape[0]
-    if allpairs:
-        cutoff = np.inf
-    elif n == 0:
-        cutoff = 1.0
-    else:
-        top = radii[0]
-        for p in range(1, n):
-            top = max(top, radii[p])
-        cutoff = 2.0 * top
-    dims, _, _, cell_start, cell_items, cell_of = bin_particles(pos, cutoff)
-    spos, srb, sgid, scell = sorted_copies(cell_items, cell_of, pos, radii, gid)
+    dims, cell_start, cell_items, spos, srb, sgid, scell = cell_grid(pos, radii, gid, cell_edge(allpairs, radii))
     rows = np.arange(n)
     return scan_rows(rows, 0, n, (scell, dims, cell_start, cell_items, spos, srb, sgid), HALF_SHELL_RUNS, n_owned,
                      pi, pj, 0)[0]
