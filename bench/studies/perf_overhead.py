@@ -20,6 +20,12 @@ With --skin 0 (issue 33: the paper's every-step neighbour estimate; the MPI halo
 ghost choice, by its own skin, bench run's --halo-skin default) the MPI comparison runs both sides
 at that skin, against that issue's targets: 2 ranks at least 1.5x faster than serial, the
 exchanges at most 3 wireT + 50 us.
+
+Each speedup comes with its 95 % interval, paired over the alternating rounds (round r's serial
+and 2-rank runs; bench.sweep.intervals speedup_interval: the Student interval of the rounds' log
+ratios, so that a round's machine state cancels), and a verdict against the target: "met" where
+the whole interval is at or above it, "not met" where it is below, "unresolved" where it straddles
+the target (more --repeats narrow it as 1/sqrt(R); one repeat gives no interval).
 """
 import json
 import os
@@ -27,6 +33,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+from bench.sweep.intervals import speedup_interval
 from bench.sweep.records import module_times
 
 TARGETS = {"small_us_per_step": 20.0, "mpi_speedup": 1.0, "overhead_over_wire_factor": 3.0,
@@ -57,6 +64,16 @@ def _median(rows, key):
     return statistics.median(r[key] for r in rows)
 
 
+def speedup_verdict(lo, hi, target):
+    """The target's verdict from the speedup's interval (lo, hi): "met" (lo >= target), "not met"
+    (hi < target) or "unresolved" (the interval straddles it, or there is none: NaN)."""
+    if lo >= target:
+        return "met"
+    if hi < target:
+        return "not met"
+    return "unresolved"
+
+
 def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None):
     """Run the figures above (scenes: (scene, particles, steps) of the MPI comparison, at the
     neighbour-list skin fraction `skin`, None: the default); returns the report (perf.json):
@@ -78,19 +95,24 @@ def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None):
                 one.append(_run(scene, n, steps, "1-1-1-1-1", os.path.join(tmp, f"{scene}-1-{r}"), skin=skin))
                 two.append(_run(scene, n, steps, "2-2-1-1-1", os.path.join(tmp, f"{scene}-2-{r}"), skin=skin))
             t1, t2 = _median(one, "totalT"), _median(two, "totalT")
+            lo, hi = speedup_interval(t1, float("nan"), float("nan"), t2, float("nan"), float("nan"),
+                                      [r["totalT"] for r in one], [r["totalT"] for r in two])
             over = _median(two, "commuT") + _median(two, "migraT")
             sync = _median(two, "syncT")
             wire = _median(two, "wireT")
             bound = targets["overhead_over_wire_factor"] * wire + 1e-6 * targets["overhead_over_wire_add_us"]
             row = {"scene": scene, "particles": n, "steps": steps, "serial_ms": 1e3 * t1, "two_ranks_ms": 1e3 * t2,
-                   "speedup": t1 / t2, "commu_migra_us": 1e6 * over, "sync_us": 1e6 * sync,
+                   "speedup": t1 / t2, "speedup_lo": lo, "speedup_hi": hi,
+                   "verdict": speedup_verdict(lo, hi, targets["mpi_speedup"]),
+                   "commu_migra_us": 1e6 * over, "sync_us": 1e6 * sync,
                    "exchange_us": 1e6 * (over - sync), "wire_us": 1e6 * wire, "overhead_bound_us": 1e6 * bound,
                    "exchange_over_bound": (over - sync) / bound, "overhead_over_bound": over / bound,
                    "samples": {"serial": one, "two_ranks": two}}
             report["mpi"].append(row)
             log(f"{scene} {n}, 2 ranks against serial: {row['two_ranks_ms']:.3f} against "
                 f"{row['serial_ms']:.3f} ms/step, "
-                f"speedup {row['speedup']:.2f} (target {'>= ' if skin == 0 else '> '}{targets['mpi_speedup']:g}); "
+                f"speedup {row['speedup']:.2f} [{lo:.2f}, {hi:.2f}] (target {'>= ' if skin == 0 else '> '}"
+                f"{targets['mpi_speedup']:g}: {row['verdict']}); "
                 f"per step: exchanges (commuT - syncT + migraT) {row['exchange_us']:.1f} us, wire "
                 f"{row['wire_us']:.1f} us: {row['exchange_over_bound']:.2f} of "
                 f"{targets['overhead_over_wire_factor']:g} "

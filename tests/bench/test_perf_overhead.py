@@ -1,6 +1,8 @@
 """`bench perf --what overhead`: the figures of the parallel machinery come from real `bench run`
 records (steps.csv, run.json), so they follow their definitions exactly."""
 
+import math
+
 import pytest
 
 from tests.helpers import bench
@@ -20,6 +22,26 @@ def test_overhead_report_from_real_runs(tmp_path):
     assert row["exchange_us"] == pytest.approx(row["commu_migra_us"] - row["sync_us"])
     assert row["wire_us"] > 0 and row["overhead_bound_us"] == pytest.approx(3 * row["wire_us"] + 20)
     assert len(lines) == 3 and "target" in lines[1]
+    # one round gives no interval (a Student interval needs two), so no verdict either way
+    assert math.isnan(row["speedup_lo"]) and math.isnan(row["speedup_hi"]) and row["verdict"] == "unresolved"
+
+
+def test_speedup_verdict_reads_the_whole_interval():
+    """A target is met only where the whole 95 % interval lies at or above it, missed only where it
+    lies below; an interval straddling it (or none) leaves the verdict open. Rounds of serial 0.75,
+    0.74, 0.76 ms against 2 ranks 0.50, 0.49, 0.51 ms: log ratios 0.4055, 0.4122, 0.3989 (mean
+    0.4055, s 0.00667, t(0.975, 2) = 4.303): the interval exp(0.4055 +- 0.0166) = [1.475, 1.525] straddles
+    1.5."""
+    from bench.studies.perf_overhead import speedup_verdict
+    from bench.sweep.intervals import speedup_interval
+    assert speedup_verdict(1.52, 1.60, 1.5) == "met"
+    assert speedup_verdict(1.40, 1.49, 1.5) == "not met"
+    assert speedup_verdict(1.45, 1.55, 1.5) == "unresolved"
+    assert speedup_verdict(math.nan, math.nan, 1.5) == "unresolved"
+    nan = math.nan
+    lo, hi = speedup_interval(0.75, nan, nan, 0.50, nan, nan, [0.75, 0.74, 0.76], [0.50, 0.49, 0.51])
+    assert lo == pytest.approx(1.4755, abs=1e-3) and hi == pytest.approx(1.5252, abs=1e-3)
+    assert speedup_verdict(lo, hi, 1.5) == "unresolved" and speedup_verdict(lo, hi, 1.45) == "met"
 
 
 def test_overhead_command_bad_repeats(tmp_path):
