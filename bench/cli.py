@@ -150,6 +150,10 @@ def build_parser():
     pf.add_argument("--skin", type=skin_fraction, default=None, metavar="F",
                     help="Verlet skin for the second set of packed figures (default 0.1); --what overhead: "
                          "the skin of the MPI comparison (0: a rebuild every step, issue 33's targets)")
+    pf.add_argument("--ceiling", action="store_true",
+                    help="--what overhead: each round also measures the in-step ceiling of 2 workers (two serial "
+                         "copies at half the particles, at the same skin, meeting every step) and reads the 2 "
+                         "ranks' efficiency against it")
     pf.add_argument("--out", default=None, help="write perf.json here")
 
     nd = sub.add_parser("node", help="the many-core check of this node: unpinned and pinned sweeps, the ceiling, "
@@ -470,9 +474,12 @@ def cmd_schemes(args):
 
 
 def cmd_perf(args):
+    if args.ceiling and args.what != "overhead":
+        raise UsageError(f"bench perf: --ceiling is for --what overhead (2 ranks against 2 workers), "
+                         f"not {args.what}")
     if args.what == "overhead":
         from bench.studies.perf_overhead import measure
-        return _perf_report(args, lambda: measure(args.repeats, print, skin=args.skin))
+        return _perf_report(args, lambda: measure(args.repeats, print, skin=args.skin, ceiling=args.ceiling))
     if args.what == "contention":
         return _one_line(_perf_contention)(args)
     if args.what == "comm":

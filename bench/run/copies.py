@@ -21,10 +21,11 @@ def _meet(counts, me, k):
             pass
 
 
-def _copy(scene, particles, shape, steps, warmup, barrier, in_step, results, counts, me):
+def _copy(scene, particles, shape, steps, warmup, barrier, in_step, results, counts, me, options=None):
     """One worker (copy me): step a serial copy of the scene; put its step times [s] on results
     (or a line saying why it could not). It dies with its parent and leaves SIGINT to it (the
-    parent stops the copies); a copy that fails frees the others from waiting for it."""
+    parent stops the copies); a copy that fails frees the others from waiting for it. options: the
+    serial mode's set-up options (skin, contact_method, neighbor: those of the runs it stands beside)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL))
     from bench.run.prepare import load_prepared
@@ -34,7 +35,7 @@ def _copy(scene, particles, shape, steps, warmup, barrier, in_step, results, cou
     clock = time.perf_counter
     try:
         sc = load_prepared(scene, particles=particles, shape=shape)
-        mode = SerialMode().setup(sc, dt=choose_time_step(sc).dt)
+        mode = SerialMode().setup(sc, dt=choose_time_step(sc).dt, **(options or {}))
         mode.warmup()
         for _ in range(warmup):
             mode.step()
@@ -57,16 +58,17 @@ def _copy(scene, particles, shape, steps, warmup, barrier, in_step, results, cou
     results.put(("ok", times))
 
 
-def run_copies(scene, particles, copies, steps, warmup=5, in_step=False, shape=None, timeout=1800):
+def run_copies(scene, particles, copies, steps, warmup=5, in_step=False, shape=None, timeout=1800, options=None):
     """Step `copies` independent serial copies of the scene (each `particles` particles) at once;
     returns each copy's step times [s] (a list per copy). They start together (a barrier after
-    their warm-up); in_step: they also meet at a barrier after every step."""
+    their warm-up); in_step: they also meet at a barrier after every step. options: the serial
+    mode's set-up options (None: its defaults)."""
     ctx = multiprocessing.get_context("spawn")
     barrier = ctx.Barrier(copies, timeout=timeout)
     results = ctx.Queue()
     counts = ctx.RawArray("q", copies)
     procs = [ctx.Process(target=_copy, args=(scene, particles, shape, steps, warmup, barrier, in_step, results,
-                                             counts, me)) for me in range(copies)]
+                                             counts, me, options)) for me in range(copies)]
     for p in procs:
         p.start()
     try:
@@ -96,15 +98,17 @@ def _mean(xs):
 CONFIGURATIONS = ("serial", "alone", "together", "in_step")
 
 
-def sample(scene, particles, copies, steps, warmup=5, shape=None, configs=CONFIGURATIONS):
-    """One round of the configurations (in the order given): {configuration: mean step [s]}."""
+def sample(scene, particles, copies, steps, warmup=5, shape=None, configs=CONFIGURATIONS, options=None):
+    """One round of the configurations (in the order given): {configuration: mean step [s]}, every
+    copy set up with the serial mode's options (None: its defaults)."""
     share = max(1, particles // copies)
     plan = {"serial": (particles, 1, False), "alone": (share, 1, False), "together": (share, copies, False),
             "in_step": (share, copies, True)}
     out = {}
     for c in configs:
         n, k, in_step = plan[c]
-        out[c] = _mean([_mean(t) for t in run_copies(scene, n, k, steps, warmup, in_step=in_step, shape=shape)])
+        out[c] = _mean([_mean(t) for t in run_copies(scene, n, k, steps, warmup, in_step=in_step, shape=shape,
+                                                              options=options)])
     return out
 
 

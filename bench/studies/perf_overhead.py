@@ -26,14 +26,24 @@ and 2-rank runs; bench.sweep.intervals speedup_interval: the Student interval of
 ratios, so that a round's machine state cancels), and a verdict against the target: "met" where
 the whole interval is at or above it, "not met" where it is below, "unresolved" where it straddles
 the target (more --repeats narrow it as 1/sqrt(R); one repeat gives no interval).
+
+With --ceiling each round also steps two serial copies of the scene at half its particles, at the
+same skin, alone and meeting after every step (bench.run.copies; the in-step ceiling of `bench
+perf --what contention`): ceiling_step = alone / in step, the efficiency two workers reach on this
+machine in that round with no parallel machinery at all. of_ceiling = the 2 ranks' efficiency
+(speedup / 2) over it, median over the rounds, with its Student interval over the rounds' log
+ratios: what the code reaches of what the machine allows, where the speedup alone also carries
+the machine's hour (on a 2-vCPU VM the in-step ceiling moved 0.86-0.99 within a day).
 """
 import json
+import math
 import os
 import statistics
 import subprocess
 import sys
 import tempfile
-from bench.sweep.intervals import speedup_interval
+from bench.run.copies import sample
+from bench.sweep.intervals import mean_interval, speedup_interval
 from bench.sweep.records import module_times
 
 TARGETS = {"small_us_per_step": 20.0, "mpi_speedup": 1.0, "overhead_over_wire_factor": 3.0,
@@ -64,6 +74,18 @@ def _median(rows, key):
     return statistics.median(r[key] for r in rows)
 
 
+def _against_ceiling(one, two, copies):
+    """The rounds' in-step ceilings (copies: {alone, in_step} [s] per round) and the 2 ranks'
+    efficiency over them (module docstring): ceiling_step, of_ceiling (medians over the rounds),
+    of_ceiling_lo, of_ceiling_hi (95 % Student interval of the log ratios; NaN under 2 rounds) and
+    the samples."""
+    ceil = [c["alone"] / c["in_step"] for c in copies]
+    ratio = [a["totalT"] / (2.0 * b["totalT"]) / c for a, b, c in zip(one, two, ceil)]
+    lo, hi = mean_interval([math.log(x) for x in ratio])
+    return {"ceiling_step": statistics.median(ceil), "of_ceiling": statistics.median(ratio),
+            "of_ceiling_lo": math.exp(lo), "of_ceiling_hi": math.exp(hi), "ceiling_samples": copies}
+
+
 def speedup_verdict(lo, hi, target):
     """The target's verdict from the speedup's interval (lo, hi): "met" (lo >= target), "not met"
     (hi < target) or "unresolved" (the interval straddles it, or there is none: NaN)."""
@@ -74,10 +96,11 @@ def speedup_verdict(lo, hi, target):
     return "unresolved"
 
 
-def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None):
+def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceiling=False):
     """Run the figures above (scenes: (scene, particles, steps) of the MPI comparison, at the
-    neighbour-list skin fraction `skin`, None: the default); returns the report (perf.json):
-    targets, skin, small, mpi [one row per scene], load averages."""
+    neighbour-list skin fraction `skin`, None: the default; ceiling: each round also measures the
+    in-step ceiling of 2 workers); returns the report (perf.json): targets, skin, small, mpi [one
+    row per scene], load averages."""
     targets = dict(TARGETS, **REBUILD_TARGETS) if skin == 0 else TARGETS
     report = {"targets": targets, "skin": skin, "load_start": os.getloadavg()}
     with tempfile.TemporaryDirectory(prefix="bench-overhead-") as tmp:
@@ -90,10 +113,13 @@ def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None):
             f"(wall {report['small']['wall_us_per_step']:.1f} us/step); target <= {TARGETS['small_us_per_step']:g}")
         report["mpi"] = []
         for scene, n, steps in scenes:
-            one, two = [], []
-            for r in range(repeats):  # alternating: serial, 2 ranks, serial, 2 ranks, ...
+            one, two, copies = [], [], []
+            for r in range(repeats):  # alternating: serial, 2 ranks, (the copies,) serial, 2 ranks, ...
                 one.append(_run(scene, n, steps, "1-1-1-1-1", os.path.join(tmp, f"{scene}-1-{r}"), skin=skin))
                 two.append(_run(scene, n, steps, "2-2-1-1-1", os.path.join(tmp, f"{scene}-2-{r}"), skin=skin))
+                if ceiling:
+                    copies.append(sample(scene, n, 2, steps, warmup=20, configs=("alone", "in_step"),
+                                         options=None if skin is None else {"skin": skin}))
             t1, t2 = _median(one, "totalT"), _median(two, "totalT")
             lo, hi = speedup_interval(t1, float("nan"), float("nan"), t2, float("nan"), float("nan"),
                                       [r["totalT"] for r in one], [r["totalT"] for r in two])
@@ -108,6 +134,8 @@ def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None):
                    "exchange_us": 1e6 * (over - sync), "wire_us": 1e6 * wire, "overhead_bound_us": 1e6 * bound,
                    "exchange_over_bound": (over - sync) / bound, "overhead_over_bound": over / bound,
                    "samples": {"serial": one, "two_ranks": two}}
+            if ceiling:
+                row.update(_against_ceiling(one, two, copies))
             report["mpi"].append(row)
             log(f"{scene} {n}, 2 ranks against serial: {row['two_ranks_ms']:.3f} against "
                 f"{row['serial_ms']:.3f} ms/step, "
@@ -119,6 +147,10 @@ def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None):
                 f"wire + {targets['overhead_over_wire_add_us']:g} us (target <= 1); with syncT {row['sync_us']:.1f} us "
                 f"(the allreduce, waiting for the "
                 f"slowest rank): {row['overhead_over_bound']:.2f}")
+            if ceiling:
+                log(f"  the in-step ceiling of 2 workers in the same rounds: efficiency {row['ceiling_step']:.3f}; "
+                    f"the 2 ranks' {row['speedup'] / 2:.3f} is {row['of_ceiling']:.2f} "
+                    f"[{row['of_ceiling_lo']:.2f}, {row['of_ceiling_hi']:.2f}] of it")
     report["load_end"] = os.getloadavg()
     log(f"load average {report['load_start'][0]:.2f} at the start, {report['load_end'][0]:.2f} at the end")
     return report

@@ -32,11 +32,14 @@ class CeilingError(ValueError):
 class Ceiling:
     """The control of one sweep: scene (name or file), particles (None: the scene's own count),
     shape, steps (None: the scene's own) and warmup of each copy, cores: the core counts of the
-    sweep's points, usable: the CPUs this process may use."""
+    sweep's points, usable: the CPUs this process may use; options: the serial mode's set-up options
+    of the sweep (skin, contact_method, neighbor), so that the copies step what the points step (a
+    skin-0 sweep's copies build a list every step too)."""
 
-    def __init__(self, scene, particles, shape, steps, warmup, cores, usable):
+    def __init__(self, scene, particles, shape, steps, warmup, cores, usable, options=None):
         from dem.scene import SceneError, load_scene
         self.scene, self.shape, self.warmup = scene, shape, warmup
+        self.options = {k: v for k, v in (options or {}).items() if v is not None}
         counts = sorted({int(w) for w in cores if int(w) > 1})
         self.cores = [w for w in counts if w <= usable]
         self.left_out = [w for w in counts if w > usable]
@@ -57,7 +60,7 @@ class Ceiling:
         """One round of the control at every core count."""
         for w in self.cores:
             for c, t in sample(self.scene, self.particles, w, self.steps, self.warmup, shape=self.shape,
-                               configs=CONFIGS).items():
+                               configs=CONFIGS, options=self.options).items():
                 self.samples[w][c].append(t)
 
     def rows(self):

@@ -77,7 +77,8 @@ def _ceiling(args, launcher, points):
     usable = len(os.sched_getaffinity(0))
     cores = [parse_mapping(p.mapping).procs * parse_mapping(p.mapping).threads for p in points]
     try:
-        ceiling = Ceiling(args.scene, args.particles, args.shape, args.steps, args.warmup, cores, usable)
+        options = {k: getattr(args, k, None) for k in ("skin", "contact_method", "neighbor")}
+        ceiling = Ceiling(args.scene, args.particles, args.shape, args.steps, args.warmup, cores, usable, options)
     except CeilingError as e:
         raise ModeError(str(e)) from None
     if ceiling.left_out:

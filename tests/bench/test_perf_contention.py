@@ -34,6 +34,21 @@ def test_copies_step_the_requested_steps():
         assert [len(t) for t in out] == [7, 7] and min(min(t) for t in out) > 0
 
 
+def test_copies_are_set_up_with_the_runs_options():
+    """The copies take the serial mode's options of the runs they stand beside (a skin-0 sweep's
+    copies build a list every step too): an option the mode refuses ends the round with the mode's
+    own reason, so the options reach every copy's set-up; the sweep's control keeps only the options
+    set (None: the mode's default)."""
+    from bench.run.copies import run_copies
+    from bench.sweep.ceiling import Ceiling
+    with pytest.raises(RuntimeError, match="unknown contact method 'nope'"):
+        run_copies("gas", 100, 2, 3, warmup=1, options={"contact_method": "nope"})
+    out = run_copies("gas", 100, 2, 3, warmup=1, options={"skin": 0.0})
+    assert [len(t) for t in out] == [3, 3]
+    c = Ceiling("gas", 200, None, 6, 1, [2], usable=2, options={"skin": 0.0, "contact_method": None})
+    assert c.options == {"skin": 0.0}
+
+
 def test_step_barrier_waits_for_the_slowest_copy():
     """_meet(counts, me, k) returns only once every slot holds k: copy 1 finishes step 3 0.2 s
     after copy 0 arrives, so copy 0 waits at least those 0.2 s; a later arrival does not wait."""

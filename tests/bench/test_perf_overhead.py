@@ -26,6 +26,26 @@ def test_overhead_report_from_real_runs(tmp_path):
     assert math.isnan(row["speedup_lo"]) and math.isnan(row["speedup_hi"]) and row["verdict"] == "unresolved"
 
 
+def test_overhead_against_the_in_step_ceiling():
+    """--ceiling: each of the 2 rounds also steps two copies at half the particles, alone and in
+    step; ceiling_step is the median of the rounds' alone / in step, of_ceiling the median of the
+    rounds' 2-rank efficiency T1 / (2 T2) over their ceiling, its interval over the rounds' log ratios
+    holds their geometric mean, and the speedup's interval (2 rounds) is finite."""
+    from bench.studies.perf_overhead import measure
+    lines = []
+    rep = measure(2, lines.append, small_steps=50, scenes=(("gas", 300, 40),), ceiling=True)
+    (row,) = rep["mpi"]
+    one, two = row["samples"]["serial"], row["samples"]["two_ranks"]
+    ceil = [c["alone"] / c["in_step"] for c in row["ceiling_samples"]]
+    ratio = [a["totalT"] / (2 * b["totalT"]) / c for a, b, c in zip(one, two, ceil)]
+    assert len(ceil) == 2 and row["ceiling_step"] == pytest.approx(sum(ceil) / 2)
+    assert row["of_ceiling"] == pytest.approx(sum(ratio) / 2)
+    geo = math.sqrt(ratio[0] * ratio[1])
+    assert row["of_ceiling_lo"] <= geo <= row["of_ceiling_hi"]
+    assert math.isfinite(row["speedup_lo"]) and row["speedup_lo"] <= row["speedup_hi"]
+    assert any("ceiling of 2 workers" in line for line in lines)
+
+
 def test_speedup_verdict_reads_the_whole_interval():
     """A target is met only where the whole 95 % interval lies at or above it, missed only where it
     lies below; an interval straddling it (or none) leaves the verdict open. Rounds of serial 0.75,
