@@ -4,9 +4,7 @@ adding each touching pair's forces, in list order, to its owned ends: force[i] -
 T_i, force[j] += F, torque[j] += T_j (DESIGN.md, Determinism: the gather of the thread schemes
 does the same additions in the same order). These tests hold the sphere loop to that per-pair
 reference on a sorted list, on a list in another order (rows broken and revisited), and under
-TAKEN, where a term lands on the first end or on the second. (A loop carrying each row's first
-end in registers, as LAMMPS's pair loops carry fxtmp, gave the same bits here and was 6 % slower
-on 10k packed spheres: 1.375-1.380 against 1.267-1.301 ms a resolution, one CPU, alternating.)"""
+TAKEN, where a term lands on the first end or on the second."""
 import numpy as np
 import pytest
 
