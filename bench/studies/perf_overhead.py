@@ -29,7 +29,7 @@ the target (more --repeats narrow it as 1/sqrt(R); one repeat gives no interval)
 
 With --ceiling each round also steps two serial copies of the scene at half its particles, at the
 same skin, alone and meeting after every step (bench.run.copies; the in-step ceiling of `bench
-perf --what contention`): ceiling_step = alone / in step, the efficiency two workers reach on this
+perf --what contention`): ceiling_step = alone / in step, the efficiency two workers reach on the
 machine in that round with no parallel machinery at all. of_ceiling = the 2 ranks' efficiency
 (speedup / 2) over it, median over the rounds, with its Student interval over the rounds' log
 ratios: what the code reaches of what the machine allows, where the speedup alone also carries
