@@ -34,6 +34,14 @@ machine in that round with no parallel machinery at all. of_ceiling = the 2 rank
 (speedup / 2) over it, median over the rounds, with its Student interval over the rounds' log
 ratios: what the code reaches of what the machine allows, where the speedup alone also carries
 the machine's hour (on a 2-vCPU VM the in-step ceiling moved 0.86-0.99 within a day).
+
+Each 2-rank run also gives its rank skew: the largest over the smallest of the ranks' median
+compute time per step (compuT). The two ranks hold blocks of nearly equal work, so a skew well
+above the work's own (packed 500: 680 and 723 contacts, ~1.05) says that one CPU ran slower for
+that whole run (on the 2-vCPU VM, runs where one rank's neighbour estimate took 1.7-1.9x the
+other's, with equal particles, alternated with runs at 1.00-1.02). Beside the verdict over every
+round, the speedup over the rounds whose skew is at most CLEAN_SKEW is reported, with its interval
+and verdict, and the number of such rounds: a second reading, never the verdict itself.
 """
 import json
 import math
@@ -49,6 +57,9 @@ from bench.sweep.records import module_times
 TARGETS = {"small_us_per_step": 20.0, "mpi_speedup": 1.0, "overhead_over_wire_factor": 3.0,
            "overhead_over_wire_add_us": 20.0}
 MPI_SCENES = (("pluviation", 1521, 400), ("packed", 500, 300))
+# the rank skew (largest / smallest median compuT of the 2 ranks) up to which a round counts as one
+# where both CPUs ran alike (module docstring)
+CLEAN_SKEW = 1.10
 # issue 33's targets of the comparison with --skin 0 (the list rebuilt every step)
 REBUILD_TARGETS = {"mpi_speedup": 1.5, "overhead_over_wire_factor": 3.0, "overhead_over_wire_add_us": 50.0}
 
@@ -63,7 +74,10 @@ def _run(scene, particles, steps, mapping, out, warmup=20, skin=None):
         lines = (res.stderr.strip() or res.stdout.strip() or "no output").splitlines()
         raise RuntimeError(f"{' '.join(cmd[2:])} failed: {lines[-1]}")
     import pandas as pd
-    times = module_times(pd.read_csv(os.path.join(out, "steps.csv")))
+    steps = pd.read_csv(os.path.join(out, "steps.csv"))
+    times = module_times(steps)
+    compute = steps.groupby("rank")["compuT"].median()
+    times["rank_skew"] = float(compute.max() / compute.min()) if compute.min() > 0 else math.nan
     with open(os.path.join(out, "run.json")) as fh:
         info = json.load(fh)
     times["wall_per_step"] = info["wall_s"] / max(info["steps"], 1)
@@ -84,6 +98,21 @@ def _against_ceiling(one, two, copies):
     lo, hi = mean_interval([math.log(x) for x in ratio])
     return {"ceiling_step": statistics.median(ceil), "of_ceiling": statistics.median(ratio),
             "of_ceiling_lo": math.exp(lo), "of_ceiling_hi": math.exp(hi), "ceiling_samples": copies}
+
+
+def _clean_rounds(one, two, target):
+    """The rank skew of every round's 2-rank run, and the speedup over the rounds whose skew is at
+    most CLEAN_SKEW (module docstring): rank_skew [per round], clean_rounds, clean_speedup (the
+    ratio of those rounds' medians), clean_speedup_lo, _hi (paired interval; NaN under 2 such
+    rounds) and clean_verdict."""
+    skew = [r["rank_skew"] for r in two]
+    keep = [k for k, x in enumerate(skew) if x <= CLEAN_SKEW]
+    t1 = [one[k]["totalT"] for k in keep]
+    t2 = [two[k]["totalT"] for k in keep]
+    s = statistics.median(t1) / statistics.median(t2) if keep else math.nan
+    lo, hi = speedup_interval(math.nan, math.nan, math.nan, math.nan, math.nan, math.nan, t1, t2)
+    return {"rank_skew": skew, "clean_rounds": len(keep), "clean_speedup": s, "clean_speedup_lo": lo,
+            "clean_speedup_hi": hi, "clean_verdict": speedup_verdict(lo, hi, target)}
 
 
 def speedup_verdict(lo, hi, target):
@@ -136,6 +165,7 @@ def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceilin
                    "samples": {"serial": one, "two_ranks": two}}
             if ceiling:
                 row.update(_against_ceiling(one, two, copies))
+            row.update(_clean_rounds(one, two, targets["mpi_speedup"]))
             report["mpi"].append(row)
             log(f"{scene} {n}, 2 ranks against serial: {row['two_ranks_ms']:.3f} against "
                 f"{row['serial_ms']:.3f} ms/step, "
@@ -147,6 +177,9 @@ def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceilin
                 f"wire + {targets['overhead_over_wire_add_us']:g} us (target <= 1); with syncT {row['sync_us']:.1f} us "
                 f"(the allreduce, waiting for the "
                 f"slowest rank): {row['overhead_over_bound']:.2f}")
+            log(f"  rank skew per round: {', '.join(f'{k:.2f}' for k in row['rank_skew'])}; over the "
+                f"{row['clean_rounds']} rounds at most {CLEAN_SKEW:g}: speedup {row['clean_speedup']:.2f} "
+                f"[{row['clean_speedup_lo']:.2f}, {row['clean_speedup_hi']:.2f}] ({row['clean_verdict']})")
             if ceiling:
                 log(f"  the in-step ceiling of 2 workers in the same rounds: efficiency {row['ceiling_step']:.3f}; "
                     f"the 2 ranks' {row['speedup'] / 2:.3f} is {row['of_ceiling']:.2f} "

@@ -21,7 +21,7 @@ def test_overhead_report_from_real_runs(tmp_path):
     assert 0 <= row["sync_us"] <= row["commu_migra_us"]
     assert row["exchange_us"] == pytest.approx(row["commu_migra_us"] - row["sync_us"])
     assert row["wire_us"] > 0 and row["overhead_bound_us"] == pytest.approx(3 * row["wire_us"] + 20)
-    assert len(lines) == 3 and "target" in lines[1]
+    assert len(lines) == 4 and "target" in lines[1] and "rank skew" in lines[2]
     # one round gives no interval (a Student interval needs two), so no verdict either way
     assert math.isnan(row["speedup_lo"]) and math.isnan(row["speedup_hi"]) and row["verdict"] == "unresolved"
 
@@ -44,6 +44,28 @@ def test_overhead_against_the_in_step_ceiling():
     assert row["of_ceiling_lo"] <= geo <= row["of_ceiling_hi"]
     assert math.isfinite(row["speedup_lo"]) and row["speedup_lo"] <= row["speedup_hi"]
     assert any("ceiling of 2 workers" in line for line in lines)
+    assert len(row["rank_skew"]) == 2 and min(row["rank_skew"]) >= 1.0
+
+
+def test_clean_rounds_keep_those_where_both_ranks_ran_alike():
+    """The second reading keeps the rounds whose 2-rank run had a rank skew (largest over smallest
+    median compuT of the ranks) at most CLEAN_SKEW = 1.10: of skews 1.02, 1.50, 1.05 the first and
+    third, with serial 0.30 and 0.29 ms against 2 ranks 0.19 and 0.20 ms: speedup = median 0.295 /
+    median 0.195 = 1.513, its paired interval from those two rounds' log ratios (0.4568, 0.3716:
+    mean 0.4142, s 0.0602, t(0.975, 1) = 12.706: exp(0.4142 +- 0.5413) = [0.881, 2.600]),
+    unresolved against 1.5. One round kept gives no interval."""
+    from bench.studies.perf_overhead import _clean_rounds
+    one = [{"totalT": 0.30e-3}, {"totalT": 0.25e-3}, {"totalT": 0.29e-3}]
+    two = [{"totalT": 0.19e-3, "rank_skew": 1.02}, {"totalT": 0.30e-3, "rank_skew": 1.50},
+           {"totalT": 0.20e-3, "rank_skew": 1.05}]
+    c = _clean_rounds(one, two, 1.5)
+    assert c["rank_skew"] == [1.02, 1.50, 1.05] and c["clean_rounds"] == 2
+    assert c["clean_speedup"] == pytest.approx(0.295 / 0.195)
+    assert c["clean_speedup_lo"] == pytest.approx(0.881, abs=2e-3)
+    assert c["clean_speedup_hi"] == pytest.approx(2.600, abs=2e-3)
+    assert c["clean_verdict"] == "unresolved"
+    c = _clean_rounds(one[:2], two[:2], 1.5)
+    assert c["clean_rounds"] == 1 and math.isnan(c["clean_speedup_lo"]) and c["clean_verdict"] == "unresolved"
 
 
 def test_speedup_verdict_reads_the_whole_interval():
