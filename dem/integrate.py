@@ -98,19 +98,6 @@ def derive_geometry_range(lo, hi, pos, rot, axes, shape, poly, orot, oorg, ax6):
 
 
 @njit(cache=True, _nrt=False)
-def derive_listed(items, bodies, polys, poly_scene):
-    """derive_all's derived quantities for the particles items [k] only (MPI with Newton's third
-    law: the ghost ends of the cross pairs a rank resolves, dem.pairs distinct_ends)."""
-    pos, _, quat, angmom, _, inertia, shape, axes, _, _, _, _, rot, omega = bodies
-    poly, oorg, orot, ax6 = polys
-    for u in range(items.shape[0]):
-        p = items[u]
-        derive_particle(p, quat, angmom, inertia, shape, rot, omega, True, False)
-        if poly_scene:
-            derive_poly_geometry(p, pos, rot, axes, shape, poly, orot, oorg, ax6)
-
-
-@njit(cache=True, _nrt=False)
 def derive_all(lo, hi, bodies, polys, poly_scene):
     """Derived quantities of particles lo..hi-1 of the bodies group (dem.forces): rot, omega
     (derive_particle) and, when poly_scene, the octant geometry of polys (derive_poly_geometry)."""

@@ -406,22 +406,6 @@ def carry_history_sorted_range(a0, a1, spi, spj, gid, order, opi, opj, ogid, oor
                 _take_row(hist, on, k, ohist, ku)
 
 
-@njit(cache=True)
-def distinct_ends(pi, pj, lo, hi):
-    """The particles of lo..hi-1 that are an end of some pair (pi[k], pj[k]) [m], each once, in the
-    order first met: [k] int64 (MPI: the ghost ends of the pairs a rank resolves)."""
-    seen = np.zeros(max(hi - lo, 0), dtype=np.int8)
-    out = np.empty(2 * pi.shape[0], dtype=np.int64)
-    c = 0
-    for k in range(pi.shape[0]):
-        for p in (pi[k], pj[k]):
-            if lo <= p < hi and seen[p - lo] == 0:
-                seen[p - lo] = 1
-                out[c] = p
-                c += 1
-    return out[:c].copy()
-
-
 class PairList:
     """Candidate pairs of the current neighbour list and their records (see the module docstring).
 

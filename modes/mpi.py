@@ -34,8 +34,7 @@ from collections import deque
 import numpy as np
 
 from dem.forces import SPLIT, STORE
-from dem.integrate import derive_listed
-from dem.pairs import DEFAULT_SKIN, distinct_ends
+from dem.pairs import DEFAULT_SKIN
 from dem.state import HIST_LEN
 from modes.base import ModeError, call_entry, register
 from modes.decomposition import (BlockGrid, DecompositionError, balanced_grid, blended_grid, block_counts,
@@ -171,7 +170,6 @@ class _Blocks:
     def _fresh(self):
         super()._fresh()
         self.plan = None   # the reverse exchange of the current list (newton)
-        self.ghost_ends = None  # the ghosts whose derived quantities a step needs (derive_ghosts)
         self.ghost_dir = None  # the ghosts' owners' directions at the halo's last build (three sweeps)
         self.no_cross_plan = None  # the reverse exchange of every list without pairs (split)
         self.found_next = None
@@ -352,27 +350,6 @@ class _Blocks:
         # summed in this step's allreduce (decide); 0 without cross pairs
         self.counts_check = self.plan.count_checksum() if p.m else 0.0
         super().split(self.plan.cross, self.plan.terms)
-        self.ghost_ends = None  # this list's (derive_ghosts)
-        self.derive_ghosts()
-
-    def derive_ghosts(self, listing=False):
-        """With newton a rank resolves, of the pairs with a ghost end, only those it sends (the plan's
-        own list): only their ghost ends need rot and omega, found once a list's split has fixed
-        them (listing: the list is not made yet; dem.pairs distinct_ends) and derived at every step
-        (dem.integrate derive_listed, allocating nothing); the other ghosts' are never read. On 2
-        ranks of the 1521 falling ellipsoids with --skin 0 every ghost's took 3.3 us a step (127
-        ghosts). Without newton every ghost, as the base mode."""
-        if not self.newton:
-            return super().derive_ghosts(listing)
-        s = self.state
-        if listing or self.plan is None or s.n == s.n_owned:
-            return
-        if self.ghost_ends is None:
-            spi, spj = self.plan.list[0], self.plan.list[1]
-            self.ghost_ends = distinct_ends(spi, spj, s.n_owned, s.n) if len(spi) else _NONE
-        if len(self.ghost_ends):
-            self.kernel_call("derive_listed", derive_listed, (self.ghost_ends, self.bodies, self.polys, self.octants),
-                             key=id(self.ghost_ends))
 
     def resolve(self):
         """With newton: the sent pairs (their own list, STORE), their terms to the neighbours and the

@@ -160,14 +160,6 @@ class SerialMode:
         bodies and polys groups at every call, ~2 us more)."""
         self.kernel_call("derive", derive_all, (lo, hi, self.bodies, self.polys, self.octants))
 
-    def derive_ghosts(self, listing=False):
-        """Derived quantities of the ghosts (MPI: particles n_owned..n-1) whose pairs this mode
-        resolves: here all of them (none without MPI). listing: called by a neighbour build before
-        its list is made (modes.mpi derives its ghosts once the list has fixed which it needs)."""
-        s = self.state
-        if s.n > s.n_owned:
-            self.derive(s.n_owned, s.n)
-
     def sync_history(self):
         """Write the pair list's contact history into the state's per-particle rows (the form that
         migrates, is cached and restarts)."""
@@ -218,9 +210,8 @@ class SerialMode:
         # were made anew or moved since: then all are derived (the pass and this derive give the
         # same numbers: dem.integrate derive_particle); ghosts always (MPI)
         lo = s.n_owned if self.owned_derived else 0
-        if lo < s.n_owned:
-            self.derive(lo, s.n_owned)
-        self.derive_ghosts(listing=True)
+        if lo < s.n:
+            self.derive(lo, s.n)
         t1 = clock()
         reach = s.rbound + 0.5 * self.skin if self.skin > 0 else s.rbound
         m = self.find_pairs(reach)
@@ -366,8 +357,8 @@ class SerialMode:
             commu = clock() - tc
             if self.relist_every_step:  # MPI, skin 0 with a halo skin: the list alone, on the same particles
                 self.relist()
-            else:  # ghosts moved: their rotations and spins
-                self.derive_ghosts()
+            elif self.state.n > self.state.n_owned:  # ghosts moved: their rotations and spins
+                self.derive(self.state.n_owned, self.state.n)
         t1 = clock()
         relisted = rebuild or self.relist_every_step
         neighbor = t1 - t0 - commu - migra if relisted else 0.0
