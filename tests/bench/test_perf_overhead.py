@@ -80,6 +80,9 @@ def test_speedup_verdict_reads_the_whole_interval():
     assert speedup_verdict(1.40, 1.49, 1.5) == "not met"
     assert speedup_verdict(1.45, 1.55, 1.5) == "unresolved"
     assert speedup_verdict(math.nan, math.nan, 1.5) == "unresolved"
+    # the default skin's target is strict (speedup > 1): an interval starting at 1 does not meet it
+    assert speedup_verdict(1.0, 1.2, 1.0) == "met" and speedup_verdict(1.0, 1.2, 1.0, strict=True) == "unresolved"
+    assert speedup_verdict(0.8, 1.0, 1.0, strict=True) == "not met"
     nan = math.nan
     lo, hi = speedup_interval(0.75, nan, nan, 0.50, nan, nan, [0.75, 0.74, 0.76], [0.50, 0.49, 0.51])
     assert lo == pytest.approx(1.4755, abs=1e-3) and hi == pytest.approx(1.5252, abs=1e-3)
@@ -89,3 +92,11 @@ def test_speedup_verdict_reads_the_whole_interval():
 def test_overhead_command_bad_repeats(tmp_path):
     res = bench("perf", "--what", "overhead", "--repeats", "0")
     assert res.returncode == 2 and "Traceback" not in res.stderr
+
+
+def test_ceiling_is_refused_outside_overhead():
+    """--ceiling reads 2 ranks against 2 workers: with any other --what it is one line naming both,
+    exit 2, no traceback."""
+    res = bench("perf", "--what", "pairs", "--ceiling")
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert res.stderr.strip().count("\n") == 0 and "--ceiling" in res.stderr and "pairs" in res.stderr
