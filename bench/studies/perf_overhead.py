@@ -51,7 +51,7 @@ import subprocess
 import sys
 import tempfile
 from bench.run.copies import sample
-from bench.sweep.intervals import mean_interval, speedup_interval
+from bench.sweep.intervals import mean_interval, speedup_interval, verdict
 from bench.sweep.records import module_times
 
 TARGETS = {"small_us_per_step": 20.0, "mpi_speedup": 1.0, "overhead_over_wire_factor": 3.0,
@@ -116,14 +116,11 @@ def _clean_rounds(one, two, target, strict=False):
 
 
 def speedup_verdict(lo, hi, target, strict=False):
-    """The target's verdict from the speedup's interval (lo, hi): "met" (lo >= target; lo > target
-    where strict, as the default skin's "speedup > 1"), "not met" (hi < target; hi <= target where
-    strict) or "unresolved" (the interval straddles it, or there is none: NaN)."""
-    if lo > target or (lo == target and not strict):
-        return "met"
-    if hi < target or (hi == target and strict):
-        return "not met"
-    return "unresolved"
+    """The speedup target's verdict from its interval (lo, hi) (bench.sweep.intervals.verdict):
+    "met" (lo >= target; lo > target where strict, as the default skin's "speedup > 1"), "not met"
+    (hi < target; hi <= target where strict) or "unresolved" (the interval straddles it, or there
+    is none: NaN)."""
+    return verdict(lo, hi, target, strict=strict)
 
 
 def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceiling=False):

@@ -26,6 +26,17 @@ Columns of OUT/schemes.csv:
 - neighbor_eff_own, resolve_eff_own: the same per phase, neighbor_s(serial, same neighbour
   method) / (threads x neighbor_s) and resolve_s(serial, same neighbour method) / (threads x
   resolve_s) (1 for the serial rows), so that a scheme's loss is seen where it lies;
+- efficiency_own_lo, _hi (and neighbor_eff_own_lo, _hi, resolve_eff_own_lo, _hi): the 95 %
+  interval of each, paired over the rounds (round r's serial and threaded detections ran in the
+  same round: the Student interval of the rounds' log ratios, bench.sweep.intervals.ratio_interval;
+  empty for the serial rows, which are their own reference, and under 2 rounds). The interval is
+  that of the geometric mean of the rounds' paired ratios; the point estimate beside it is the
+  ratio of the medians, which may fall outside it where the rounds drift;
+- target_eff_own, verdict: issue 32's target for efficiency_own at this thread count (TARGETS:
+  link-cell 0.92 for partition, static and dynamic and 0.85 for frogleap and headtail, all-pairs
+  dynamic 0.95, at 2 threads; link-cell 0.70 and all-pairs dynamic 11x, i.e. 11/16, at 16) and
+  its verdict from the interval: met, not met or unresolved (bench.sweep.intervals.verdict);
+  empty where the issue sets none;
 - candidates, tests: candidate pairs found and pair tests made (per detection);
 - work_imbalance: max/mean over threads of the pair tests (mode.tests; deterministic; 1 for
   serial); busy_imbalance: median over rounds of max/mean over threads of the busy cycles of
@@ -51,6 +62,7 @@ from bench.run.prepare import load_prepared
 from bench.run.records import prepare_output
 from bench.run.records import write_rows_csv
 from bench.studies.paper import table_path
+from bench.sweep.intervals import ratio_interval, verdict
 from dem.neighbor import HALF_SHELL_RUNS, CellGrid, scan_rows
 from dem.timestep import choose_time_step
 from modes.parallel import SCHEMES
@@ -66,10 +78,19 @@ PAPER_MAP = {"n-by-n": ("serial", "allpairs"), "link-cell": ("serial", "linkcell
 FAMILY = {"serial": "serial", "partition": "parallel", "frogleap": "parallel", "headtail": "parallel",
           "static": "parallel-for", "dynamic": "parallel-for"}
 COLUMNS = ["family", "method", "neighbor", "threads", "particles", "shape", "repeats", "detect_s", "neighbor_s",
-           "resolve_s", "speedup", "efficiency", "efficiency_own", "neighbor_eff_own", "resolve_eff_own", "candidates",
-           "tests", "work_imbalance",
+           "resolve_s", "speedup", "efficiency", "efficiency_own", "efficiency_own_lo", "efficiency_own_hi",
+           "neighbor_eff_own", "neighbor_eff_own_lo", "neighbor_eff_own_hi", "resolve_eff_own", "resolve_eff_own_lo",
+           "resolve_eff_own_hi", "target_eff_own", "verdict", "candidates", "tests", "work_imbalance",
            "busy_imbalance", "paper_method", "paper_threads", "paper_speedup", "paper_efficiency"]
 NEIGHBORS = ("allpairs", "linkcell")
+# issue 32's targets for efficiency_own, {threads: {(method, neighbour): target}}: on 2 cores the
+# link-cell detection of the schemes that split the gid-sorted list (partition, static, dynamic)
+# 0.92 and of those that store every pair's forces (frogleap, headtail) 0.85, all-pairs dynamic
+# 0.95; on 16 cores link-cell 0.70 and all-pairs dynamic 11x serial all-pairs (the paper's 11.15x
+# at 12 threads: Yan & Regueiro, Table 1), i.e. 11/16 of its own serial
+TARGETS = {2: {("partition", "linkcell"): 0.92, ("static", "linkcell"): 0.92, ("dynamic", "linkcell"): 0.92,
+               ("frogleap", "linkcell"): 0.85, ("headtail", "linkcell"): 0.85, ("dynamic", "allpairs"): 0.95},
+           16: {**{(s, "linkcell"): 0.70 for s in SCHEMES}, ("dynamic", "allpairs"): 11.0 / 16.0}}
 
 
 def paper_table_path():
@@ -156,6 +177,7 @@ def measure(scene, dt, threads, repeats, shape, log=None):
                      "work_imbalance": _ratio(tests) if threaded else 1.0,
                      "busy_imbalance": float(np.median([s[3] for s in smp]))})
     serial = {nb: next(r for r in rows if r["method"] == "serial" and r["neighbor"] == nb) for nb in NEIGHBORS}
+    rounds = {conf: _round_times(smp) for conf, smp in zip(confs, samples)}
     for r in rows:
         own = serial[r["neighbor"]]
         r["speedup"] = serial["allpairs"]["detect_s"] / r["detect_s"]
@@ -163,7 +185,32 @@ def measure(scene, dt, threads, repeats, shape, log=None):
         r["efficiency_own"] = own["detect_s"] / (r["threads"] * r["detect_s"])
         r["neighbor_eff_own"] = own["neighbor_s"] / (r["threads"] * r["neighbor_s"])
         r["resolve_eff_own"] = own["resolve_s"] / (r["threads"] * r["resolve_s"])
+        r.update(efficiency_intervals(rounds[("serial", r["neighbor"])], rounds[(r["method"], r["neighbor"])],
+                                      r["threads"]) if r["method"] != "serial" else
+                 {f"{k}_{e}": math.nan for k in ("efficiency_own", "neighbor_eff_own", "resolve_eff_own")
+                  for e in ("lo", "hi")})
+        target = TARGETS.get(r["threads"], {}).get((r["method"], r["neighbor"]), math.nan)
+        r["target_eff_own"] = target
+        r["verdict"] = "" if math.isnan(target) else verdict(r["efficiency_own_lo"], r["efficiency_own_hi"], target)
     return rows
+
+
+def _round_times(samples):
+    """{detect, neighbor, resolve: [R] times [s]} of one configuration's rounds (_detect samples)."""
+    nb = np.array([s[0] for s in samples])
+    res = np.array([s[1] for s in samples])
+    return {"detect": nb + res, "neighbor": nb, "resolve": res}
+
+
+def efficiency_intervals(own, mine, threads):
+    """The 95 % intervals of a threaded row's efficiency against its own serial, of detection and of
+    each phase, paired over the rounds (own, mine: _round_times of the serial row of the same
+    neighbour method and of this row; bench.sweep.intervals.ratio_interval): efficiency_own_lo, _hi,
+    neighbor_eff_own_lo, _hi, resolve_eff_own_lo, _hi."""
+    out = {}
+    for key, phase in (("efficiency_own", "detect"), ("neighbor_eff_own", "neighbor"), ("resolve_eff_own", "resolve")):
+        out[f"{key}_lo"], out[f"{key}_hi"] = ratio_interval(own[phase], mine[phase], 1.0 / threads)
+    return out
 
 
 def _serial_tests(mode):
@@ -192,9 +239,10 @@ def write_csv(path, rows):
 def read_csv(path):
     """schemes.csv rows with numbers parsed (empty -> NaN)."""
     num = {"threads", "particles", "repeats", "detect_s", "neighbor_s", "resolve_s", "speedup", "efficiency",
-           "efficiency_own", "neighbor_eff_own", "resolve_eff_own", "candidates", "tests", "work_imbalance",
-           "busy_imbalance", "paper_threads",
-           "paper_speedup", "paper_efficiency"}
+           "efficiency_own", "efficiency_own_lo", "efficiency_own_hi", "neighbor_eff_own", "neighbor_eff_own_lo",
+           "neighbor_eff_own_hi", "resolve_eff_own", "resolve_eff_own_lo", "resolve_eff_own_hi", "target_eff_own",
+           "candidates", "tests", "work_imbalance", "busy_imbalance", "paper_threads", "paper_speedup",
+           "paper_efficiency"}
     with open(path, newline="") as fh:
         return [{k: (float(v) if v not in ("", None) else math.nan) if k in num else v for k, v in r.items()}
                 for r in csv.DictReader(fh)]
@@ -204,16 +252,22 @@ def format_table(rows):
     head = (f"{'method':10s} {'neighbor':8s} {'T':>2s} {'detect ms':>10s} {'nbr ms':>9s} {'res ms':>9s} "
             f"{'speedup':>8s} {'eff':>6s} {'eff_own':>7s} {'nbr_own':>7s} {'res_own':>7s} {'work_imb':>8s} "
             f"{'busy_imb':>8s} "
-            f"{'paper':>6s} {'paper_eff':>9s}")
+            f"{'paper':>6s} {'paper_eff':>9s}  {'eff_own 95 %':>14s} {'target':>6s} verdict")
     lines = [head]
     for r in rows:
         ps = "" if math.isnan(r["paper_speedup"]) else f"{r['paper_speedup']:.2f}"
         pe = "" if math.isnan(r["paper_efficiency"]) else f"{r['paper_efficiency']:.3f}"
+        lo, hi = r.get("efficiency_own_lo", math.nan), r.get("efficiency_own_hi", math.nan)
+        ci = "" if math.isnan(lo) else f"[{lo:.3f}, {hi:.3f}]"
+        tg = r.get("target_eff_own", math.nan)
+        tg = "" if math.isnan(tg) else f"{tg:.3g}"
+        vd = r.get("verdict", "")
+        vd = "" if not isinstance(vd, str) else vd
         lines.append(f"{r['method']:10s} {r['neighbor']:8s} {int(r['threads']):2d} {1e3 * r['detect_s']:10.2f} "
                      f"{1e3 * r['neighbor_s']:9.2f} {1e3 * r['resolve_s']:9.2f} {r['speedup']:8.2f} "
                      f"{r['efficiency']:6.3f} {r['efficiency_own']:7.3f} {r['neighbor_eff_own']:7.3f} "
                      f"{r['resolve_eff_own']:7.3f} {r['work_imbalance']:8.3f} "
-                     f"{r['busy_imbalance']:8.3f} {ps:>6s} {pe:>9s}")
+                     f"{r['busy_imbalance']:8.3f} {ps:>6s} {pe:>9s}  {ci:>14s} {tg:>6s} {vd}")
     return lines
 
 
@@ -280,7 +334,8 @@ def schemes(args):
     print("--- Table 1 in kind")
     print(f"contact detection (neighbour estimate + resolution), {scene.n} packed {args.shape}s, "
           f"median of {args.repeats}; speedup vs serial all-pairs; eff = speedup/T; eff_own vs serial of the "
-          f"same neighbour method (nbr_own, res_own: per phase); paper: {PAPER_THREADS} threads, n-by-n")
+          f"same neighbour method (nbr_own, res_own: per phase), its 95 % interval paired over the rounds and "
+          f"its verdict against issue 32's target; paper: {PAPER_THREADS} threads, n-by-n")
     for line in format_table(read_csv(csv_path)):
         print(line)
     print(f"wrote {csv_path} and schemes.png")

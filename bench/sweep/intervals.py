@@ -100,8 +100,7 @@ def speedup_interval(t1, t1_lo, t1_hi, t, t_lo, t_hi, reps1=(), reps=(), level=L
     side of the point estimate t1 / t. NaN where an interval is missing."""
     reps1, reps = list(reps1), list(reps)
     if len(reps1) == len(reps) >= 2 and all(v > 0 for v in reps1 + reps):
-        lo, hi = mean_interval(np.log(reps1) - np.log(reps), level)
-        return math.exp(lo), math.exp(hi)
+        return ratio_interval(reps1, reps, level=level)
     vals = (t1, t1_lo, t1_hi, t, t_lo, t_hi)
     if not all(isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in vals):
         return math.nan, math.nan
@@ -109,3 +108,31 @@ def speedup_interval(t1, t1_lo, t1_hi, t, t_lo, t_hi, reps1=(), reps=(), level=L
     down = math.hypot(math.log(t1 / t1_lo), math.log(t_hi / t))
     up = math.hypot(math.log(t1_hi / t1), math.log(t / t_lo))
     return s * math.exp(-down), s * math.exp(up)
+
+
+def ratio_interval(num, den, scale=1.0, level=LEVEL):
+    """(lo, hi) of a ratio scale x num / den measured in rounds, paired over them: num, den [R] the
+    two sides' times of each round (round r's num and den ran back to back, so the machine's state
+    of that round cancels); the Student interval of the rounds' log ratios, mapped back (the
+    geometric mean's interval, as speedup_interval). NaN under 2 rounds or where a time is not
+    positive. A parallel efficiency against its own serial is ratio_interval(t_serial, t_T, 1 / T)."""
+    num, den = np.asarray(num, dtype=float), np.asarray(den, dtype=float)
+    if num.shape != den.shape or len(num) < 2 or not (np.all(num > 0) and np.all(den > 0)):
+        return math.nan, math.nan
+    lo, hi = mean_interval(np.log(num) - np.log(den), level)
+    return scale * math.exp(lo), scale * math.exp(hi)
+
+
+def verdict(lo, hi, target, higher_is_better=True, strict=False):
+    """A target's verdict from a figure's interval (lo, hi): "met" where the whole interval is on
+    the target's good side (at or above it; strict: above, as "speedup > 1"; at or below it where
+    lower is better, as a serial fraction), "not met" where the whole interval is on the other
+    side, "unresolved" where it straddles the target or there is none (NaN): more rounds narrow it
+    as 1 / sqrt(R)."""
+    if not higher_is_better:
+        return verdict(-hi, -lo, -target, True, strict)
+    if lo > target or (lo == target and not strict):
+        return "met"
+    if hi < target or (hi == target and strict):
+        return "not met"
+    return "unresolved"

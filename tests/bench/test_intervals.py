@@ -85,3 +85,26 @@ def test_repeats_interval_is_student(r):
     half = t * m.std(ddof=1) / math.sqrt(r)
     lo, hi = step_time_interval([np.full(5, v) for v in m])
     assert lo == pytest.approx(m.mean() - half, abs=1e-5) and hi == pytest.approx(m.mean() + half, abs=1e-5)
+
+
+def test_ratio_interval_is_paired_over_rounds():
+    """A 2-thread efficiency against its own serial from three rounds (serial 2.0, 2.2, 1.8 ms;
+    2 threads 1.25, 1.3, 1.2 ms): log ratios 0.470004, 0.526093, 0.405465 (mean 0.467187, s 0.060363,
+    t(0.975, 2) = 4.302653, half-width 0.149951); efficiency = ratio / 2 in
+    [exp(0.317236), exp(0.617138)] / 2 = [0.68666, 0.92681], worked by hand. One round gives none."""
+    from bench.sweep.intervals import ratio_interval
+    lo, hi = ratio_interval([2.0e-3, 2.2e-3, 1.8e-3], [1.25e-3, 1.3e-3, 1.2e-3], 0.5)
+    assert lo == pytest.approx(0.68666, abs=1e-5) and hi == pytest.approx(0.92681, abs=1e-5)
+    assert all(math.isnan(v) for v in ratio_interval([2.0e-3], [1.0e-3]))
+    assert all(math.isnan(v) for v in ratio_interval([2.0e-3, 0.0], [1.0e-3, 1.0e-3]))
+
+
+def test_verdict_lower_is_better():
+    """A serial fraction's target (at most 0.02) is met only where the whole interval is at or
+    below it, missed only where the whole interval is above it."""
+    from bench.sweep.intervals import verdict
+    assert verdict(0.005, 0.019, 0.02, higher_is_better=False) == "met"
+    assert verdict(0.021, 0.05, 0.02, higher_is_better=False) == "not met"
+    assert verdict(0.019, 0.021, 0.02, higher_is_better=False) == "unresolved"
+    assert verdict(math.nan, math.nan, 0.02, higher_is_better=False) == "unresolved"
+    assert verdict(0.93, 0.95, 0.92) == "met" and verdict(0.80, 0.91, 0.92) == "not met"

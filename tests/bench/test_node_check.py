@@ -1,6 +1,7 @@
 """`bench node` (bench/studies/node.py): the many-core check's mappings, its verdict read from
 records, and its bad input. The check itself runs on a many-core node (README, "Sixteen cores");
 its records are those of `bench sweep` and `bench schemes`, tested in their own files."""
+import math
 import pandas as pd
 import pytest
 
@@ -52,9 +53,16 @@ def test_verdict_reads_the_targets():
         ("4-2-2-1-4", "done", 2.3e-3, 1.2e-3, 0.52, 0.01, "pinned", "", 4, 4, "i"),
     ])
     ceiling = pd.DataFrame([{"cores": 16, "ceiling_free": 0.957, "ceiling_step": 0.635}])
+    # Table 1's rows with their 95 % intervals (bench schemes, paired over its rounds); one without
     schemes = pd.DataFrame([
-        {"method": "dynamic", "neighbor": "allpairs", "speedup": 5.4, "efficiency_own": 0.34},
-        {"method": "dynamic", "neighbor": "linkcell", "speedup": 3.0, "efficiency_own": 0.2},
+        {"method": "dynamic", "neighbor": "allpairs", "threads": 16, "speedup": 5.4, "efficiency_own": 0.3375,
+         "efficiency_own_lo": 0.30, "efficiency_own_hi": 0.35},
+        {"method": "dynamic", "neighbor": "linkcell", "threads": 16, "speedup": 3.0, "efficiency_own": 0.2,
+         "efficiency_own_lo": 0.18, "efficiency_own_hi": 0.22},
+        {"method": "static", "neighbor": "linkcell", "threads": 16, "speedup": 9.0, "efficiency_own": 0.71,
+         "efficiency_own_lo": 0.66, "efficiency_own_hi": 0.75},
+        {"method": "frogleap", "neighbor": "linkcell", "threads": 16, "speedup": 9.0, "efficiency_own": 0.71,
+         "efficiency_own_lo": math.nan, "efficiency_own_hi": math.nan},
     ])
     text = "\n".join(verdict(16, unpinned, pinned, ceiling, schemes, steps={"1-1-1-1-4": 1.2}))
     assert "- 1-1-1-1-4 / 4-2-2-1-1, step time: 1.367 (target <= 1.1: NOT met; repeats' spread up to 5 %)" in text
@@ -66,8 +74,12 @@ def test_verdict_reads_the_targets():
     assert "- 1-1-1-1-16 pinned / unpinned, step time (two sweeps): 0.930 (target <= 1: met;" in text
     assert "- 4-2-2-1-4 pinned / unpinned, step time (two sweeps): 1.065 (target <= 1: NOT met;" in text
     assert "- binding of the pinned points: pinned, pinned, pinned" in text
-    assert "dynamic all-pairs detection speedup at 16 threads: 5.40x (target >= 11 at 16: NOT met)" in text
-    assert "- Table 1 link-cell dynamic: eff_own 0.20 (target >= 0.7: NOT met)" in text
+    # 16 x [0.30, 0.35] = [4.80, 5.60], all below 11; link-cell verdicts from the whole interval
+    assert ("dynamic all-pairs detection speedup at 16 threads: 5.40x [4.80, 5.60] (target >= 11 at 16: NOT met)"
+            in text)
+    assert "- Table 1 link-cell dynamic: eff_own 0.20 [0.18, 0.22] (target >= 0.7: NOT met)" in text
+    assert "- Table 1 link-cell static: eff_own 0.71 [0.66, 0.75] (target >= 0.7: unresolved)" in text
+    assert "- Table 1 link-cell frogleap: eff_own 0.71 (target >= 0.7: met (one round: no interval))" in text
 
 
 def test_verdict_names_what_is_missing():

@@ -38,3 +38,27 @@ def test_phases_add_up_to_the_step():
 
 def test_phases_needs_threads():
     one_line_error(bench("perf", "--what", "phases", "--threads", "1"), "--threads T >= 2")
+
+
+def test_phase_row_interval_and_verdict():
+    """A phase's speedup interval is paired over the rounds and its serial fraction's interval is
+    the map of it (e falls as S grows). Rounds of 1.00, 1.02, 0.98 ms at 1 thread against 0.51,
+    0.52, 0.50 ms at 2: log ratios 0.673345, 0.673729, 0.672944 (mean 0.673339, s 0.000392,
+    t(0.975, 2) = 4.302653): S in [1.95886, 1.96269], e = (1/S - 1/2) / (1/2) in [0.019012, 0.021000],
+    worked by hand: it straddles issue 32's 0.02, unresolved. Equal rounds at 1.00 against 0.505 ms
+    give S = 1.980198 and e = 0.01 exactly on both ends: met. A phase the serial mode barely has
+    (1 us against 40 us at 2 threads, as the threads' range cut) gives e near 79: not met."""
+    from bench.studies.perf_phases import TARGET_KARP_FLATT, phase_row
+    assert TARGET_KARP_FLATT == 0.02
+    r = phase_row(1.0e-3, 0.51e-3, [1.00e-3, 1.02e-3, 0.98e-3], [0.51e-3, 0.52e-3, 0.50e-3], 2)
+    assert r["speedup_lo"] == pytest.approx(1.95886, abs=1e-5) and r["speedup_hi"] == pytest.approx(1.96269, abs=1e-5)
+    assert r["karp_flatt_lo"] == pytest.approx(0.019012, abs=1e-6)
+    assert r["karp_flatt_hi"] == pytest.approx(0.021000, abs=1e-6)
+    assert r["verdict"] == "unresolved"
+    r = phase_row(1.0e-3, 0.505e-3, [1.0e-3] * 3, [0.505e-3] * 3, 2)
+    assert r["karp_flatt_lo"] == pytest.approx(0.01, abs=1e-12) and r["karp_flatt_hi"] == pytest.approx(0.01, abs=1e-12)
+    assert r["verdict"] == "met"
+    r = phase_row(1e-6, 40e-6, [1e-6] * 3, [40e-6, 41e-6, 39e-6], 2)
+    assert r["karp_flatt_lo"] > 70 and r["verdict"] == "not met"
+    r = phase_row(1.0e-3, 0.5e-3, [1.0e-3], [0.5e-3], 2)   # one round: no interval, no verdict either way
+    assert math.isnan(r["speedup_lo"]) and r["verdict"] == "unresolved"

@@ -6,6 +6,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from tests.helpers import ROOT
 
 PAPER = os.path.join(ROOT, "bench", "studies", "paper",
@@ -51,6 +53,22 @@ def test_schemes_command(tmp_path):
             assert math.isclose(float(r[col]), want_eff, rel_tol=1e-4), (r["method"], r["neighbor"], col)
         if r["method"] == "serial":
             assert float(r["neighbor_eff_own"]) == 1.0 and float(r["resolve_eff_own"]) == 1.0
+    # each threaded efficiency's 95 % interval, paired over the 2 rounds (the serial rows are their own
+    # reference: none), and issue 32's 2-core targets with their verdicts where it sets one
+    targets = {("partition", "linkcell"): 0.92, ("static", "linkcell"): 0.92, ("dynamic", "linkcell"): 0.92,
+               ("frogleap", "linkcell"): 0.85, ("headtail", "linkcell"): 0.85, ("dynamic", "allpairs"): 0.95}
+    for (method, nb), r in got.items():
+        for col in ("efficiency_own", "neighbor_eff_own", "resolve_eff_own"):
+            lo, hi = float(r[f"{col}_lo"]), float(r[f"{col}_hi"])
+            if method == "serial":
+                assert math.isnan(lo) and math.isnan(hi)
+            else:
+                assert 0 < lo <= hi, (method, nb, col)
+        if (method, nb) in targets:
+            assert float(r["target_eff_own"]) == targets[(method, nb)]
+            assert r["verdict"] in ("met", "not met", "unresolved")
+        else:
+            assert math.isnan(float(r["target_eff_own"])) and r["verdict"] == ""
     assert float(got[("serial", "linkcell")]["work_imbalance"]) == 1.0
 
     # work split (pair tests per thread) of all-pairs, i against j > i over n rows
@@ -88,3 +106,27 @@ def test_schemes_command(tmp_path):
 
     png = out / "schemes.png"
     assert png.exists() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_efficiency_intervals_are_paired_over_rounds():
+    """efficiency_own's interval from the rounds' times: serial detections 2.0, 2.2, 1.8 ms against
+    2 threads' 1.25, 1.3, 1.2 ms give [0.68666, 0.92681] (worked by hand in
+    tests/bench/test_intervals.py, test_ratio_interval_is_paired_over_rounds); with the neighbour
+    estimate 1.0, 1.1, 0.9 against 0.8 in every round, that phase's ratios 1.25, 1.375, 1.125 halve to
+    the interval of their log mean (0.2198, s 0.1004: [0.4854, 0.7993]). Against 0.92 the detection's
+    interval straddles the target (unresolved); against 0.95 (all-pairs dynamic) it lies below it
+    (not met)."""
+    import numpy as np
+    from bench.studies.schemes import efficiency_intervals
+    from bench.sweep.intervals import verdict
+    own = {"detect": np.array([2.0, 2.2, 1.8]) * 1e-3, "neighbor": np.array([1.0, 1.1, 0.9]) * 1e-3,
+           "resolve": np.array([1.0, 1.1, 0.9]) * 1e-3}
+    mine = {"detect": np.array([1.25, 1.3, 1.2]) * 1e-3, "neighbor": np.array([0.8, 0.8, 0.8]) * 1e-3,
+            "resolve": np.array([0.45, 0.5, 0.4]) * 1e-3}
+    out = efficiency_intervals(own, mine, 2)
+    assert out["efficiency_own_lo"] == pytest.approx(0.68666, abs=1e-5)
+    assert out["efficiency_own_hi"] == pytest.approx(0.92681, abs=1e-5)
+    assert out["neighbor_eff_own_lo"] == pytest.approx(0.4854, abs=1e-3)
+    assert out["neighbor_eff_own_hi"] == pytest.approx(0.7993, abs=1e-3)
+    assert verdict(out["efficiency_own_lo"], out["efficiency_own_hi"], 0.92) == "unresolved"
+    assert verdict(out["efficiency_own_lo"], out["efficiency_own_hi"], 0.95) == "not met"
