@@ -62,6 +62,11 @@ DYNAMIC_PAIRS = 64    # candidate pairs per dynamic hand-out (the dynamic scheme
 WEIGHT_BLOCK = 1024   # pairs per prange iteration of the range cut's per-pair loops (pair_weights)
 COUNT_PAD = 8         # int64 counters between two threads' rows of counts (a cache line)
 OFFSETS_THREADS_FROM = 65536   # counts [T x rows] from which their write offsets are made by the threads
+# entries from which, and ranges from which, the threads place the marked rows' entries and mark the later
+# ends (adjacency_marked_threads, cut_ranges): their bucketed placement does 4.5x one thread's work (77.6k
+# entries in 16 buckets, one pinned CPU: 0.59 against 0.13 ms), so it gains from 8 cores on
+PLACE_THREADS_FROM = 8192
+PLACE_THREADS_MIN = 8
 # The cost model, from the registered shapes (dem.shapes.shape.Shape, measured by `bench perf --what
 # split`), indexed by shape code: a candidate pair whose bounding spheres overlap, in units of one
 # whose bounding spheres are apart, costs the larger CONTACT_COST of its two shapes (the dynamic cut);
@@ -473,17 +478,39 @@ def adjacency_in_order_threads(threads, spi, spj, order, n_owned):
     return start, items
 
 
+@njit(cache=True, inline="always")
+def _block_of(p, starts, scale):
+    """The block b of item p, starts[b] <= p < starts[b+1] (starts [T+1] ascending, blocks of about
+    n / T items; scale = T / n): the float estimate p x scale corrected against the starts, with no
+    integer division (an entry's block is looked up twice)."""
+    b = min(int(p * scale), starts.shape[0] - 2)
+    while p >= starts[b + 1]:
+        b += 1
+    while p < starts[b]:
+        b -= 1
+    return b
+
+
 @njit(cache=True, parallel=True)
 def adjacency_marked_threads(threads, spi, spj, order, n_owned, mark):
     """dem.pairs.adjacency_in_order's rows of the owned particles with mark[p] != 0 only (mark
     [n_owned] int8; the list seen in (gid_i, gid_j) order: spi, spj [m], order or None) by T
     threads in one pass over the pairs: each collects the marked ends of a contiguous range of the
-    pairs (their particle and 2 k + end), then one thread places these few entries, in that order,
-    into the rows, which puts each in ascending partner gid with no sort. Where few particles are
-    marked (SPLIT: those whose pairs fall in two ranges, 535 of 12k packed ellipsoids at 2 threads)
-    the full adjacency's two passes over every pair took 0.165 ms; placing the entries in pair
-    order and then sorting each row by partner gid took 0.103 ms against 0.075 (12k) and 0.042
-    against 0.030 ms (2500)."""
+    pairs (their particle and 2 k + end); the entries are then placed, in that order, into the
+    rows, which puts each in ascending partner gid with no sort. Where few particles are marked
+    (SPLIT: those whose pairs fall in two ranges, 535 of 12k packed ellipsoids at 2 threads) the
+    full adjacency's two passes over every pair took 0.165 ms; placing the entries in pair order
+    and then sorting each row by partner gid took 0.103 ms against 0.075 (12k) and 0.042 against
+    0.030 ms (2500).
+
+    Few entries (under PLACE_THREADS_FROM), or few ranges (under PLACE_THREADS_MIN), are placed by
+    one thread. More are placed by the T threads with no serial pass (_place_entries_threads): the
+    share of particles that gather grows with the ranges (12k packed ellipsoids: 4 % at 2 threads,
+    13 % at 4, 31 % at 8, 67 % at 16 with 77.6k entries, 94 % at 32), and one thread's placement grew
+    with them into a serial phase of the rebuild (issue 32). The threads' placement does more work
+    (a count, a move and a fill over the entries, and every particle's row start): 0.59 ms against
+    one thread's 0.13 ms for 77.6k entries in 16 buckets on one pinned CPU, a gain from 8 cores on
+    (PLACE_THREADS_MIN), none at 2 (12k, 5205 entries: 0.14 against 0.09 ms)."""
     m = spi.shape[0]
     cap = 2 * ((m + threads - 1) // threads) + 2
     ent_p = np.empty((threads, cap), dtype=np.int64)
@@ -504,6 +531,11 @@ def adjacency_marked_threads(threads, spi, spj, order, n_owned, mark):
                 ent_item[t, c] = 2 * k + 1
                 c += 1
         got[t] = c
+    total = 0
+    for t in range(threads):
+        total += got[t]
+    if threads >= PLACE_THREADS_MIN and total >= PLACE_THREADS_FROM:
+        return _place_entries_threads(threads, ent_p, ent_item, got, n_owned)
     start = np.zeros(n_owned + 1, dtype=np.int64)
     for t in range(threads):
         for c in range(got[t]):
@@ -517,6 +549,65 @@ def adjacency_marked_threads(threads, spi, spj, order, n_owned, mark):
             p = ent_p[t, c]
             items[fill[p]] = ent_item[t, c]
             fill[p] += 1
+    return start, items
+
+
+@njit(cache=True, parallel=True)
+def _place_entries_threads(threads, ent_p, ent_item, got, n_owned):
+    """The rows (start [n_owned+1], items) of the entries that thread t collected, ent_p[t, :got[t]]
+    (particles) and ent_item[t, :got[t]] (2 k + end), in thread order and each thread's own order,
+    by the T threads: each counts its entries by the block of particles they belong to (T contiguous
+    blocks, _block_of), a prefix over (block, thread) gives each (thread, block) its place in one
+    bucket per block, each thread moves its entries there, and each then fills the rows of its
+    block from its bucket (the entries of thread t after those of threads < t: the order one
+    thread's placement gives)."""
+    starts = np.empty(threads + 1, dtype=np.int64)
+    for b in range(threads + 1):
+        starts[b] = (b * n_owned) // threads
+    scale = threads / max(n_owned, 1)
+    count = np.zeros((threads, threads + COUNT_PAD), dtype=np.int64)   # [thread, block]: entries
+    for t in prange(threads):
+        for c in range(got[t]):
+            count[t, _block_of(ent_p[t, c], starts, scale)] += 1
+    base = np.zeros(threads + 1, dtype=np.int64)
+    acc = 0
+    for b in range(threads):
+        base[b] = acc
+        for t in range(threads):
+            c = count[t, b]
+            count[t, b] = acc
+            acc += c
+    base[threads] = acc
+    stage_p = np.empty(acc, dtype=np.int64)
+    stage_item = np.empty(acc, dtype=np.int64)
+    for t in prange(threads):
+        for c in range(got[t]):
+            p = ent_p[t, c]
+            b = _block_of(p, starts, scale)
+            u = count[t, b]
+            count[t, b] = u + 1
+            stage_p[u] = p
+            stage_item[u] = ent_item[t, c]
+    # block b's entries lie at base[b]..base[b+1] of items, as they do in the bucket
+    start = np.empty(n_owned + 1, dtype=np.int64)
+    fill = np.empty(n_owned, dtype=np.int64)
+    items = np.empty(acc, dtype=np.int64)
+    for b in prange(threads):
+        for p in range(starts[b], starts[b + 1]):
+            fill[p] = 0
+        for u in range(base[b], base[b + 1]):
+            fill[stage_p[u]] += 1
+        here = base[b]
+        for p in range(starts[b], starts[b + 1]):
+            c = fill[p]
+            start[p] = here
+            fill[p] = here
+            here += c
+        for u in range(base[b], base[b + 1]):
+            p = stage_p[u]
+            items[fill[p]] = stage_item[u]
+            fill[p] += 1
+    start[n_owned] = acc
     return start, items
 
 
@@ -715,12 +806,18 @@ def cut_ranges(w, threads, shares, pi, pj, gid, n_owned, bounds, gat, home_start
             lo[t] = np.searchsorted(gid[:n_owned], first[t])
         lo[threads] = n_owned
         gathered = np.zeros(threads, dtype=np.int64)
+        total = 0
         for t in range(threads):
-            for c in range(got[t, 0]):
-                j = later[t, c]
-                if gat[j] == 0:
-                    gat[j] = 1
-                    gathered[np.searchsorted(lo, j, side="right") - 1] += 1
+            total += got[t, 0]
+        if threads >= PLACE_THREADS_MIN and total >= PLACE_THREADS_FROM:
+            _mark_later_threads(threads, later, got, lo, gat, gathered)
+        else:
+            for t in range(threads):
+                for c in range(got[t, 0]):
+                    j = later[t, c]
+                    if gat[j] == 0:
+                        gat[j] = 1
+                        gathered[np.searchsorted(lo, j, side="right") - 1] += 1
         home_start[0] = 0
         for t in range(threads):
             home_start[t + 1] = home_start[t] + (lo[t + 1] - lo[t]) - gathered[t]
@@ -754,6 +851,47 @@ def cut_ranges(w, threads, shares, pi, pj, gid, n_owned, bounds, gat, home_start
                 home_items[count[b, t]] = p
                 count[b, t] += 1
     return home_start[threads]
+
+
+@njit(cache=True, parallel=True)
+def _mark_later_threads(threads, later, got, lo, gat, gathered):
+    """cut_ranges' marks by the T threads: range t's later ends later[t, :got[t, 0]] (owned
+    particles that an earlier range holds as a pair's later end) set gat[j] = 1, and gathered [T]
+    counts the particles so marked in each range (range h: indices lo[h]..lo[h+1]-1, lo [T+1]
+    ascending). Each thread counts its later ends by the range they lie in (_block_of), a prefix
+    over (range, thread) gives each its place in one bucket per range, each moves them there, and
+    each thread then marks the particles of its own range from its bucket: no two threads write one
+    mark, and the marks and counts are one thread's. One thread's loop over every later end grew
+    with the ranges (at 16 ranges most of 12k packed ellipsoids gather: issue 32)."""
+    scale = threads / max(lo[threads], 1)
+    count = np.zeros((threads, threads + COUNT_PAD), dtype=np.int64)   # [thread, range]: later ends
+    for t in prange(threads):
+        for c in range(got[t, 0]):
+            count[t, _block_of(later[t, c], lo, scale)] += 1
+    base = np.zeros(threads + 1, dtype=np.int64)
+    acc = 0
+    for h in range(threads):
+        base[h] = acc
+        for t in range(threads):
+            c = count[t, h]
+            count[t, h] = acc
+            acc += c
+    base[threads] = acc
+    stage = np.empty(acc, dtype=np.int64)
+    for t in prange(threads):
+        for c in range(got[t, 0]):
+            j = later[t, c]
+            h = _block_of(j, lo, scale)
+            stage[count[t, h]] = j
+            count[t, h] += 1
+    for h in prange(threads):
+        marked = 0
+        for u in range(base[h], base[h + 1]):
+            j = stage[u]
+            if gat[j] == 0:
+                gat[j] = 1
+                marked += 1
+        gathered[h] = marked
 
 
 @njit(cache=True)

@@ -342,8 +342,8 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
     """The gather of SPLIT reads the rows of the particles that gather only: pair_adjacency_of gives
     each marked particle exactly its pair_adjacency row (its pairs in ascending partner gid) and
     the others none, and the same arrays come from filling them in the list's gid order
-    (dem.pairs.adjacency_in_order given the mark; modes.parallel.adjacency_marked_threads at 1-3
-    threads), for the sorted list and through the sorted view of the same pairs shuffled.
+    (dem.pairs.adjacency_in_order given the mark; modes.parallel.adjacency_marked_threads at 1-64
+    threads, more than the 60 owned particles: blocks of none), for the sorted list and through the sorted view of the same pairs shuffled.
     sort_by_gid (and in place, sort_pairs_by_gid) orders the pairs by (gid_i, gid_j) as numpy's
     lexsort does, with the particles stored in gid order (ranks taken as indices) or not (owned
     ones sorted, ghosts after them in any order, as under MPI), and modes.parallel.place_by_gid
@@ -401,7 +401,7 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
         want_view = (part[0], 2 * inv[part[1] >> 1] + (part[1] & 1))
         for args, want in (((si, sj, None), part), (view, want_view)):
             got = [adjacency_in_order(*args, 60, mark)] + [adjacency_marked_threads(t, *args, 60, mark)
-                                                           for t in (1, 2, 3)]
+                                                           for t in (1, 2, 3, 7, 16, 64)]
             for start, items in got:
                 assert np.array_equal(start, want[0]) and np.array_equal(items, want[1])
 
@@ -470,3 +470,38 @@ def test_unknown_mode_option_refused():
     sc = load_prepared("patch162")
     with pytest.raises(ModeError, match="unknown option"):
         SerialMode().setup(sc, dt=choose_time_step(sc).dt, skn=0.1)
+
+
+@pytest.mark.parametrize("threads", [8, 11, 16])
+def test_marked_rows_placed_by_the_threads(rng, threads):
+    """Where the marked rows hold many entries (PLACE_THREADS_FROM or more, at PLACE_THREADS_MIN or
+    more ranges: at 16 ranges two thirds of 12k packed ellipsoids gather), the threads place them
+    bucketed by blocks of particles (modes.parallel._place_entries_threads) instead of one thread:
+    the rows are those of dem.pairs.adjacency_in_order given the mark, entry for entry, for the
+    sorted list and through the sorted view of the same pairs shuffled; and the bucketed placement
+    of made-up entries (particles in any order, some with none) equals one thread's in thread order."""
+    from modes.parallel import PLACE_THREADS_FROM, PLACE_THREADS_MIN, _place_entries_threads
+    assert threads >= PLACE_THREADS_MIN
+    n, n_owned = 3000, 2600
+    gid = np.sort(rng.permutation(10 * n)[:n]).astype(np.int64)
+    pi, pj = _random_pairs(rng, n, 9000, gid)
+    si, sj = np.empty_like(pi), np.empty_like(pj)
+    sort_by_gid(pi, pj, gid, si, sj)
+    mark = (rng.random(n_owned) < 0.9).astype(np.int8)
+    want = adjacency_in_order(si, sj, None, n_owned, mark)
+    assert len(want[1]) >= PLACE_THREADS_FROM
+    shuffle = rng.permutation(len(si))
+    view = sorted_view(si[shuffle], sj[shuffle], gid)
+    for args in ((si, sj, None), view):
+        ref = adjacency_in_order(*args, n_owned, mark)
+        got = adjacency_marked_threads(threads, *args, n_owned, mark)
+        assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
+    got_n = np.array([5, 0, 9, 3] + [4] * (threads - 4), dtype=np.int64)
+    ent_p = rng.integers(0, 50, (threads, 10)).astype(np.int64)
+    ent_item = rng.integers(0, 10**6, (threads, 10)).astype(np.int64)
+    start, items = _place_entries_threads(threads, ent_p, ent_item, got_n, 50)
+    flat_p = np.concatenate([ent_p[t, :got_n[t]] for t in range(threads)])
+    flat_i = np.concatenate([ent_item[t, :got_n[t]] for t in range(threads)])
+    order = np.argsort(flat_p, kind="stable")   # one thread's placement: by particle, in thread order
+    assert np.array_equal(start, np.concatenate([[0], np.cumsum(np.bincount(flat_p, minlength=50))]))
+    assert np.array_equal(items, flat_i[order])

@@ -247,10 +247,24 @@ def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads, s
     (the range whose rows span gid[p]) holds as a pair's later end (by brute force), which takes in
     every particle with pairs in two ranges; every other particle is zeroed by exactly one range,
     its own, which holds all its pairs; static ranges hold m/T pairs to within one row."""
+    _check_split(code, threads, stored, 150, 600, 30)
+
+
+@pytest.mark.parametrize("stored", ["reverse", "gid"])
+def test_split_marks_many_later_ends_by_the_threads(stored):
+    """The same checks on 40000 pairs among 6000 particles, partners up to 400 gids apart, cut into
+    16 ranges: most pairs cross a range's end, so the later ends (modes.parallel PLACE_THREADS_FROM
+    and more) are marked by the threads (_mark_later_threads, bucketed by the range they lie in)
+    where the particles are stored in gid order, and by the counting sort's path where they are not;
+    both give the brute force's marks."""
+    _check_split(STATIC, 16, stored, 6000, 40000, 400)
+
+
+def _check_split(code, threads, stored, n, count, reach):
     rng = np.random.default_rng(7)
-    n = 150
-    i = rng.integers(0, 119, 600)
-    j = np.minimum(i + rng.integers(1, 30, 600), 119)
+    top = n - 31
+    i = rng.integers(0, top, count)
+    j = np.minimum(i + rng.integers(1, reach, count), top)
     keys = np.unique(np.stack([i, j], axis=1), axis=0)
     keys = keys[keys[:, 0] < keys[:, 1]]
     if stored == "reverse":
@@ -261,6 +275,10 @@ def test_split_pairs_cuts_whole_rows_and_marks_shared_particles(code, threads, s
         pi, pj = keys[:, 0], keys[:, 1]
     assert np.all(gid[pi] < gid[pj])
     m = len(pi)
+    if n > 150:   # enough later ends for the threads' marking
+        from modes.parallel import PLACE_THREADS_FROM
+        first = gid[pi[(np.arange(1, threads) * m) // threads]]
+        assert np.sum(gid[pj] >= np.min(first)) >= PLACE_THREADS_FROM
     pos = rng.random((n, 3))
     rbound = np.full(n, 0.1)
     bounds = np.zeros(threads + 1, dtype=np.int64)
