@@ -553,41 +553,46 @@ def adjacency_marked_threads(threads, spi, spj, order, n_owned, mark):
 
 
 @njit(cache=True, parallel=True)
-def _place_entries_threads(threads, ent_p, ent_item, got, n_owned):
-    """The rows (start [n_owned+1], items) of the entries that thread t collected, ent_p[t, :got[t]]
-    (particles) and ent_item[t, :got[t]] (2 k + end), in thread order and each thread's own order,
-    by the T threads: each counts its entries by the block of particles they belong to (T contiguous
-    blocks, _block_of), a prefix over (block, thread) gives each (thread, block) its place in one
-    bucket per block, each thread moves its entries there, and each then fills the rows of its
-    block from its bucket (the entries of thread t after those of threads < t: the order one
-    thread's placement gives)."""
-    starts = np.empty(threads + 1, dtype=np.int64)
-    for b in range(threads + 1):
-        starts[b] = (b * n_owned) // threads
-    scale = threads / max(n_owned, 1)
+def _bucket_by_block(threads, keys, payload, got, starts):
+    """The entries of T threads, thread t's keys[t, :got[t]] with payload[t, :got[t]], moved into
+    one bucket per block of keys (block b: starts[b] <= key < starts[b+1], starts [T+1] ascending
+    from 0): each thread counts its entries per block (_block_of), a prefix over (block, thread)
+    gives each (thread, block) its place, and each thread moves its entries there, so that bucket
+    b holds thread 0's entries of the block, then thread 1's, ..., each in its thread's order.
+    Returns (base [T+1]: bucket b at base[b]..base[b+1], keys [sum got], payloads [sum got])."""
+    scale = threads / max(starts[threads], 1)
     count = np.zeros((threads, threads + COUNT_PAD), dtype=np.int64)   # [thread, block]: entries
     for t in prange(threads):
         for c in range(got[t]):
-            count[t, _block_of(ent_p[t, c], starts, scale)] += 1
-    base = np.zeros(threads + 1, dtype=np.int64)
-    acc = 0
-    for b in range(threads):
-        base[b] = acc
-        for t in range(threads):
-            c = count[t, b]
-            count[t, b] = acc
-            acc += c
-    base[threads] = acc
+            count[t, _block_of(keys[t, c], starts, scale)] += 1
+    base = np.empty(threads + 1, dtype=np.int64)
+    _offsets_by_row(count, threads, base)
+    acc = base[threads]
+    stage_k = np.empty(acc, dtype=np.int64)
     stage_p = np.empty(acc, dtype=np.int64)
-    stage_item = np.empty(acc, dtype=np.int64)
     for t in prange(threads):
         for c in range(got[t]):
-            p = ent_p[t, c]
-            b = _block_of(p, starts, scale)
+            k = keys[t, c]
+            b = _block_of(k, starts, scale)
             u = count[t, b]
             count[t, b] = u + 1
-            stage_p[u] = p
-            stage_item[u] = ent_item[t, c]
+            stage_k[u] = k
+            stage_p[u] = payload[t, c]
+    return base, stage_k, stage_p
+
+
+@njit(cache=True, parallel=True)
+def _place_entries_threads(threads, ent_p, ent_item, got, n_owned):
+    """The rows (start [n_owned+1], items) of the entries that thread t collected, ent_p[t, :got[t]]
+    (particles) and ent_item[t, :got[t]] (2 k + end), in thread order and each thread's own order,
+    by the T threads: the entries are moved into one bucket per block of particles (T contiguous
+    blocks: _bucket_by_block), and each thread then fills the rows of its block from its bucket
+    (the entries of thread t after those of threads < t: the order one thread's placement gives)."""
+    starts = np.empty(threads + 1, dtype=np.int64)
+    for b in range(threads + 1):
+        starts[b] = (b * n_owned) // threads
+    base, stage_p, stage_item = _bucket_by_block(threads, ent_p, ent_item, got, starts)
+    acc = base[threads]
     # block b's entries lie at base[b]..base[b+1] of items, as they do in the bucket
     start = np.empty(n_owned + 1, dtype=np.int64)
     fill = np.empty(n_owned, dtype=np.int64)
@@ -858,32 +863,11 @@ def _mark_later_threads(threads, later, got, lo, gat, gathered):
     """cut_ranges' marks by the T threads: range t's later ends later[t, :got[t, 0]] (owned
     particles that an earlier range holds as a pair's later end) set gat[j] = 1, and gathered [T]
     counts the particles so marked in each range (range h: indices lo[h]..lo[h+1]-1, lo [T+1]
-    ascending). Each thread counts its later ends by the range they lie in (_block_of), a prefix
-    over (range, thread) gives each its place in one bucket per range, each moves them there, and
-    each thread then marks the particles of its own range from its bucket: no two threads write one
+    ascending). The later ends are moved into one bucket per range (_bucket_by_block), and each
+    thread then marks the particles of its own range from its bucket: no two threads write one
     mark, and the marks and counts are one thread's. One thread's loop over every later end grew
     with the ranges (at 16 ranges most of 12k packed ellipsoids gather: issue 32)."""
-    scale = threads / max(lo[threads], 1)
-    count = np.zeros((threads, threads + COUNT_PAD), dtype=np.int64)   # [thread, range]: later ends
-    for t in prange(threads):
-        for c in range(got[t, 0]):
-            count[t, _block_of(later[t, c], lo, scale)] += 1
-    base = np.zeros(threads + 1, dtype=np.int64)
-    acc = 0
-    for h in range(threads):
-        base[h] = acc
-        for t in range(threads):
-            c = count[t, h]
-            count[t, h] = acc
-            acc += c
-    base[threads] = acc
-    stage = np.empty(acc, dtype=np.int64)
-    for t in prange(threads):
-        for c in range(got[t, 0]):
-            j = later[t, c]
-            h = _block_of(j, lo, scale)
-            stage[count[t, h]] = j
-            count[t, h] += 1
+    base, stage, _ = _bucket_by_block(threads, later, later, got[:, 0], lo)
     for h in prange(threads):
         marked = 0
         for u in range(base[h], base[h + 1]):

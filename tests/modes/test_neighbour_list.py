@@ -343,7 +343,8 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
     each marked particle exactly its pair_adjacency row (its pairs in ascending partner gid) and
     the others none, and the same arrays come from filling them in the list's gid order
     (dem.pairs.adjacency_in_order given the mark; modes.parallel.adjacency_marked_threads at 1-64
-    threads, more than the 60 owned particles: blocks of none), for the sorted list and through the sorted view of the same pairs shuffled.
+    ranges, more than the 60 owned particles), for the sorted list and through the sorted view of
+    the same pairs shuffled.
     sort_by_gid (and in place, sort_pairs_by_gid) orders the pairs by (gid_i, gid_j) as numpy's
     lexsort does, with the particles stored in gid order (ranks taken as indices) or not (owned
     ones sorted, ghosts after them in any order, as under MPI), and modes.parallel.place_by_gid
