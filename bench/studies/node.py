@@ -27,7 +27,7 @@ import sys
 import pandas as pd
 
 from bench.run.records import environment
-from bench.sweep.intervals import verdict as interval_verdict
+from bench.sweep.intervals import format_interval, verdict as interval_verdict
 
 # issue 32's targets on C cores
 TARGET_THREADS_VS_RANKS = 1.10   # C/4 and C threads within 10 % of as many ranks' step time
@@ -174,8 +174,9 @@ def verdict(cores, unpinned, pinned, ceiling, schemes, steps=None, missing=()):
 
 
 def _ci(lo, hi):
-    """' [lo, hi]' of a 95 % interval, '' where there is none."""
-    return "" if math.isnan(lo) or math.isnan(hi) else f" [{lo:.2f}, {hi:.2f}]"
+    """' [lo, hi]' of a 95 % interval to 2 decimals, '' where there is none."""
+    text = format_interval(lo, hi, 2)
+    return f" {text}" if text else ""
 
 
 def _verdict(value, lo, hi, target):

@@ -37,7 +37,7 @@ import copy
 import numpy as np
 
 from bench.run.prepare import load_prepared
-from bench.sweep.intervals import ratio_interval, verdict
+from bench.sweep.intervals import format_interval, ratio_interval, verdict
 from dem.timestep import choose_time_step
 from modes.parallel import DEFAULT_SCHEME
 from modes.serial import SerialMode
@@ -114,8 +114,8 @@ def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print
             f"{'95 %':>16s} {'Karp-Flatt':>10s} {'95 %':>16s} verdict")
         for phase, r in rows.items():
             log(f"{phase:12s} {1e3 * r['t1_s']:14.4f} {1e3 * r['tT_s']:15.4f} {r['speedup']:8.3f} "
-                f"{_pair(r['speedup_lo'], r['speedup_hi']):>16s} {r['karp_flatt']:10.3f} "
-                f"{_pair(r['karp_flatt_lo'], r['karp_flatt_hi']):>16s} {r['verdict']}")
+                f"{format_interval(r['speedup_lo'], r['speedup_hi']):>16s} {r['karp_flatt']:10.3f} "
+                f"{format_interval(r['karp_flatt_lo'], r['karp_flatt_hi']):>16s} {r['verdict']}")
     return report
 
 
@@ -132,6 +132,3 @@ def phase_row(t1, tt, rounds1, roundsT, threads):
             "target_karp_flatt": TARGET_KARP_FLATT,
             "verdict": verdict(e_lo, e_hi, TARGET_KARP_FLATT, higher_is_better=False)}
 
-
-def _pair(lo, hi):
-    return "" if not (lo == lo and hi == hi) else f"[{lo:.3f}, {hi:.3f}]"

@@ -62,7 +62,7 @@ from bench.run.prepare import load_prepared
 from bench.run.records import prepare_output
 from bench.run.records import write_rows_csv
 from bench.studies.paper import table_path
-from bench.sweep.intervals import ratio_interval, verdict
+from bench.sweep.intervals import format_interval, ratio_interval, verdict
 from dem.neighbor import HALF_SHELL_RUNS, CellGrid, scan_rows
 from dem.timestep import choose_time_step
 from modes.parallel import SCHEMES
@@ -257,8 +257,7 @@ def format_table(rows):
     for r in rows:
         ps = "" if math.isnan(r["paper_speedup"]) else f"{r['paper_speedup']:.2f}"
         pe = "" if math.isnan(r["paper_efficiency"]) else f"{r['paper_efficiency']:.3f}"
-        lo, hi = r.get("efficiency_own_lo", math.nan), r.get("efficiency_own_hi", math.nan)
-        ci = "" if math.isnan(lo) else f"[{lo:.3f}, {hi:.3f}]"
+        ci = format_interval(r.get("efficiency_own_lo", math.nan), r.get("efficiency_own_hi", math.nan))
         tg = r.get("target_eff_own", math.nan)
         tg = "" if math.isnan(tg) else f"{tg:.3g}"
         vd = r.get("verdict", "")

@@ -136,3 +136,10 @@ def verdict(lo, hi, target, higher_is_better=True, strict=False):
     if hi < target or (hi == target and strict):
         return "not met"
     return "unresolved"
+
+
+def format_interval(lo, hi, digits=3):
+    """'[lo, hi]' of an interval to `digits` decimals, '' where there is none (NaN)."""
+    if math.isnan(lo) or math.isnan(hi):
+        return ""
+    return f"[{lo:.{digits}f}, {hi:.{digits}f}]"
