@@ -462,6 +462,16 @@ class PairList:
             self._spare = self._alloc(int(m * 1.25) + 64)
         return self._spare[0], self._spare[1]
 
+    def carry_args(self, m, gid, order=None):
+        """The arguments (gid, order, opi, opj, ogid, oorder, oon, ohist, hist, on) of
+        carry_history_sorted that carry the current list's history into the next one, m pairs over
+        the ids gid in the spare buffers (buffers()), seen in gid order directly (order None) or
+        through order: for a thread mode that carries as it places the new list (modes.parallel
+        place_by_gid), after which set() is told not to carry again."""
+        opi, opj, oorder = self.view
+        _, _, hist, on = self._spare
+        return gid, order, opi, opj, self.gid, oorder, self.on, self.hist, hist[:m], on[:m]
+
     @property
     def adj_start(self):
         return self.adjacency()[0]

@@ -298,7 +298,7 @@ def compact_pairs(threads, pi_t, pj_t, offsets, pi, pj):
 
 
 @njit(parallel=True, cache=True)
-def place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count, spi, spj, order):
+def place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count, spi, spj, order, carry=None, cut=None):
     """The threads' pairs (pi_t, pj_t [T, cap], thread t's offsets[t+1] - offsets[t] of them:
     gid[pi] < gid[pj]) placed in ascending (gid_i, gid_j) into spi, spj [m], with no sort of the
     whole list: a counting sort by the rank of the first end (rank [n]: gid_ranks) from each
@@ -317,7 +317,22 @@ def place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count, spi, spj, order)
     thread (0.076 against 0.057 ms on 2500). Moving every pair straight to its place in the list
     had two threads write the same cache lines wherever their rows interleave (frogleap, headtail,
     the dynamic scheme's chunks of rows): the frogleap's view took 0.056-0.102 ms a call on 2500,
-    this 0.067-0.068."""
+    this 0.067-0.068.
+
+    carry = (gid, corder, opi, opj, ogid, oorder, oon, ohist, hist, on), or None: each thread then
+    also carries the history of the rows it has just placed from the old list
+    (dem.pairs.carry_history_sorted_range over its block of the sorted order, corder None where
+    the list itself is sorted, else order; the other arguments as there), while they are in its
+    cache and in the same parallel region, in place of a pass of its own over the new list
+    (carry_threads): the same rows and flags, each pair's from the merge.
+
+    cut = (shares [T], n_owned, gid [n], bounds [T+1], gat [n_owned]), or None: the list (sorted
+    itself: order empty) is then also cut into the T ranges of cut_ranges at equal pairs
+    (cut_at_equal_pairs, the same bounds: found from the rows' counts before any pair is placed,
+    _cut_rows), each thread places the rows of its own range, and as it does collects the range's
+    later ends and clears its block of gat (cut_ranges' first region, in this one); mark_and_home
+    then finishes the cut. Returns (later [T, >= 1], got [T, COUNT_PAD]) for mark_and_home (empty
+    where cut is None)."""
     n = rank.shape[0]
     m = offsets[threads]
     viewed = order.shape[0] > 0
@@ -346,14 +361,24 @@ def place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count, spi, spj, order)
             if viewed:
                 tx[u] = o + k
     # row_count[t, r] is now the end of row r in thread t's part, relative to offsets[t]
+    rows = np.empty(threads + 1, dtype=np.int64)   # block b: rows rows[b] .. rows[b+1]-1
     base = np.zeros(threads + 1, dtype=np.int64)
-    for b in range(threads):
-        base[b + 1] = base[b]
-        for t in range(threads):
-            base[b + 1] += part[t, b]
+    if cut is None:
+        for b in range(threads + 1):
+            rows[b] = b * n // threads
+        for b in range(threads):
+            base[b + 1] = base[b]
+            for t in range(threads):
+                base[b + 1] += part[t, b]
+        later = np.empty((threads, 0), dtype=np.int64)
+    else:
+        _cut_rows(threads, cut[0], row_count, n, m, rows, base)
+        cut[3][:] = base
+        later = np.empty((threads, _widest(threads, base)), dtype=np.int64)
+    got = np.zeros((threads, COUNT_PAD), dtype=np.int64)
     for b in prange(threads):
         u = base[b]
-        for r in range(b * n // threads, (b + 1) * n // threads):
+        for r in range(rows[b], rows[b + 1]):
             lo = u
             for t in range(threads):
                 o = offsets[t]
@@ -373,6 +398,58 @@ def place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count, spi, spj, order)
                         order[w + 1] = x
                     spi[u] = ta[q]
                     u += 1
+        if carry is not None:
+            gid, corder, opi, opj, ogid, oorder, oon, ohist, hist, on = carry
+            carry_history_sorted_range(base[b], u, spi, spj, gid, corder, opi, opj, ogid, oorder, oon, ohist, hist,
+                                       on)
+        if cut is not None:
+            got[b, 0] = _later_ends(base[b], u, spj, rank, rows[b + 1], cut[1], later[b])
+            got[b, 1] = _clear_marks(b, threads, cut[1], cut[2], cut[4])
+    return later, got
+
+
+@njit(cache=True, inline="always")
+def _pairs_before(row_count, threads, r):
+    """The pairs of the rows before row r in all T parts (row_count [T, >= n]: each part's end of
+    each row, place_by_gid)."""
+    if r == 0:
+        return 0
+    c = 0
+    for t in range(threads):
+        c += row_count[t, r - 1]
+    return c
+
+
+@njit(cache=True)
+def _cut_rows(threads, shares, row_count, n, m, rows, bounds):
+    """cut_at_equal_pairs' bounds [T+1] of a list of m pairs in n rows from the rows' counts alone
+    (row_count: _pairs_before), and rows [T+1] the row of each range's first pair (n for a range
+    at the end): cut t at the first row start at or after (shares[0] + ... + shares[t-1]) /
+    sum(shares) of the pairs, found by bisection over the rows and a step past empty rows."""
+    whole = 0.0
+    for t in range(threads):
+        whole += shares[t]
+    rows[0] = 0
+    bounds[0] = 0
+    before = 0.0
+    for t in range(1, threads):
+        before += shares[t - 1]
+        k = max(bounds[t - 1], min(m, int(math.ceil(m * before / whole))))
+        lo = 0
+        hi = n
+        while lo < hi:   # the first row r with pairs_before(r) >= k
+            mid = (lo + hi) >> 1
+            if _pairs_before(row_count, threads, mid) >= k:
+                hi = mid
+            else:
+                lo = mid + 1
+        c = _pairs_before(row_count, threads, lo)
+        while lo < n and _pairs_before(row_count, threads, lo + 1) == c:   # an empty row starts no range
+            lo += 1
+        rows[t] = lo
+        bounds[t] = c if lo < n else m
+    rows[threads] = n
+    bounds[threads] = m
 
 
 @njit(cache=True, parallel=True)
@@ -387,13 +464,20 @@ def carry_threads(threads, spi, spj, gid, order, opi, opj, ogid, oorder, oon, oh
 
 
 @njit(cache=True, parallel=True)
-def wall_threads(threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near):
+def wall_threads(threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near, shape, cuts):
     """dem.forces.wall_candidates by T threads over contiguous blocks of the owned particles (each
-    particle's entry is its own); returns the count."""
+    particle's entry is its own), and in the same region the weights of the per-particle pass
+    from the list just made, so that its blocks cuts [T+1] (finish_cuts) cost no region of their
+    own; returns the count of the wall list."""
     count = np.zeros(threads, dtype=np.int64)
+    w = np.empty(n_owned)
+    sums = np.zeros(threads)
     for t in prange(threads):
-        count[t] = wall_candidates_range(t * n_owned // threads, (t + 1) * n_owned // threads, pos, reach, wall_m,
-                                         wall_d, wall_hist, near)
+        a = t * n_owned // threads
+        b = (t + 1) * n_owned // threads
+        count[t] = wall_candidates_range(a, b, pos, reach, wall_m, wall_d, wall_hist, near)
+        sums[t] = _finish_weights(a, b, shape, near, w)
+    _finish_blocks(threads, n_owned, w, sums, cuts)
     return count.sum()
 
 
@@ -517,20 +601,38 @@ def adjacency_marked_threads(threads, spi, spj, order, n_owned, mark):
     ent_item = np.empty((threads, cap), dtype=np.int64)
     got = np.zeros(threads, dtype=np.int64)
     for t in prange(threads):
-        c = 0
-        for a in range(t * m // threads, (t + 1) * m // threads):
-            i = spi[a]
-            j = spj[a]
-            k = _at(order, a)
-            if i < n_owned and mark[i] != 0:
-                ent_p[t, c] = i
-                ent_item[t, c] = 2 * k
-                c += 1
-            if j < n_owned and mark[j] != 0:
-                ent_p[t, c] = j
-                ent_item[t, c] = 2 * k + 1
-                c += 1
-        got[t] = c
+        got[t] = _marked_entries(t * m // threads, (t + 1) * m // threads, spi, spj, order, n_owned, mark, ent_p[t],
+                                 ent_item[t])
+    return place_marked_entries(threads, ent_p, ent_item, got, n_owned)
+
+
+@njit(cache=True, inline="always")
+def _marked_entries(a0, a1, spi, spj, order, n_owned, mark, ent_p, ent_item):
+    """The marked ends of the pairs a0..a1-1 of the list seen in (gid_i, gid_j) order
+    (adjacency_marked_threads), in that order: ent_p [>= 2 (a1 - a0)] their particles, ent_item
+    the pairs' 2 k + end; returns their count."""
+    c = 0
+    for a in range(a0, a1):
+        i = spi[a]
+        j = spj[a]
+        k = _at(order, a)
+        if i < n_owned and mark[i] != 0:
+            ent_p[c] = i
+            ent_item[c] = 2 * k
+            c += 1
+        if j < n_owned and mark[j] != 0:
+            ent_p[c] = j
+            ent_item[c] = 2 * k + 1
+            c += 1
+    return c
+
+
+@njit(cache=True)
+def place_marked_entries(threads, ent_p, ent_item, got, n_owned):
+    """The rows (start [n_owned+1], items) of the marked ends thread t collected, ent_p[t, :got[t]]
+    and ent_item[t, :got[t]] (_marked_entries over the T consecutive parts of the list), each row
+    in the order of the list (adjacency_marked_threads): by one thread, or by the T threads where
+    they are many (_place_entries_threads)."""
     total = 0
     for t in range(threads):
         total += got[t]
@@ -624,18 +726,31 @@ def cut_at_equal_weight(w, pi, every, threads, shares, bounds):
     equal shares (a range may be empty). Allowed: every index when every, else the row starts of the
     gid-sorted list pi [m] (k = 0 or pi[k] != pi[k-1]: ranges of whole rows). The threads sum
     blocks of WEIGHT_BLOCK weights; one thread then walks the blocks' sums and looks inside only
-    the blocks a cut falls in. One walk over every weight, a chain of dependent additions, took
-    0.145 of a 0.28 ms range cut on 57k pairs of 12k packed ellipsoids at 2 threads. (A cut may
-    fall one row apart from that walk's where rounding differs; no result depends on the cut:
-    DESIGN.md, Determinism.)"""
+    the blocks a cut falls in (_cut_in_blocks). One walk over every weight, a chain of dependent
+    additions, took 0.145 of a 0.28 ms range cut on 57k pairs of 12k packed ellipsoids at 2
+    threads. (A cut may fall one row apart from that walk's where rounding differs; no result
+    depends on the cut: DESIGN.md, Determinism.)"""
     m = w.shape[0]
     nb = (m + WEIGHT_BLOCK - 1) // WEIGHT_BLOCK
     sums = np.zeros(nb)
+    starts = np.empty(nb + 1, dtype=np.int64)
     for b in prange(nb):
         acc = 0.0
         for k in range(b * WEIGHT_BLOCK, min(m, (b + 1) * WEIGHT_BLOCK)):
             acc += w[k]
         sums[b] = acc
+        starts[b] = b * WEIGHT_BLOCK
+    starts[nb] = m
+    _cut_in_blocks(w, pi, every, threads, shares, bounds, sums, starts)
+
+
+@njit(cache=True)
+def _cut_in_blocks(w, pi, every, threads, shares, bounds, sums, starts):
+    """cut_at_equal_weight's cuts (same arguments) from the weights' sums [nb] over the blocks
+    starts[b]..starts[b+1]-1 (starts [nb+1] ascending, from 0 to m): one walk over the blocks'
+    sums, and inside only the blocks a cut falls in."""
+    m = w.shape[0]
+    nb = sums.shape[0]
     total = 0.0
     for b in range(nb):
         total += sums[b]
@@ -653,7 +768,7 @@ def cut_at_equal_weight(w, pi, every, threads, shares, bounds):
     acc = 0.0  # the weight before the block (or, inside a block walked, before index k)
     for b in range(nb):
         if t < threads and acc + sums[b] >= target[t]:  # a cut falls here or is still open
-            for k in range(b * WEIGHT_BLOCK, min(m, (b + 1) * WEIGHT_BLOCK)):
+            for k in range(starts[b], starts[b + 1]):
                 if every or k == 0 or pi[k] != pi[k - 1]:
                     while t < threads and acc >= target[t]:
                         bounds[t] = k
@@ -776,32 +891,78 @@ def cut_ranges(w, threads, shares, pi, pj, gid, n_owned, bounds, gat, home_start
         cut_at_equal_pairs(pi, threads, shares, bounds)
     else:
         cut_at_equal_weight(w, pi, False, threads, shares, bounds)
+    first = _first_gids(threads, bounds, pi, gid)
+    later = np.empty((threads, _widest(threads, bounds)), dtype=np.int64)
+    got = np.zeros((threads, COUNT_PAD), dtype=np.int64)   # [range, (later ends, block out of gid order)]
+    for t in prange(threads):
+        got[t, 0] = _later_ends(bounds[t], bounds[t + 1], pj, gid, first[t + 1], n_owned, later[t])
+        got[t, 1] = _clear_marks(t, threads, n_owned, gid, gat)
+    return mark_and_home(threads, bounds, pi, pj, gid, n_owned, gat, later, got, home_start, home_items, False)[0]
+
+
+@njit(cache=True, inline="always")
+def _first_gids(threads, bounds, pi, gid):
+    """first [T+1]: the gid of the first row of each range of the list (bounds [T+1]; the largest
+    int64 for an empty range at the end)."""
     m = pi.shape[0]
-    first = np.empty(threads + 1, dtype=np.int64)   # first[t]: the gid of range t's first row
+    first = np.empty(threads + 1, dtype=np.int64)
     top = np.iinfo(np.int64).max
     for t in range(threads + 1):
         first[t] = gid[pi[bounds[t]]] if bounds[t] < m else top
+    return first
+
+
+@njit(cache=True, inline="always")
+def _widest(threads, bounds):
+    """The most pairs in one range (bounds [T+1]), at least 1."""
     cap = 1
     for t in range(threads):
         cap = max(cap, bounds[t + 1] - bounds[t])
-    later = np.empty((threads, cap), dtype=np.int64)
-    got = np.zeros((threads, COUNT_PAD), dtype=np.int64)   # [range, (later ends, block out of gid order)]
-    for t in prange(threads):
-        last = first[t + 1]
-        c = 0
-        for k in range(bounds[t], bounds[t + 1]):
-            j = pj[k]
-            if j < n_owned and gid[j] >= last:
-                later[t, c] = j
-                c += 1
-        got[t, 0] = c
-        for p in range(t * n_owned // threads, (t + 1) * n_owned // threads):
-            gat[p] = 0
-            if p > 0 and gid[p] < gid[p - 1]:
-                got[t, 1] = 1
+    return cap
+
+
+@njit(cache=True, inline="always")
+def _later_ends(k0, k1, pj, key, last, n_owned, later):
+    """A range's later ends (cut_ranges): the owned second ends j = pj[k] of its pairs k0..k1-1 with
+    key[j] >= last (their gid at or past the next range's first row: key the gids and last that
+    row's gid, or key the gid ranks and last that row), into later; returns their count."""
+    c = 0
+    for k in range(k0, k1):
+        j = pj[k]
+        if j < n_owned and key[j] >= last:
+            later[c] = j
+            c += 1
+    return c
+
+
+@njit(cache=True, inline="always")
+def _clear_marks(t, threads, n_owned, gid, gat):
+    """gat = 0 over block t of the T blocks of the owned particles; returns 1 where the block is not
+    stored in ascending gid (cut_ranges)."""
+    out = 0
+    for p in range(t * n_owned // threads, (t + 1) * n_owned // threads):
+        gat[p] = 0
+        if p > 0 and gid[p] < gid[p - 1]:
+            out = 1
+    return out
+
+
+@njit(cache=True, parallel=True)
+def mark_and_home(threads, bounds, pi, pj, gid, n_owned, gat, later, got, home_start, home_items, adjacency):
+    """The rest of cut_ranges once each range t has collected its later ends later[t, :got[t, 0]]
+    and cleared its block of gat (got[t, 1] = 1 where that block is out of gid order): the marks
+    gat, the home lists (home_start, home_items) and, where adjacency, the marked rows of the
+    adjacency (adjacency_marked_threads) collected in the home lists' region, each range's thread
+    over its own pairs. Returns (the number of particles the ranges sum themselves, adj_start,
+    adj_items; both empty unless adjacency)."""
+    first = _first_gids(threads, bounds, pi, gid)
     ordered = True
     for t in range(threads):
         ordered = ordered and got[t, 1] == 0
+    cap = 2 * _widest(threads, bounds) + 2 if adjacency else 0
+    ent_p = np.empty((threads, cap), dtype=np.int64)
+    ent_item = np.empty((threads, cap), dtype=np.int64)
+    agot = np.zeros(threads, dtype=np.int64)
     if ordered:
         # range t's particles: indices lo[t] .. lo[t+1]-1 (range 0 from the first, the last to the end);
         # each range's count of those that gather as they are marked
@@ -832,30 +993,37 @@ def cut_ranges(w, threads, shares, pi, pj, gid, n_owned, bounds, gat, home_start
                 if gat[p] == 0:
                     home_items[u] = p
                     u += 1
-        return home_start[threads]
-    for t in range(threads):
-        for c in range(got[t, 0]):
-            gat[later[t, c]] = 1
-    count = np.zeros((threads, threads + COUNT_PAD), dtype=np.int64)   # [particle block, range]
-    home = np.empty(n_owned, dtype=np.int64)
-    for b in prange(threads):
-        for p in range(b * n_owned // threads, (b + 1) * n_owned // threads):
-            if gat[p] == 0:
-                g = gid[p]
-                h = 0
-                while h + 1 < threads and first[h + 1] <= g:
-                    h += 1
-                home[p] = h
-                count[b, h] += 1
-    # write offsets: range-major, then particle block (ascending index within a range)
-    _offsets_by_row(count[:, :threads], threads, home_start)
-    for b in prange(threads):
-        for p in range(b * n_owned // threads, (b + 1) * n_owned // threads):
-            if gat[p] == 0:
-                t = home[p]
-                home_items[count[b, t]] = p
-                count[b, t] += 1
-    return home_start[threads]
+            if adjacency:
+                agot[t] = _marked_entries(bounds[t], bounds[t + 1], pi, pj, None, n_owned, gat, ent_p[t], ent_item[t])
+    else:
+        for t in range(threads):
+            for c in range(got[t, 0]):
+                gat[later[t, c]] = 1
+        count = np.zeros((threads, threads + COUNT_PAD), dtype=np.int64)   # [particle block, range]
+        home = np.empty(n_owned, dtype=np.int64)
+        for b in prange(threads):
+            for p in range(b * n_owned // threads, (b + 1) * n_owned // threads):
+                if gat[p] == 0:
+                    g = gid[p]
+                    h = 0
+                    while h + 1 < threads and first[h + 1] <= g:
+                        h += 1
+                    home[p] = h
+                    count[b, h] += 1
+        # write offsets: range-major, then particle block (ascending index within a range)
+        _offsets_by_row(count[:, :threads], threads, home_start)
+        for b in prange(threads):
+            for p in range(b * n_owned // threads, (b + 1) * n_owned // threads):
+                if gat[p] == 0:
+                    t = home[p]
+                    home_items[count[b, t]] = p
+                    count[b, t] += 1
+            if adjacency:
+                agot[b] = _marked_entries(bounds[b], bounds[b + 1], pi, pj, None, n_owned, gat, ent_p[b], ent_item[b])
+    if not adjacency:
+        return home_start[threads], np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    start, items = place_marked_entries(threads, ent_p, ent_item, agot, n_owned)
+    return home_start[threads], start, items
 
 
 @njit(cache=True, parallel=True)
@@ -990,17 +1158,34 @@ def finish_cuts(threads, n_owned, shape, near, cuts):
     per-particle pass, cuts [T+1]: a particle weighs its shape's (shape [n] codes) PASS_COST (a sphere 1,
     an ellipsoid or poly-ellipsoid 2.4) plus its WALL_COST when near [n_owned] puts it on the wall
     list (0.15, 2.2). Where every particle weighs the same the blocks are equal to within one. The
-    weights by the T threads over blocks of the particles."""
+    weights by the T threads over blocks of the particles (and with the wall list: wall_threads)."""
     w = np.empty(n_owned)
+    sums = np.zeros(threads)
     for t in prange(threads):
-        for p in range(t * n_owned // threads, (t + 1) * n_owned // threads):
-            w[p] = _finish_weight(shape[p], near[p])
-    cut_at_equal_weight(w, np.zeros(0, dtype=np.int64), True, threads, np.ones(threads), cuts)
+        sums[t] = _finish_weights(t * n_owned // threads, (t + 1) * n_owned // threads, shape, near, w)
+    _finish_blocks(threads, n_owned, w, sums, cuts)
 
 
 @njit(cache=True, inline="always")
-def _finish_weight(code, near):
-    return PASS_COST[code] + WALL_COST[code] * near
+def _finish_weights(a, b, shape, near, w):
+    """w[p] = the per-particle pass's weight of the particles p = a..b-1 (finish_cuts); returns
+    their sum."""
+    acc = 0.0
+    for p in range(a, b):
+        x = PASS_COST[shape[p]] + WALL_COST[shape[p]] * near[p]
+        w[p] = x
+        acc += x
+    return acc
+
+
+@njit(cache=True)
+def _finish_blocks(threads, n_owned, w, sums, cuts):
+    """finish_cuts' cuts [T+1] from the weights w [n_owned] and their sums [T] over the T blocks
+    t n_owned / T .. (t+1) n_owned / T - 1."""
+    starts = np.empty(threads + 1, dtype=np.int64)
+    for t in range(threads + 1):
+        starts[t] = t * n_owned // threads
+    _cut_in_blocks(w, np.zeros(0, dtype=np.int64), True, threads, np.ones(threads), cuts, sums, starts)
 
 
 @njit(parallel=True, cache=True)

@@ -54,6 +54,7 @@ class ThreadsMode(SerialMode):
     forces stored and gathered (False))."""
 
     deliver = STORE   # how the resolution hands on the pair forces (dem.forces; set by setup)
+    newton = False    # whether split takes cross-border terms (hybrid with Newton's third law: modes.mpi)
 
     def setup(self, scene, dt, threads=2, scheme=par.DEFAULT_SCHEME, threaded="step", split=True, **kw):
         if scheme not in par.SCHEMES:
@@ -82,6 +83,9 @@ class ThreadsMode(SerialMode):
         self.pair_t = None     # the threads' pair buffers pi_t, pj_t [T, >= cap], kept between rebuilds
         self.row_count = None  # the threads' counts per row of the list's placing [T, >= n + COUNT_PAD]
         self.placed = None     # (m, None | view) of the last scan: its pair count, the list's sorted view
+        self.carried = None    # the pair count of the last scan where it carried the history as it placed
+        self.cut_made = None   # (m, weight, bounds, later, got) of the cut the last scan made as it placed
+        self.marked_adj = None   # (gat, adj_start, adj_items): the marked rows made with that cut
         self.no_order = np.zeros(0, dtype=np.int64)
         super().setup(scene, dt, **kw)
         return self
@@ -99,6 +103,9 @@ class ThreadsMode(SerialMode):
         def build_adjacency(spi, spj, order, n_owned, mark=None):
             if mark is None:
                 return par.adjacency_in_order_threads(t, spi, spj, order, n_owned)
+            made, self.marked_adj = self.marked_adj, None
+            if made is not None and made[0] is mark:   # made with the cut (_finish_cut)
+                return made[1], made[2]
             return par.adjacency_marked_threads(t, spi, spj, order, n_owned, mark)
         p.build_adjacency = build_adjacency
         # per-thread scratch and results, each row PAD doubles apart: rows closer than a cache line
@@ -156,21 +163,46 @@ class ThreadsMode(SerialMode):
             if m >= 0:
                 break
             self.cap = int(top * 1.25) + 64
-        pi, pj = self.pairs.buffers(m)
+        p = self.pairs
+        pi, pj = p.buffers(m)
+        # a rebuild after the first carries the history as the rows are placed (PairList.set then
+        # takes it: carry_sorted)
+        carries = bool(p.rebuilds)
         if self.deliver == SPLIT:   # the list itself in gid order
-            par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, self.row_count, pi, pj, self.no_order)
+            cut = self._placing_cut()
+            later, got = par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, self.row_count, pi, pj,
+                                          self.no_order, p.carry_args(m, s.gid) if carries else None,
+                                          cut and cut[1:])
             self.placed = (m, None)
+            self.cut_made = cut and (m, cut[0], cut[4], later, got)
         else:                       # the list in thread order, seen in gid order through its view
             par.compact_pairs(self.threads, pi_t, pj_t, offsets, pi, pj)
             view = (np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64))
-            par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, self.row_count, *view)
+            par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, self.row_count, *view,
+                             p.carry_args(m, s.gid, view[2]) if carries else None)
             self.placed = (m, view)
+        self.carried = m if carries else None
         self.pairs.offsets = offsets
         self.cap = max(self.cap, int(top * 1.25) + 64)
         # plain floats: numpy's reductions of T numbers read 20 us a rebuild under line_profiler (2500 particles)
         tests = self.tests.tolist()
         self.work_imbalance = max(tests) / max(sum(tests) / len(tests), 1e-300)
         return m
+
+    def _placing_cut(self):
+        """(weight, shares, n_owned, gid, bounds, gat) of the cut that find_pairs makes as it places
+        the list (modes.parallel.place_by_gid, cut_ranges' ranges at equal pairs): under SPLIT where
+        every pair of the fresh list weighs the same (uniform_weight) and no cross-border terms
+        are taken (newton); else None, and split cuts the list."""
+        if self.newton:
+            return None
+        weight = self.uniform_weight(False)
+        if weight is None:
+            return None
+        s = self.state
+        self.gat = np.empty(s.n_owned, dtype=np.int8)
+        shares = 1.0 / self.speed if self.scheme == "dynamic" else self.equal
+        return weight, shares, s.n_owned, s.gid, np.zeros(self.threads + 1, dtype=np.int64), self.gat
 
     def _placed_sorted(self, pi, pj, gid):
         """The pair list's sort by gid (PairList.sort_pairs): find_pairs placed the pairs in that
@@ -189,26 +221,34 @@ class ThreadsMode(SerialMode):
         return view
 
     def wall_list(self, n_owned, pos, reach, wall_m, wall_d, wall_hist, near):
-        """The rebuild's wall list (dem.forces.wall_candidates) by the T threads."""
-        return par.wall_threads(self.threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near)
+        """The rebuild's wall list (dem.forces.wall_candidates) by the T threads, and with it the
+        blocks of the per-particle pass (modes.parallel.finish_cuts, made from the list in the same
+        parallel region: modes.parallel.wall_threads)."""
+        self.finish_blocks = np.zeros(self.threads + 1, dtype=np.int64)
+        return par.wall_threads(self.threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near, self.state.shape,
+                                self.finish_blocks)
 
     def carry_sorted(self, *arrays):
         """The rebuild's history carry (dem.pairs.carry_history_sorted) by the T threads over ranges
         of the new list (modes.parallel.carry_threads): 0.88 ms a rebuild on one thread for 72k
-        pairs of 12k packed ellipsoids."""
+        pairs of 12k packed ellipsoids. Where find_pairs carried it as it placed the list
+        (modes.parallel.place_by_gid) nothing is left to do."""
+        if self.carried is not None:
+            if self.carried != arrays[0].shape[0]:
+                raise ModeError("the threads' history carry was made for another pair list")
+            self.carried = None
+            return
         par.carry_threads(self.threads, *arrays)
 
     def split(self, cross=None, terms=None):
-        """The blocks of the per-particle pass (modes.parallel.finish_cuts) and, under SPLIT, the T
-        ranges of the new (gid-sorted) list, the particles that gather, and those each range's
-        thread zeroes and sums (modes.parallel.split_pairs). Given cross [c] (the ascending indices
+        """Under SPLIT the T ranges of the new (gid-sorted) list, the particles that gather, and
+        those each range's thread zeroes and sums (modes.parallel.split_pairs; the blocks of the
+        per-particle pass come with the wall list: wall_list). Given cross [c] (the ascending indices
         of the pairs with a ghost end: hybrid with Newton's third law, modes.newton) the ranges take
         their terms [c, TERMS] in their place (SPLIT_TAKEN), range t from row terms_start[t] on."""
         s = self.state
         t1 = self.threads + 1
         self.stored = None
-        self.finish_blocks = np.zeros(t1, dtype=np.int64)
-        par.finish_cuts(self.threads, s.n_owned, s.shape, self.pairs.near, self.finish_blocks)
         if self.deliver != SPLIT:
             if cross is not None:
                 raise ModeError(f"the {self.scheme} scheme stores every pair's forces: it cannot take cross-border "
@@ -219,7 +259,30 @@ class ThreadsMode(SerialMode):
         self.taken = (cross, terms)
         self.weights = None
         self.recut = None  # one due was measured on the old list's ranges: the fresh cut has the speeds
-        self._cut()
+        made, self.cut_made = self.cut_made, None
+        if made is not None and cross is None:
+            self._finish_cut(*made)
+        else:
+            self._cut()
+
+    def _finish_cut(self, m, weight, bounds, later, got):
+        """The cut that find_pairs made as it placed the list (_placing_cut) finished: the marks, the
+        home lists and the marked rows of the adjacency (modes.parallel.mark_and_home, in one
+        parallel region), which gather_arrays then takes (build_adjacency)."""
+        s = self.state
+        p = self.pairs
+        if m != p.m:
+            raise ModeError("the threads' cut was made for another pair list")
+        t1 = self.threads + 1
+        home_start = np.empty(t1, dtype=np.int64)
+        home_items = np.empty(s.n_owned, dtype=np.int64)
+        _, adj_start, adj_items = par.mark_and_home(self.threads, bounds, p.pi, p.pj, s.gid, s.n_owned, self.gat,
+                                                    later, got, home_start, home_items, True)
+        self.marked_adj = (self.gat, adj_start, adj_items)
+        self.weights = weight
+        p.offsets = bounds
+        self.ranges = (SPLIT, s.n_owned, self.gat, home_start, home_items, self.no_terms, np.zeros(t1, dtype=np.int64))
+        self.window_n = 0
 
     def _cut(self):
         """The ranges of the list (the weights of split_pairs' estimate, or self.weights as measured

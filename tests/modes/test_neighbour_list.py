@@ -506,3 +506,79 @@ def test_marked_rows_placed_by_the_threads(rng, threads):
     order = np.argsort(flat_p, kind="stable")   # one thread's placement: by particle, in thread order
     assert np.array_equal(start, np.concatenate([[0], np.cumsum(np.bincount(flat_p, minlength=50))]))
     assert np.array_equal(items, flat_i[order])
+
+
+def test_placing_threads_carry_and_cut_as_the_separate_passes(rng):
+    """modes.parallel.place_by_gid may carry the history (carry=...) and cut the list (cut=...) as
+    the threads place it, in place of passes of their own: the rows and flags must equal one
+    thread's merge (dem.pairs.carry_history_sorted; the rows where the flag is set), and the cut,
+    finished by mark_and_home, the ranges, marks, home lists and count of cut_ranges at equal
+    pairs (cut_at_equal_pairs' bounds, for equal and for unequal shares), with the marked rows of
+    the adjacency those of adjacency_marked_threads, bit for bit. Random lists among 80 particles
+    (60 owned; stored in gid order, or with ghosts out of order and owned ones too, cut_ranges'
+    other branch), of 500 candidate pairs (few empty rows), 25 (many: a cut steps past them) and
+    none, at 1-7 threads."""
+    from dem.pairs import carry_history_sorted, gid_ranks, sort_by_gid
+    from dem.state import HIST_LEN
+    from modes.parallel import cut_ranges, mark_and_home
+    n, n_owned = 80, 60
+    for stored in ("sorted", "shuffled"):
+        gid = np.sort(rng.permutation(900)[:n]).astype(np.int64)
+        if stored == "shuffled":
+            gid[40:] = rng.permutation(gid[40:])
+        rank = gid_ranks(gid)
+        for size in (500, 25, 0):
+            pi, pj = _random_pairs(rng, n, size, gid) if size else (np.zeros(0, np.int64), np.zeros(0, np.int64))
+            m = len(pi)
+            si, sj = np.empty_like(pi), np.empty_like(pj)
+            sort_by_gid(pi.copy(), pj.copy(), gid, si, sj)
+            # an old list: a random half of these pairs and some others, sorted, half touching
+            opi, opj = _random_pairs(rng, n, 300, gid)
+            keep = rng.random(m) < 0.5
+            opi, opj = np.concatenate([opi, pi[keep]]), np.concatenate([opj, pj[keep]])
+            key = {(a, b) for a, b in zip(opi.tolist(), opj.tolist())}
+            opi = np.array([a for a, _ in sorted(key)], dtype=np.int64)
+            opj = np.array([b for _, b in sorted(key)], dtype=np.int64)
+            osi, osj = np.empty_like(opi), np.empty_like(opj)
+            sort_by_gid(opi, opj, gid, osi, osj)
+            oon = (rng.random(len(osi)) < 0.5).astype(np.int8)
+            ohist = rng.random((len(osi), HIST_LEN))
+            want_hist, want_on = np.zeros((m, HIST_LEN)), np.zeros(m, dtype=np.int8)
+            carry_history_sorted(si, sj, gid, None, osi, osj, gid, None, oon, ohist, want_hist, want_on)
+            for threads in (1, 2, 3, 7):
+                cuts = np.sort(rng.integers(0, m + 1, threads - 1))
+                offsets = np.concatenate([[0], cuts, [m]]).astype(np.int64)
+                cap = int(np.diff(offsets).max()) + 3
+                order = rng.permutation(m)
+                pi_t, pj_t = np.full((threads, cap), -1), np.full((threads, cap), -1)
+                for t in range(threads):
+                    pi_t[t, :offsets[t + 1] - offsets[t]] = pi[order][offsets[t]:offsets[t + 1]]
+                    pj_t[t, :offsets[t + 1] - offsets[t]] = pj[order][offsets[t]:offsets[t + 1]]
+                row_count = np.zeros((threads, n + COUNT_PAD), dtype=np.int64)
+                for t in range(threads):
+                    row_count[t, :n] = np.bincount(rank[pi_t[t, :offsets[t + 1] - offsets[t]]], minlength=n)
+                for shares in (np.ones(threads), rng.uniform(0.3, 3.0, threads)):
+                    ti, tj = np.empty_like(pi), np.empty_like(pj)
+                    hist, on = np.full((m, HIST_LEN), -1.0), np.full(m, 7, dtype=np.int8)
+                    bounds, gat = np.zeros(threads + 1, dtype=np.int64), np.full(n_owned, 5, dtype=np.int8)
+                    later, got = place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count.copy(), ti, tj,
+                                              np.zeros(0, dtype=np.int64),
+                                              (gid, None, osi, osj, gid, None, oon, ohist, hist, on),
+                                              (shares, n_owned, gid, bounds, gat))
+                    assert np.array_equal(ti, si) and np.array_equal(tj, sj)
+                    # the rows of the pairs that carry one (a pair without history has no row to read)
+                    assert np.array_equal(on, want_on) and np.array_equal(hist[on == 1], want_hist[want_on == 1])
+                    home_start, home_items = np.empty(threads + 1, dtype=np.int64), np.empty(n_owned, dtype=np.int64)
+                    count, adj_start, adj_items = mark_and_home(threads, bounds, ti, tj, gid, n_owned, gat, later,
+                                                                got, home_start, home_items, True)
+                    want = [np.zeros(threads + 1, dtype=np.int64), np.zeros(n_owned, dtype=np.int8),
+                            np.empty(threads + 1, dtype=np.int64), np.empty(n_owned, dtype=np.int64)]
+                    want_count = cut_ranges(None, threads, shares, si, sj, gid, n_owned, *want)
+                    assert count == want_count
+                    assert np.array_equal(bounds, want[0]) and np.array_equal(gat, want[1])
+                    assert np.array_equal(home_start, want[2])
+                    assert np.array_equal(home_items[:count], want[3][:count])
+                    want_adj = adjacency_marked_threads(threads, si, sj, None, n_owned, gat)
+                    assert np.array_equal(adj_start, want_adj[0]) and np.array_equal(adj_items, want_adj[1])
+                    if size == 500 and threads > 1:
+                        assert 0 < bounds[1] < m and gat.sum() > 0
