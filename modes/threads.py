@@ -168,6 +168,7 @@ class ThreadsMode(SerialMode):
         # a rebuild after the first carries the history as the rows are placed (PairList.set then
         # takes it: carry_sorted)
         carries = bool(p.rebuilds)
+        t0 = self.clock()
         if self.deliver == SPLIT:   # the list itself in gid order
             cut = self._placing_cut()
             later, got = par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, self.row_count, pi, pj,
@@ -182,6 +183,7 @@ class ThreadsMode(SerialMode):
                              p.carry_args(m, s.gid, view[2]) if carries else None)
             self.placed = (m, view)
         self.carried = m if carries else None
+        self.placing_s = self.clock() - t0
         self.pairs.offsets = offsets
         self.cap = max(self.cap, int(top * 1.25) + 64)
         # plain floats: numpy's reductions of T numbers read 20 us a rebuild under line_profiler (2500 particles)

@@ -15,7 +15,10 @@ trajectory (bit-identical modes) and slow drift of the machine falls on both. Th
 
 Phases (modes/serial.py step and build_list, timed at the orchestration level): `reorder` (the
 rebuild's re-sort), `derive` (rotations of the rebuild), `find_pairs` (the neighbour estimate:
-binning, scan, compaction), `carry` (the list's contact history carried over), `wall_list`,
+binning, scan), `carry` (the list put in gid order and its contact history carried over: the serial
+mode sorts it and carries in dem.pairs PairList.set, the threads place it in gid order and carry as
+they go, modes.parallel place_by_gid, inside their find_pairs; SerialMode.placing_s moves that part
+here), `wall_list`,
 `cut` (the threads' ranges of the list), `gather_list` (the gather's adjacency), `resolve`
 (contact resolution), `finish` (gather, walls, integration, derived quantities, guard sums),
 `decide` (the rebuild decision), `other` (the rest of a rebuild step), and `step` (the whole step).

@@ -1,5 +1,6 @@
 """Threads mode: the paper's five schemes reproduce the serial trajectory bit for bit, and their
 row assignment and work balance are what the schemes promise."""
+import itertools
 import json
 import os
 
@@ -516,3 +517,28 @@ def test_oversubscription_warns_in_one_line(tmp_path):
     assert res.returncode == 0, res.stderr
     lines = [l for l in res.stderr.splitlines() if "oversubscribes" in l]
     assert len(lines) == 1
+
+
+def test_threads_placing_counts_as_carry():
+    """bench perf --what phases compares the serial and the threads' rebuild phase by phase: the
+    list put in gid order and its history carry count as `carry` wherever they run. The serial
+    mode sorts and carries in PairList.set (between build_list's clock reads t2 and t3); the
+    threads place the list and carry as they go inside find_pairs (t1..t2), which times that part
+    (placing_s) and moves it to carry. With a clock that ticks 1 per read (the rebuild reads it
+    at t0..t6, the threads twice more around the placing) the threads' phases are derive 1,
+    find_pairs 3 - 1 = 2, carry 1 + 1 = 2 and 1 each for the wall list, cut and gather; the
+    serial mode's 1 each, with nothing moved."""
+    sc = load_prepared("packed", particles=400)
+    dt = choose_time_step(sc).dt
+    for mode, want, placing in ((ThreadsMode().setup(sc, dt=dt, threads=2, scheme="dynamic", skin=0.0),
+                                 {"derive": 1, "find_pairs": 2, "carry": 2, "wall_list": 1, "cut": 1,
+                                  "gather_list": 1}, 1),
+                                (SerialMode().setup(sc, dt=dt, skin=0.0),
+                                 {"derive": 1, "find_pairs": 1, "carry": 1, "wall_list": 1, "cut": 1,
+                                  "gather_list": 1}, 0)):
+        mode.step()
+        ticks = itertools.count()
+        mode.clock = lambda: float(next(ticks))
+        mode.build_list()
+        assert mode.build_phases == want
+        assert mode.placing_s == placing
