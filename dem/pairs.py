@@ -508,7 +508,7 @@ class PairList:
         return self._adj
 
     def set(self, m, gid, n_owned, hist_start, hist_partner, hist_val, pos, by_gid=False, carry=False,
-            rows=False, carry_sorted=None):
+            rows=False, carry_sorted=None, ref=None):
         """Adopt the m pairs written into buffers(), with their history: carry=True takes it from
         the current list (the same particles, in any memory order: gid identifies them), else from
         the per-particle CSR (hist_start, hist_partner, hist_val: a first build). With carry and
@@ -520,7 +520,9 @@ class PairList:
         adjacency is then built only on demand. Else the list keeps the order it was found in
         (the pairs each thread found), is seen sorted through its view (sort_view) and its
         adjacency is built at once. carry_sorted: the merge of two lists seen in gid order
-        (carry_history_sorted's arguments; default carry_history_sorted, threads: their own)."""
+        (carry_history_sorted's arguments; default carry_history_sorted, threads: their own). ref
+        [n_owned, 3]: the array that holds the owned positions at this rebuild where the caller
+        fills it (the threads, with the wall list); default a copy of pos[:n_owned]."""
         old, old_m, old_gid, old_view = self._cur, self.m, self.gid, self.view
         self._cur, self._spare = self._spare, old
         if self._pf.shape[0] < self._cur[0].shape[0]:
@@ -542,7 +544,7 @@ class PairList:
         if carry and rows and len(hist_partner):
             history_from_rows_where_present(self.pi, self.pj, gid, n_owned, hist_start, hist_partner, hist_val,
                                             self.hist, self.on)
-        self.ref = pos[:n_owned].copy()
+        self.ref = pos[:n_owned].copy() if ref is None else ref
         self.rebuilds += 1
 
     def history(self, gid, n_owned, leaving=None):

@@ -464,11 +464,13 @@ def carry_threads(threads, spi, spj, gid, order, opi, opj, ogid, oorder, oon, oh
 
 
 @njit(cache=True, parallel=True)
-def wall_threads(threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near, shape, cuts):
+def wall_threads(threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near, shape, cuts, ref):
     """dem.forces.wall_candidates by T threads over contiguous blocks of the owned particles (each
     particle's entry is its own), and in the same region the weights of the per-particle pass
     from the list just made, so that its blocks cuts [T+1] (finish_cuts) cost no region of their
-    own; returns the count of the wall list."""
+    own, and ref [n_owned, 3] = pos[:n_owned], the owned positions at this rebuild (the pair
+    list's reference, against which the next rebuild is decided), copied as they are read;
+    returns the count of the wall list."""
     count = np.zeros(threads, dtype=np.int64)
     w = np.empty(n_owned)
     sums = np.zeros(threads)
@@ -477,6 +479,10 @@ def wall_threads(threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near, 
         b = (t + 1) * n_owned // threads
         count[t] = wall_candidates_range(a, b, pos, reach, wall_m, wall_d, wall_hist, near)
         sums[t] = _finish_weights(a, b, shape, near, w)
+        for p in range(a, b):
+            ref[p, 0] = pos[p, 0]
+            ref[p, 1] = pos[p, 1]
+            ref[p, 2] = pos[p, 2]
     _finish_blocks(threads, n_owned, w, sums, cuts)
     return count.sum()
 

@@ -221,7 +221,7 @@ class SerialMode:
         # and where particles migrated (MPI) the pairs of those that came take their rows (state)
         self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos,
                        by_gid=self.deliver != STORE, carry=bool(self.pairs.rebuilds), rows=self.migrates and rows,
-                       carry_sorted=self.carry_sorted)
+                       carry_sorted=self.carry_sorted, ref=self.rebuild_ref())
         t3 = clock()
         self.pairs.near = np.zeros(s.n_owned, dtype=np.int8)
         self.wall_list(s.n_owned, s.pos, reach, *self.wall_planes(), s.wall_hist, self.pairs.near)
@@ -237,6 +237,11 @@ class SerialMode:
         placing = self.placing_s
         self.build_phases = {"derive": t1 - t0, "find_pairs": t2 - t1 - placing, "carry": t3 - t2 + placing,
                              "wall_list": t4 - t3, "cut": t5 - t4, "gather_list": t6 - t5}
+
+    def rebuild_ref(self):
+        """The array that is to hold the owned positions at this rebuild (PairList.ref) where the
+        mode fills it itself, else None: the list copies them (threads: modes.threads)."""
+        return None
 
     def split(self, cross=None, terms=None):
         """Who resolves which pairs of a new list (threads: modes/threads.py): here the one thread

@@ -84,6 +84,7 @@ class ThreadsMode(SerialMode):
         self.row_count = None  # the threads' counts per row of the list's placing [T, >= n + COUNT_PAD]
         self.placed = None     # (m, None | view) of the last scan: its pair count, the list's sorted view
         self.carried = None    # the pair count of the last scan where it carried the history as it placed
+        self.ref_fill = None   # the list's reference positions of this rebuild, for the wall list to fill
         self.cut_made = None   # (m, weight, bounds, later, got) of the cut the last scan made as it placed
         self.marked_adj = None   # (gat, adj_start, adj_items): the marked rows made with that cut
         self.no_order = np.zeros(0, dtype=np.int64)
@@ -222,13 +223,23 @@ class ThreadsMode(SerialMode):
         self.placed = None
         return view
 
+    def rebuild_ref(self):
+        """The owned positions at this rebuild (PairList.ref) are copied by the threads with the wall
+        list (wall_list), as they read them: here the array they fill."""
+        self.ref_fill = np.empty((self.state.n_owned, 3))
+        return self.ref_fill
+
     def wall_list(self, n_owned, pos, reach, wall_m, wall_d, wall_hist, near):
         """The rebuild's wall list (dem.forces.wall_candidates) by the T threads, and with it the
         blocks of the per-particle pass (modes.parallel.finish_cuts, made from the list in the same
-        parallel region: modes.parallel.wall_threads)."""
+        parallel region) and the copy of the owned positions at this rebuild into the list's ref
+        (rebuild_ref): modes.parallel.wall_threads."""
         self.finish_blocks = np.zeros(self.threads + 1, dtype=np.int64)
+        ref, self.ref_fill = self.ref_fill, None
+        if ref is None or ref.shape[0] != n_owned:
+            raise ModeError("the threads' wall list has no reference positions to fill (rebuild_ref)")
         return par.wall_threads(self.threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near, self.state.shape,
-                                self.finish_blocks)
+                                self.finish_blocks, ref)
 
     def carry_sorted(self, *arrays):
         """The rebuild's history carry (dem.pairs.carry_history_sorted) by the T threads over ranges
