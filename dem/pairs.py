@@ -378,7 +378,7 @@ def carry_history_sorted(spi, spj, gid, order, opi, opj, ogid, oorder, oon, ohis
 def carry_history_sorted_range(a0, a1, spi, spj, gid, order, opi, opj, ogid, oorder, oon, ohist, hist, on):
     """carry_history_sorted for the new pairs a0..a1-1 of the sorted order: the merge starts at the
     first old pair whose key is not below pair a0's (a binary search), so that threads can carry
-    ranges of the list (modes.parallel.carry_threads)."""
+    ranges of the list (modes.parallel.place_by_gid, each thread over the rows it places)."""
     mo = opi.shape[0]
     u = 0
     if a0 < a1:

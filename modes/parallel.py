@@ -27,7 +27,7 @@ goes, as one thread does (SPLIT); only the particles with pairs in two ranges ga
 ranges hold many particles this spares the gather and the per-pair stores: on 12k packed
 ellipsoids the gather alone cost as much as the rest of the per-particle pass. The per-particle
 pass (gather, walls, integration, derived quantities) is split in T contiguous blocks of equal
-estimated cost (finish_cuts). Results never depend on the scheme or the split (DESIGN.md,
+estimated cost (wall_threads, with the wall list). Results never depend on the scheme or the split (DESIGN.md,
 Determinism): each particle receives its pair terms in ascending partner id.
 
 Busy time per thread is read from the CPU cycle counter around each thread's share of a phase
@@ -323,8 +323,9 @@ def place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count, spi, spj, order,
     also carries the history of the rows it has just placed from the old list
     (dem.pairs.carry_history_sorted_range over its block of the sorted order, corder None where
     the list itself is sorted, else order; the other arguments as there), while they are in its
-    cache and in the same parallel region, in place of a pass of its own over the new list
-    (carry_threads): the same rows and flags, each pair's from the merge.
+    cache and in the same parallel region, in place of a pass of its own over the new list: the
+    same rows and flags, each pair's from the merge (each range's merge starts at a binary search
+    in the old list).
 
     cut = (shares [T], n_owned, gid [n], bounds [T+1], gat [n_owned]), or None: the list (sorted
     itself: order empty) is then also cut into the T ranges of cut_ranges at equal pairs
@@ -434,7 +435,7 @@ def _cut_rows(threads, shares, row_count, n, m, rows, bounds):
     before = 0.0
     for t in range(1, threads):
         before += shares[t - 1]
-        k = max(bounds[t - 1], min(m, int(math.ceil(m * before / whole))))
+        k = _equal_pairs_target(m, before, whole, bounds[t - 1])
         lo = 0
         hi = n
         while lo < hi:   # the first row r with pairs_before(r) >= k
@@ -453,24 +454,16 @@ def _cut_rows(threads, shares, row_count, n, m, rows, bounds):
 
 
 @njit(cache=True, parallel=True)
-def carry_threads(threads, spi, spj, gid, order, opi, opj, ogid, oorder, oon, ohist, hist, on):
-    """dem.pairs.carry_history_sorted by T threads, each over a contiguous range of the new list's
-    sorted order (equal pairs: the merge costs the same per pair); the same rows as one thread's
-    merge."""
-    m = spi.shape[0]
-    for t in prange(threads):
-        carry_history_sorted_range(t * m // threads, (t + 1) * m // threads, spi, spj, gid, order, opi, opj, ogid,
-                                   oorder, oon, ohist, hist, on)
-
-
-@njit(cache=True, parallel=True)
 def wall_threads(threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near, shape, cuts, ref):
     """dem.forces.wall_candidates by T threads over contiguous blocks of the owned particles (each
     particle's entry is its own), and in the same region the weights of the per-particle pass
-    from the list just made, so that its blocks cuts [T+1] (finish_cuts) cost no region of their
-    own, and ref [n_owned, 3] = pos[:n_owned], the owned positions at this rebuild (the pair
-    list's reference, against which the next rebuild is decided), copied as they are read;
-    returns the count of the wall list."""
+    from the list just made, so that its blocks cuts [T+1] cost no region of their own: T
+    contiguous blocks of the owned particles of equal estimated cost, a particle weighing its
+    shape's (shape [n] codes) PASS_COST (a sphere 1, an ellipsoid or poly-ellipsoid 2.4) plus its
+    WALL_COST when near [n_owned] puts it on the wall list (0.15, 2.2), equal to within one where
+    every particle weighs the same (_finish_weights, _finish_blocks). And ref [n_owned, 3] =
+    pos[:n_owned], the owned positions at this rebuild (the pair list's reference, against which
+    the next rebuild is decided), copied as they are read. Returns the count of the wall list."""
     count = np.zeros(threads, dtype=np.int64)
     w = np.empty(n_owned)
     sums = np.zeros(threads)
@@ -787,6 +780,13 @@ def _cut_in_blocks(w, pi, every, threads, shares, bounds, sums, starts):
         t += 1
 
 
+@njit(cache=True, inline="always")
+def _equal_pairs_target(m, before, whole, prev):
+    """The pair a cut at equal pairs aims at: the first at or past before / whole of the m pairs,
+    not before the previous cut prev (cut_at_equal_pairs and _cut_rows, so that both cut alike)."""
+    return max(prev, min(m, int(math.ceil(m * before / whole))))
+
+
 @njit(cache=True)
 def cut_at_equal_pairs(pi, threads, shares, bounds):
     """cut_at_equal_weight over pairs that all weigh the same, without their weights: cut t at the
@@ -802,7 +802,7 @@ def cut_at_equal_pairs(pi, threads, shares, bounds):
     before = 0.0
     for t in range(1, threads):
         before += shares[t - 1]
-        k = max(bounds[t - 1], min(m, int(math.ceil(m * before / whole))))
+        k = _equal_pairs_target(m, before, whole, bounds[t - 1])
         while 0 < k < m and pi[k] == pi[k - 1]:
             k += 1
         bounds[t] = k
@@ -1158,23 +1158,9 @@ def derive_threads(threads, lo, hi, bodies, polys, poly_scene):
         derive_all(lo + (t * (hi - lo)) // threads, lo + ((t + 1) * (hi - lo)) // threads, bodies, polys, poly_scene)
 
 
-@njit(cache=True, parallel=True)
-def finish_cuts(threads, n_owned, shape, near, cuts):
-    """Cut the owned particles 0..n_owned-1 into T contiguous blocks of equal estimated cost of the
-    per-particle pass, cuts [T+1]: a particle weighs its shape's (shape [n] codes) PASS_COST (a sphere 1,
-    an ellipsoid or poly-ellipsoid 2.4) plus its WALL_COST when near [n_owned] puts it on the wall
-    list (0.15, 2.2). Where every particle weighs the same the blocks are equal to within one. The
-    weights by the T threads over blocks of the particles (and with the wall list: wall_threads)."""
-    w = np.empty(n_owned)
-    sums = np.zeros(threads)
-    for t in prange(threads):
-        sums[t] = _finish_weights(t * n_owned // threads, (t + 1) * n_owned // threads, shape, near, w)
-    _finish_blocks(threads, n_owned, w, sums, cuts)
-
-
 @njit(cache=True, inline="always")
 def _finish_weights(a, b, shape, near, w):
-    """w[p] = the per-particle pass's weight of the particles p = a..b-1 (finish_cuts); returns
+    """w[p] = the per-particle pass's weight of the particles p = a..b-1 (wall_threads); returns
     their sum."""
     acc = 0.0
     for p in range(a, b):
@@ -1186,8 +1172,8 @@ def _finish_weights(a, b, shape, near, w):
 
 @njit(cache=True)
 def _finish_blocks(threads, n_owned, w, sums, cuts):
-    """finish_cuts' cuts [T+1] from the weights w [n_owned] and their sums [T] over the T blocks
-    t n_owned / T .. (t+1) n_owned / T - 1."""
+    """The per-particle pass's blocks cuts [T+1] (wall_threads) from the weights w [n_owned] and
+    their sums [T] over the T blocks t n_owned / T .. (t+1) n_owned / T - 1."""
     starts = np.empty(threads + 1, dtype=np.int64)
     for t in range(threads + 1):
         starts[t] = t * n_owned // threads
@@ -1198,7 +1184,7 @@ def _finish_blocks(threads, n_owned, w, sums, cuts):
 def finish_threads(threads, cuts, spheres, gathered, adj, bodies, walls, polys, gravity, dt, poly_scene, ref, outs,
                    fin):
     """dem.forces.finish_range (argument groups as there) of the owned particles in T contiguous
-    blocks cuts[t]..cuts[t+1] (finish_cuts; particles are independent in this pass: each reads only
+    blocks cuts[t]..cuts[t+1] (wall_threads; particles are independent in this pass: each reads only
     its own pairs' results). outs [T, >= OUT_LEN] is per-thread scratch; fin [T, >= FIN_LEN] holds
     the per-thread results, combined here in thread order. Returns dem.forces.FINISHED."""
     for t in prange(threads):

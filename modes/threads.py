@@ -204,8 +204,12 @@ class ThreadsMode(SerialMode):
             return None
         s = self.state
         self.gat = np.empty(s.n_owned, dtype=np.int8)
-        shares = 1.0 / self.speed if self.scheme == "dynamic" else self.equal
-        return weight, shares, s.n_owned, s.gid, np.zeros(self.threads + 1, dtype=np.int64), self.gat
+        return weight, self._shares(), s.n_owned, s.gid, np.zeros(self.threads + 1, dtype=np.int64), self.gat
+
+    def _shares(self):
+        """Each thread's share [T] of a fresh cut: the dynamic scheme's by the learnt speeds
+        (learn_speed), else equal."""
+        return 1.0 / self.speed if self.scheme == "dynamic" else self.equal
 
     def _placed_sorted(self, pi, pj, gid):
         """The pair list's sort by gid (PairList.sort_pairs): find_pairs placed the pairs in that
@@ -231,9 +235,9 @@ class ThreadsMode(SerialMode):
 
     def wall_list(self, n_owned, pos, reach, wall_m, wall_d, wall_hist, near):
         """The rebuild's wall list (dem.forces.wall_candidates) by the T threads, and with it the
-        blocks of the per-particle pass (modes.parallel.finish_cuts, made from the list in the same
-        parallel region) and the copy of the owned positions at this rebuild into the list's ref
-        (rebuild_ref): modes.parallel.wall_threads."""
+        blocks of the per-particle pass (made from the list in the same parallel region) and the
+        copy of the owned positions at this rebuild into the list's ref (rebuild_ref):
+        modes.parallel.wall_threads."""
         self.finish_blocks = np.zeros(self.threads + 1, dtype=np.int64)
         ref, self.ref_fill = self.ref_fill, None
         if ref is None or ref.shape[0] != n_owned:
@@ -242,16 +246,12 @@ class ThreadsMode(SerialMode):
                                 self.finish_blocks, ref)
 
     def carry_sorted(self, *arrays):
-        """The rebuild's history carry (dem.pairs.carry_history_sorted) by the T threads over ranges
-        of the new list (modes.parallel.carry_threads): 0.88 ms a rebuild on one thread for 72k
-        pairs of 12k packed ellipsoids. Where find_pairs carried it as it placed the list
-        (modes.parallel.place_by_gid) nothing is left to do."""
-        if self.carried is not None:
-            if self.carried != arrays[0].shape[0]:
-                raise ModeError("the threads' history carry was made for another pair list")
-            self.carried = None
-            return
-        par.carry_threads(self.threads, *arrays)
+        """The rebuild's history carry (PairList.set's carry_sorted): find_pairs made it as the
+        threads placed the list, each over the rows it placed (modes.parallel.place_by_gid), so
+        nothing is left to do here."""
+        if self.carried is None or self.carried != arrays[0].shape[0]:
+            raise ModeError("the threads' history carry was not made as their neighbour scan placed the list")
+        self.carried = None
 
     def split(self, cross=None, terms=None):
         """Under SPLIT the T ranges of the new (gid-sorted) list, the particles that gather, and
@@ -311,7 +311,7 @@ class ThreadsMode(SerialMode):
         home_start = np.empty(t1, dtype=np.int64)
         home_items = np.empty(s.n_owned, dtype=np.int64)
         if self.weights is None:  # a fresh cut: the dynamic scheme's shares by the learnt speeds
-            shares = 1.0 / self.speed if self.scheme == "dynamic" else self.equal
+            shares = self._shares()
             self.weights = self.uniform_weight(cross is not None)
             if self.weights is not None:
                 par.cut_ranges(None, self.threads, shares, p.pi, p.pj, s.gid, s.n_owned, bounds, self.gat, home_start,

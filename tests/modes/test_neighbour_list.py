@@ -282,13 +282,18 @@ def test_leavers_rows_and_arrivals_override_the_carry(rng, by_gid):
 
 def test_carry_by_ranges_equals_one_merge(rng):
     """Threads carry a rebuild's history over T ranges of the new list, each merge starting at a
-    binary search in the old one (modes.parallel.carry_threads): the rows and flags must equal one
+    binary search in the old one (dem.pairs.carry_history_sorted_range over each range, as
+    modes.parallel.place_by_gid runs it over each thread's rows): the rows and flags must equal one
     thread's merge (dem.pairs.carry_history_sorted) bit for bit, for T = 1..5, including ranges
     that start on a pair absent from the old list. Lists kept in another order (STORE schemes)
     carry through their sorted views (dem.pairs.sorted_view): both lists shuffled, each pair must
     get the row it gets in the sorted carry."""
-    from dem.pairs import carry_history_sorted
-    from modes.parallel import carry_threads
+    from dem.pairs import carry_history_sorted, carry_history_sorted_range
+
+    def carry_threads(threads, spi, *rest):   # T contiguous ranges of the new list's sorted order
+        m = spi.shape[0]
+        for t in range(threads):
+            carry_history_sorted_range(t * m // threads, (t + 1) * m // threads, spi, *rest)
     n = 90
     gid = rng.permutation(700)[:n].astype(np.int64)
     def sorted_pairs(m):

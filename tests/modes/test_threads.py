@@ -12,8 +12,8 @@ from dem.timestep import choose_time_step
 from dem.forces import SPLIT, STORE
 from dem.shapes import ELLIPSOID
 from modes.parallel import (CONTACT_COST, DYNAMIC, PARTITION, SCHEMES, STATIC, WEIGHT_BLOCK, _offsets_by_row,
-                            cut_at_equal_weight, cut_ranges, finish_cuts, offsets_by_row_threads, scheme_rows,
-                            split_pairs)
+                            cut_at_equal_weight, cut_ranges, offsets_by_row_threads, scheme_rows,
+                            split_pairs, wall_threads)
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 from tests.helpers import bench, one_line_error
@@ -401,21 +401,35 @@ def test_dynamic_split_weighs_taken_cross_pairs_one():
 
 
 def test_finish_blocks_are_cut_at_equal_estimated_cost():
-    """The per-particle pass is cut by estimated cost (modes.parallel.finish_cuts: a sphere 1, an
+    """The per-particle pass is cut by estimated cost, with the wall list (modes.parallel
+    wall_threads, which also copies the owned positions into the list's reference: a sphere 1, an
     ellipsoid 2.4, on the wall list + 0.15 and + 2.2, from finish_range timings). 100 spheres then
     100 ellipsoids, none near a wall, 2 threads: half the cost is (100 + 240) / 2 = 170, first reached
     after the 100 spheres and 30 ellipsoids (172), so the cut is at 130. All near a wall: half of
     100 x 1.15 + 100 x 4.6 is 287.5, first reached after 100 spheres and 38 ellipsoids (289.8): 138.
     Equal weights give blocks equal to within one particle."""
+    from dem.state import HIST_LEN
+
+    def finish_cuts(t, n, shape, near_wall, cuts):
+        # one wall plane x = +-10 (normal +x), particles on a line at x < 1 with reach 1: every
+        # particle on the wall list (plane beyond them: distance below 0) or none (distance 9 up)
+        pos = np.zeros((n, 3))
+        pos[:, 0] = np.linspace(0.0, 0.9, n)
+        near, ref = np.full(n, 5, dtype=np.int8), np.full((n, 3), np.nan)
+        count = wall_threads(t, n, pos, np.ones(n), np.array([[1.0, 0.0, 0.0]]),
+                             np.array([10.0 if near_wall else -10.0]), np.zeros((n, 1, HIST_LEN)), near, shape, cuts,
+                             ref)
+        assert count == (n if near_wall else 0) and np.all(near == int(near_wall)) and np.array_equal(ref, pos)
+
     shape = np.where(np.arange(200) < 100, 0, 1).astype(np.int8)
     cuts = np.zeros(3, dtype=np.int64)
-    finish_cuts(2, 200, shape, np.zeros(200, dtype=np.int8), cuts)
+    finish_cuts(2, 200, shape, False, cuts)
     assert cuts.tolist() == [0, 130, 200]
-    finish_cuts(2, 200, shape, np.ones(200, dtype=np.int8), cuts)
+    finish_cuts(2, 200, shape, True, cuts)
     assert cuts.tolist() == [0, 138, 200]
     for n, t in ((7, 3), (100, 2), (101, 4)):
         cuts = np.zeros(t + 1, dtype=np.int64)
-        finish_cuts(t, n, np.ones(n, dtype=np.int8), np.zeros(n, dtype=np.int8), cuts)
+        finish_cuts(t, n, np.ones(n, dtype=np.int8), False, cuts)
         assert cuts[0] == 0 and cuts[-1] == n and np.all(np.abs(np.diff(cuts) - n / t) <= 1)
 
 
