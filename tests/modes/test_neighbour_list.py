@@ -361,6 +361,13 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
         if stored == "ghost tail":
             gid[50:] = rng.permutation(gid[50:])
         pi, pj = _random_pairs(rng, n, 500, gid)
+        # and a hub: the particle of the smallest gid paired with 30 others, a row of the list six
+        # times as long as packed ellipsoids' (place_by_gid orders each row as it gathers it)
+        hub = int(np.argmin(gid))
+        spokes = {(hub, int(x)) for x in rng.permutation(np.delete(np.arange(n), hub))[:30]}
+        both = sorted(spokes | set(zip(pi.tolist(), pj.tolist())))
+        pi, pj = np.array([q[0] for q in both], dtype=np.int64), np.array([q[1] for q in both], dtype=np.int64)
+        assert np.count_nonzero(pi == hub) >= 30
         order = rng.permutation(len(pi))
         pi, pj = pi[order], pj[order]
         si, sj = np.empty_like(pi), np.empty_like(pj)
