@@ -42,15 +42,28 @@ that whole run (on the 2-vCPU VM, runs where one rank's neighbour estimate took 
 other's, with equal particles, alternated with runs at 1.00-1.02). Beside the verdict over every
 round, the speedup over the rounds whose skew is at most CLEAN_SKEW is reported, with its interval
 and verdict, and the number of such rounds: a second reading, never the verdict itself.
+
+With --in-job C the MPI comparison is made inside one MPI job instead of alternating runs
+(bench.studies.perf_overhead_rank): C cycles, each of three blocks of 10 steps in a rotating order,
+the 2 ranks together, then each rank alone stepping a serial copy of the whole scene on its own
+CPU (pinned) while the other sleeps. A cycle's serial time is the mean of its two CPUs' blocks, so
+a CPU that runs slower counts on both sides; the speedup is the ratio of the cycles' medians, its
+interval paired over the cycles, which lie seconds apart instead of a run's minutes. cpu_skew
+(the median over the cycles of the slower CPU's serial block over the faster's) says how unlike
+the two CPUs ran. The job checks that the 2 ranks and both serial copies end in the same state,
+bit for bit (identical).
 """
 import json
 import math
 import os
+import signal
 import statistics
 import subprocess
 import sys
 import tempfile
 from bench.run.copies import sample
+from bench.run.launch import mpiexec_path
+from bench.run.transport import transport_env
 from bench.sweep.intervals import mean_interval, speedup_interval, verdict
 from bench.sweep.records import module_times
 
@@ -82,6 +95,56 @@ def _run(scene, particles, steps, mapping, out, warmup=20, skin=None):
         info = json.load(fh)
     times["wall_per_step"] = info["wall_s"] / max(info["steps"], 1)
     return times
+
+
+def _in_job(scene, particles, skin, cycles, tmp, timeout=900):
+    """The comparison of one scene inside one MPI job (module docstring; bench.studies.
+    perf_overhead_rank): its JSON document. RuntimeError (one line) where the job cannot run or
+    fails."""
+    exe = mpiexec_path()
+    if exe is None:
+        raise RuntimeError("--in-job needs mpiexec (pip install mpich, or a system MPI)")
+    raw = os.path.join(tmp, f"{scene}-in-job.json")
+    cmd = [exe, "-n", "2", sys.executable, "-m", "mpi4py", "-m", "bench.studies.perf_overhead_rank",
+           "--scene", scene, "--particles", str(particles), "--cycles", str(cycles), "--json", raw]
+    if skin is not None:
+        cmd += ["--skin", repr(float(skin))]
+    proc = subprocess.Popen(cmd, start_new_session=True, env=transport_env(dict(os.environ)),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except BaseException as e:   # a timeout or an interruption: no rank outlives the study
+        os.killpg(proc.pid, signal.SIGKILL)   # mpiexec's session: its proxies and ranks with it
+        proc.communicate()
+        if isinstance(e, subprocess.TimeoutExpired):
+            raise RuntimeError(f"the in-job comparison of {scene} did not end within {timeout} s; killed") from None
+        raise
+    if proc.returncode != 0 or not os.path.exists(raw):
+        lines = (err.strip() or out.strip() or "no output").splitlines()
+        raise RuntimeError(f"the in-job comparison of {scene} failed (exit status {proc.returncode}): {lines[-1]}")
+    with open(raw) as fh:
+        return json.load(fh)
+
+
+def in_job_row(doc, targets, strict):
+    """The report row of an in-job comparison (doc: perf_overhead_rank's JSON; module docstring;
+    strict: the speedup target is to be exceeded, speedup_verdict)."""
+    two = doc["two_ranks_s"]
+    serial = [0.5 * (a + b) for a, b in zip(doc["serial_cpu0_s"], doc["serial_cpu1_s"])]
+    t1, t2 = statistics.median(serial), statistics.median(two)
+    lo, hi = speedup_interval(t1, math.nan, math.nan, t2, math.nan, math.nan, serial, two)
+    parts = {k: statistics.mean(v) for k, v in doc["two_ranks_parts_s"].items()}
+    exchange = parts["commuT"] - parts["syncT"] + parts["migraT"]
+    bound = targets["overhead_over_wire_factor"] * parts["wire_s"] + 1e-6 * targets["overhead_over_wire_add_us"]
+    skew = [max(a, b) / min(a, b) for a, b in zip(doc["serial_cpu0_s"], doc["serial_cpu1_s"])]
+    return {"scene": doc["scene"], "particles": doc["particles"], "method": "in_job", "cycles": doc["cycles"],
+            "block_steps": doc["block_steps"], "steps": doc["steps"], "identical": doc["identical"],
+            "serial_ms": 1e3 * t1, "two_ranks_ms": 1e3 * t2, "speedup": t1 / t2, "speedup_lo": lo, "speedup_hi": hi,
+            "verdict": speedup_verdict(lo, hi, targets["mpi_speedup"], strict),
+            "cpu_skew": statistics.median(skew), "sync_us": 1e6 * parts["syncT"], "exchange_us": 1e6 * exchange,
+            "wire_us": 1e6 * parts["wire_s"], "overhead_bound_us": 1e6 * bound, "exchange_over_bound": exchange / bound,
+            "samples": {"serial_cpu0": doc["serial_cpu0_s"], "serial_cpu1": doc["serial_cpu1_s"], "two_ranks": two},
+            "affinity": doc["affinity"]}
 
 
 def _median(rows, key):
@@ -123,13 +186,14 @@ def speedup_verdict(lo, hi, target, strict=False):
     return verdict(lo, hi, target, strict=strict)
 
 
-def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceiling=False):
+def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceiling=False, in_job=None):
     """Run the figures above (scenes: (scene, particles, steps) of the MPI comparison, at the
     neighbour-list skin fraction `skin`, None: the default; ceiling: each round also measures the
-    in-step ceiling of 2 workers); returns the report (perf.json): targets, skin, small, mpi [one
-    row per scene], load averages."""
+    in-step ceiling of 2 workers; in_job: the MPI comparison inside one MPI job of that many
+    cycles instead); returns the report (perf.json): targets, skin, small, mpi [one row per
+    scene], load averages."""
     targets = dict(TARGETS, **REBUILD_TARGETS) if skin == 0 else TARGETS
-    report = {"targets": targets, "skin": skin, "load_start": os.getloadavg()}
+    report = {"targets": targets, "skin": skin, "load_start": os.getloadavg(), "in_job": in_job}
     with tempfile.TemporaryDirectory(prefix="bench-overhead-") as tmp:
         # the fixed cost of a step
         small = [_run("pluviation", 48, small_steps, "1-1-1-1-1", os.path.join(tmp, f"small{r}"))
@@ -139,7 +203,20 @@ def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceilin
         log(f"48 particles (pluviation), serial: {report['small']['us_per_step']:.1f} us/step "
             f"(wall {report['small']['wall_us_per_step']:.1f} us/step); target <= {TARGETS['small_us_per_step']:g}")
         report["mpi"] = []
-        for scene, n, steps in scenes:
+        for scene, n, steps in (scenes if in_job else ()):
+            row = in_job_row(_in_job(scene, n, skin, in_job, tmp), targets, strict=skin != 0)
+            if not row["identical"]:   # the modes' trajectories must agree bit for bit (DESIGN.md)
+                raise RuntimeError(f"the in-job comparison of {scene}: the 2 ranks and the serial copies ended "
+                                   f"in different states")
+            report["mpi"].append(row)
+            log(f"{scene} {n}, 2 ranks against serial in one MPI job ({row['cycles']} cycles of "
+                f"{row['block_steps']}-step blocks): {row['two_ranks_ms']:.3f} against {row['serial_ms']:.3f} ms/step, "
+                f"speedup {row['speedup']:.2f} [{row['speedup_lo']:.2f}, {row['speedup_hi']:.2f}] (target "
+                f"{'>= ' if skin == 0 else '> '}{targets['mpi_speedup']:g}: {row['verdict']}); the CPUs' serial "
+                f"skew {row['cpu_skew']:.2f}; exchanges {row['exchange_us']:.1f} us, wire {row['wire_us']:.1f} us: "
+                f"{row['exchange_over_bound']:.2f} of {targets['overhead_over_wire_factor']:g} wire + "
+                f"{targets['overhead_over_wire_add_us']:g} us; syncT {row['sync_us']:.1f} us; end states identical")
+        for scene, n, steps in (() if in_job else scenes):
             one, two, copies = [], [], []
             for r in range(repeats):  # alternating: serial, 2 ranks, (the copies,) serial, 2 ranks, ...
                 one.append(_run(scene, n, steps, "1-1-1-1-1", os.path.join(tmp, f"{scene}-1-{r}"), skin=skin))

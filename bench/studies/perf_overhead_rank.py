@@ -1,0 +1,132 @@
+"""One MPI rank of `bench perf --what overhead --in-job` (started by bench.studies.perf_overhead
+through `mpiexec -n 2 python -m mpi4py -m bench.studies.perf_overhead_rank --scene S --particles N
+--cycles C --json FILE [--skin F]`).
+
+2 ranks against serial inside one MPI job, so that the machine's state, which drifts over seconds
+to minutes on a shared host, is the same for both sides of each ratio. Each rank is pinned to a CPU
+of its own (bench.run.binding, as `--pin`) and holds two set-ups of the same scene: the 2-rank mode
+(2-2-1-1-1, its block) and a serial copy of the whole scene. A cycle is three blocks of
+BLOCK_STEPS steps, in an order that rotates with the cycle: the 2 ranks stepping together, rank 0
+stepping its serial copy while rank 1 sleeps, rank 1 stepping its own while rank 0 sleeps (so the
+serial side runs once on each CPU; the sleeping rank polls a non-blocking barrier every 0.2 ms
+instead of spinning in MPI's wait). Every set-up advances BLOCK_STEPS steps a cycle, so all three
+hold the same physical state at each cycle's end (the trajectory is bit-identical across modes:
+checked at the end, the `identical` field).
+
+A block's time is the mean over its steps, after its first DROP_STEPS (the caches refilled after
+the other set-up ran), of the step's totalT, for the 2 ranks the larger of the two ranks' (the
+runs.csv definition, bench.sweep.records.module_times); commuT, syncT, migraT and wire_s of the
+2-rank blocks are means over both ranks and the same steps. Rank 0 writes FILE (JSON): the cycles'
+times, the ranks' CPU sets, the step count and the end states' comparison. No records, no
+supervisor: the figures are the modes' own step times.
+"""
+import argparse
+import json
+import sys
+import time
+
+import numpy as np
+
+BLOCK_STEPS = 10   # steps a block
+DROP_STEPS = 2     # first steps of a block left out of its time (caches refilled)
+IDLE_POLL_S = 2e-4  # the sleeping rank's poll of the barrier that ends a serial block
+COLUMNS = ("totalT", "commuT", "syncT", "migraT", "wire_s")
+
+
+def _block(mode, steps):
+    """steps of `mode`, returning [steps, len(COLUMNS)] of their rows (0 where a row lacks one)."""
+    out = np.zeros((steps, len(COLUMNS)))
+    for k in range(steps):
+        row = mode.step()
+        out[k] = [row.get(c, 0.0) or 0.0 for c in COLUMNS]
+    return out
+
+
+def _idle(cart):
+    """Sleep until the stepping rank reaches the barrier that ends its serial block."""
+    req = cart.Ibarrier()
+    while not req.Test():
+        time.sleep(IDLE_POLL_S)
+
+
+def _same(a, b):
+    """Whether two snapshots (dem.state.State.snapshot) hold the same numbers, bit for bit."""
+    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def main(argv):
+    p = argparse.ArgumentParser(prog="bench.studies.perf_overhead_rank")
+    p.add_argument("--scene", required=True)
+    p.add_argument("--particles", type=int, default=None)
+    p.add_argument("--skin", type=float, default=None)
+    p.add_argument("--cycles", type=int, required=True)
+    p.add_argument("--json", required=True)
+    args = p.parse_args(argv)
+    from mpi4py import MPI
+    from bench.run.binding import BindingError, establish
+    from bench.run.prepare import load_prepared
+    from dem.timestep import choose_time_step
+    from modes.base import mode_for, parse_mapping
+    from modes.serial import SerialMode
+    comm = MPI.COMM_WORLD
+    if comm.Get_size() != 2:
+        raise SystemExit(f"bench: error: started with {comm.Get_size()} ranks, not 2")
+    cart = comm.Create_cart([2, 1, 1], periods=[False] * 3, reorder=False)
+    rank = cart.Get_rank()
+    try:
+        affinity = establish(1, True, cart)
+    except BindingError as e:
+        if rank == 0:
+            print(f"bench: error: {e}", file=sys.stderr, flush=True)
+        return 1
+    # a scene each: the serial mode steps its scene's state in place
+    scene, own = (load_prepared(args.scene, particles=args.particles) for _ in range(2))
+    dt = choose_time_step(scene).dt
+    particles = int(own.n)   # the 2-rank mode keeps its block of `scene`
+    opts = {} if args.skin is None else {"skin": args.skin}
+    two = mode_for(parse_mapping("2-2-1-1-1"))().setup(scene, dt=dt, cart=cart, **opts)
+    one = SerialMode().setup(own, dt=dt, **opts)
+    two.warmup()
+    one.warmup()
+    kinds = ("two", 0, 1)
+    times = {k: [] for k in kinds}
+    parts = {c: [] for c in COLUMNS[1:]}
+    for cycle in range(args.cycles + 1):   # cycle 0 untimed: every path run once
+        for j in range(3):
+            kind = kinds[(j + cycle) % 3]
+            cart.Barrier()
+            if kind == "two":
+                rows = _block(two, BLOCK_STEPS)[DROP_STEPS:]
+                both = np.empty((2,) + rows.shape)
+                cart.Allgather(np.ascontiguousarray(rows), both)
+                if cycle:
+                    times["two"].append(float(both[:, :, 0].max(axis=0).mean()))
+                    for c, col in enumerate(COLUMNS[1:], start=1):
+                        parts[col].append(float(both[:, :, c].mean()))
+            elif kind == rank:
+                rows = _block(one, BLOCK_STEPS)[DROP_STEPS:]
+                cart.Ibarrier().Wait()
+                if cycle:
+                    times[kind].append(float(rows[:, 0].mean()))
+            else:
+                _idle(cart)
+    # the serial block of each CPU was timed on that rank only
+    times[1] = cart.bcast(times[1], root=1)
+    snap_two = two.snapshot()                     # gathered on rank 0
+    snap_one = cart.gather(one.snapshot(), root=0)
+    two.release()
+    if rank == 0:
+        identical = bool(_same(snap_two, snap_one[0]) and _same(snap_two, snap_one[1]))
+        doc = {"scene": args.scene, "particles": particles, "skin": args.skin, "cycles": args.cycles,
+               "block_steps": BLOCK_STEPS, "drop_steps": DROP_STEPS,
+               "steps": (args.cycles + 1) * BLOCK_STEPS, "identical": identical, "affinity": affinity,
+               "two_ranks_s": times["two"], "serial_cpu0_s": times[0], "serial_cpu1_s": times[1],
+               "two_ranks_parts_s": parts}
+        with open(args.json, "w") as fh:
+            json.dump(doc, fh, indent=1)
+    cart.Free()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
