@@ -47,8 +47,10 @@ With --in-job C the MPI comparison is made inside one MPI job instead of alterna
 (bench.studies.perf_overhead_rank): C cycles, each of three blocks of 10 steps in a rotating order,
 the 2 ranks together, then each rank alone stepping a serial copy of the whole scene on its own
 CPU (pinned) while the other sleeps. A cycle's serial time is the mean of its two CPUs' blocks, so
-a CPU that runs slower counts on both sides; the speedup is the ratio of the cycles' medians, its
-interval paired over the cycles, which lie seconds apart instead of a run's minutes. cpu_skew
+a CPU that runs slower counts on both sides; the speedup is the geometric mean of the cycles'
+serial / 2-rank ratios with its interval (paired over the cycles, which lie seconds apart instead
+of a run's minutes: the interval's own centre, where the ratio of medians of the alternating runs
+may fall outside its interval); serial_ms and two_ranks_ms are the cycles' medians. cpu_skew
 (the median over the cycles of the slower CPU's serial block over the faster's) says how unlike
 the two CPUs ran. The job checks that the 2 ranks and both serial copies end in the same state,
 bit for bit (identical).
@@ -133,13 +135,14 @@ def in_job_row(doc, targets, strict):
     serial = [0.5 * (a + b) for a, b in zip(doc["serial_cpu0_s"], doc["serial_cpu1_s"])]
     t1, t2 = statistics.median(serial), statistics.median(two)
     lo, hi = speedup_interval(t1, math.nan, math.nan, t2, math.nan, math.nan, serial, two)
+    paired = math.exp(statistics.mean(math.log(a / b) for a, b in zip(serial, two)))
     parts = {k: statistics.mean(v) for k, v in doc["two_ranks_parts_s"].items()}
     exchange = parts["commuT"] - parts["syncT"] + parts["migraT"]
     bound = targets["overhead_over_wire_factor"] * parts["wire_s"] + 1e-6 * targets["overhead_over_wire_add_us"]
     skew = [max(a, b) / min(a, b) for a, b in zip(doc["serial_cpu0_s"], doc["serial_cpu1_s"])]
     return {"scene": doc["scene"], "particles": doc["particles"], "method": "in_job", "cycles": doc["cycles"],
             "block_steps": doc["block_steps"], "steps": doc["steps"], "identical": doc["identical"],
-            "serial_ms": 1e3 * t1, "two_ranks_ms": 1e3 * t2, "speedup": t1 / t2, "speedup_lo": lo, "speedup_hi": hi,
+            "serial_ms": 1e3 * t1, "two_ranks_ms": 1e3 * t2, "speedup": paired, "speedup_lo": lo, "speedup_hi": hi,
             "verdict": speedup_verdict(lo, hi, targets["mpi_speedup"], strict),
             "cpu_skew": statistics.median(skew), "sync_us": 1e6 * parts["syncT"], "exchange_us": 1e6 * exchange,
             "wire_us": 1e6 * parts["wire_s"], "overhead_bound_us": 1e6 * bound, "exchange_over_bound": exchange / bound,
