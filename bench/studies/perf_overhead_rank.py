@@ -21,7 +21,6 @@ times, the ranks' CPU sets, the step count and the end states' comparison. No re
 supervisor: the figures are the modes' own step times.
 """
 import argparse
-import json
 import sys
 import time
 
@@ -65,6 +64,7 @@ def main(argv):
     from mpi4py import MPI
     from bench.run.binding import BindingError, establish
     from bench.run.prepare import load_prepared
+    from bench.run.records import write_json
     from dem.timestep import choose_time_step
     from modes.base import mode_for, parse_mapping
     from modes.serial import SerialMode
@@ -122,8 +122,7 @@ def main(argv):
                "steps": (args.cycles + 1) * BLOCK_STEPS, "identical": identical, "affinity": affinity,
                "two_ranks_s": times["two"], "serial_cpu0_s": times[0], "serial_cpu1_s": times[1],
                "two_ranks_parts_s": parts}
-        with open(args.json, "w") as fh:
-            json.dump(doc, fh, indent=1)
+        write_json(args.json, doc)
     cart.Free()
     return 0
 
