@@ -151,13 +151,15 @@ def build_parser():
                     help="Verlet skin for the second set of packed figures (default 0.1); --what overhead: "
                          "the skin of the MPI comparison (0: a rebuild every step, issue 33's targets)")
     pf.add_argument("--ceiling", action="store_true",
-                    help="--what overhead: each round also measures the in-step ceiling of 2 workers (two serial "
+                    help="--what overhead: each round (or cycle, --in-job) also measures the in-step ceiling of 2 "
+                         "workers (two serial "
                          "copies at half the particles, at the same skin, meeting every step) and reads the 2 "
                          "ranks' efficiency against it")
     pf.add_argument("--in-job", type=positive_int, nargs="?", const=100, default=None, metavar="C",
                     help="--what overhead: compare 2 ranks with serial inside one MPI job, C cycles (default 100) "
                          "of 10-step blocks alternating the 2 ranks and each rank's serial copy on its own "
-                         "CPU, instead of alternating runs")
+                         "CPU, instead of alternating runs; with --ceiling the in-step ceiling's copies in the "
+                         "same cycles")
     pf.add_argument("--out", default=None, help="write perf.json here")
 
     nd = sub.add_parser("node", help="the many-core check of this node: unpinned and pinned sweeps, the ceiling, "
@@ -483,8 +485,6 @@ def cmd_perf(args):
                          f"not {args.what}")
     if args.in_job is not None and args.what != "overhead":
         raise UsageError(f"bench perf: --in-job is for --what overhead, not {args.what}")
-    if args.in_job is not None and args.ceiling:
-        raise UsageError("bench perf: --in-job and --ceiling are two ways of one comparison: give one")
     if args.what == "overhead":
         from bench.studies.perf_overhead import measure
         return _perf_report(args, lambda: measure(args.repeats, print, skin=args.skin, ceiling=args.ceiling,

@@ -53,7 +53,12 @@ of a run's minutes: the interval's own centre, where the ratio of medians of the
 may fall outside its interval); serial_ms and two_ranks_ms are the cycles' medians. cpu_skew
 (the median over the cycles of the slower CPU's serial block over the faster's) says how unlike
 the two CPUs ran. The job checks that the 2 ranks and both serial copies end in the same state,
-bit for bit (identical).
+bit for bit (identical). With --ceiling each cycle also holds three blocks of a serial copy at half
+the particles (the --ceiling copies', stepped at the whole scene's time step): alone on each CPU
+while the other sleeps, and on both at once meeting after every step (an MPI barrier); the
+cycle's in-step ceiling is the mean of the two alone over the in-step time, and the 2 ranks'
+efficiency is read against it cycle by cycle (of_ceiling: their geometric mean, with its
+interval).
 """
 import json
 import math
@@ -99,7 +104,7 @@ def _run(scene, particles, steps, mapping, out, warmup=20, skin=None):
     return times
 
 
-def _in_job(scene, particles, skin, cycles, tmp, timeout=900):
+def _in_job(scene, particles, skin, cycles, tmp, ceiling=False, timeout=900):
     """The comparison of one scene inside one MPI job (module docstring; bench.studies.
     perf_overhead_rank): its JSON document. RuntimeError (one line) where the job cannot run or
     fails."""
@@ -111,6 +116,8 @@ def _in_job(scene, particles, skin, cycles, tmp, timeout=900):
            "--scene", scene, "--particles", str(particles), "--cycles", str(cycles), "--json", raw]
     if skin is not None:
         cmd += ["--skin", repr(float(skin))]
+    if ceiling:
+        cmd.append("--ceiling")
     proc = subprocess.Popen(cmd, start_new_session=True, env=transport_env(dict(os.environ)),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -147,7 +154,24 @@ def in_job_row(doc, targets, strict):
             "cpu_skew": statistics.median(skew), "sync_us": 1e6 * parts["syncT"], "exchange_us": 1e6 * exchange,
             "wire_us": 1e6 * parts["wire_s"], "overhead_bound_us": 1e6 * bound, "exchange_over_bound": exchange / bound,
             "samples": {"serial_cpu0": doc["serial_cpu0_s"], "serial_cpu1": doc["serial_cpu1_s"], "two_ranks": two},
-            "affinity": doc["affinity"]}
+            "affinity": doc["affinity"], **_in_job_ceiling(doc, serial, two)}
+
+
+def _in_job_ceiling(doc, serial, two):
+    """The in-step ceiling of an in-job comparison run with --ceiling (module docstring), else {}:
+    per cycle, ceiling = the mean of the two CPUs' half copies alone / the halves in step, and the
+    2 ranks' efficiency serial / (2 two) over it; ceiling_step the median of the cycles' ceilings,
+    of_ceiling the geometric mean of the cycles' shares with its 95 % interval."""
+    if "in_step_s" not in doc:
+        return {}
+    ceil = [0.5 * (a + b) / c for a, b, c in zip(doc["alone_cpu0_s"], doc["alone_cpu1_s"], doc["in_step_s"])]
+    share = [math.log(s / (2.0 * t) / c) for s, t, c in zip(serial, two, ceil)]
+    lo, hi = mean_interval(share)
+    return {"ceiling_particles": doc["ceiling_particles"], "ceiling_step": statistics.median(ceil),
+            "of_ceiling": math.exp(statistics.mean(share)), "of_ceiling_lo": math.exp(lo),
+            "of_ceiling_hi": math.exp(hi),
+            "ceiling_samples": {"alone_cpu0": doc["alone_cpu0_s"], "alone_cpu1": doc["alone_cpu1_s"],
+                                "in_step": doc["in_step_s"]}}
 
 
 def _median(rows, key):
@@ -207,7 +231,7 @@ def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceilin
             f"(wall {report['small']['wall_us_per_step']:.1f} us/step); target <= {TARGETS['small_us_per_step']:g}")
         report["mpi"] = []
         for scene, n, steps in (scenes if in_job else ()):
-            row = in_job_row(_in_job(scene, n, skin, in_job, tmp), targets, strict=skin != 0)
+            row = in_job_row(_in_job(scene, n, skin, in_job, tmp, ceiling), targets, strict=skin != 0)
             if not row["identical"]:   # the modes' trajectories must agree bit for bit (DESIGN.md)
                 raise RuntimeError(f"the in-job comparison of {scene}: the 2 ranks and the serial copies ended "
                                    f"in different states")
@@ -219,6 +243,10 @@ def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceilin
                 f"skew {row['cpu_skew']:.2f}; exchanges {row['exchange_us']:.1f} us, wire {row['wire_us']:.1f} us: "
                 f"{row['exchange_over_bound']:.2f} of {targets['overhead_over_wire_factor']:g} wire + "
                 f"{targets['overhead_over_wire_add_us']:g} us; syncT {row['sync_us']:.1f} us; end states identical")
+            if ceiling:
+                log(f"  the in-step ceiling of 2 workers in the same cycles: efficiency {row['ceiling_step']:.3f}; the "
+                    f"2 ranks' {row['speedup'] / 2:.3f} is {row['of_ceiling']:.2f} [{row['of_ceiling_lo']:.2f}, "
+                    f"{row['of_ceiling_hi']:.2f}] of it")
         for scene, n, steps in (() if in_job else scenes):
             one, two, copies = [], [], []
             for r in range(repeats):  # alternating: serial, 2 ranks, (the copies,) serial, 2 ranks, ...

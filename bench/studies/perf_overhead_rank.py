@@ -1,6 +1,6 @@
 """One MPI rank of `bench perf --what overhead --in-job` (started by bench.studies.perf_overhead
 through `mpiexec -n 2 python -m mpi4py -m bench.studies.perf_overhead_rank --scene S --particles N
---cycles C --json FILE [--skin F]`).
+--cycles C --json FILE [--skin F] [--ceiling]`).
 
 2 ranks against serial inside one MPI job, so that the machine's state, which drifts over seconds
 to minutes on a shared host, is the same for both sides of each ratio. Each rank is pinned to a CPU
@@ -11,7 +11,10 @@ stepping its serial copy while rank 1 sleeps, rank 1 stepping its own while rank
 serial side runs once on each CPU; the sleeping rank polls a non-blocking barrier every 0.2 ms
 instead of spinning in MPI's wait). Every set-up advances BLOCK_STEPS steps a cycle, so all three
 hold the same physical state at each cycle's end (the trajectory is bit-identical across modes:
-checked at the end, the `identical` field).
+checked at the end, the `identical` field). With --ceiling a cycle also holds the in-step
+ceiling's three blocks of a serial copy at half the particles (stepped at the whole scene's time
+step): alone on rank 0's CPU, alone on rank 1's (the other asleep), and on both at once, meeting
+after every step at an MPI barrier (its time is step and meeting, the mean of the two ranks').
 
 A block's time is the mean over its steps, after its first DROP_STEPS (the caches refilled after
 the other set-up ran), of the step's totalT, for the 2 ranks the larger of the two ranks' (the
@@ -41,6 +44,18 @@ def _block(mode, steps):
     return out
 
 
+def _in_step_block(mode, steps, meet):
+    """steps of `mode`, each followed by meet() (the other copy's end of the same step): [steps]
+    times [s] of step and meeting, as bench.run.copies times a copy in step."""
+    out = np.empty(steps)
+    for k in range(steps):
+        t = time.perf_counter()
+        mode.step()
+        meet()
+        out[k] = time.perf_counter() - t
+    return out
+
+
 def _idle(cart):
     """Sleep until the stepping rank reaches the barrier that ends its serial block."""
     req = cart.Ibarrier()
@@ -60,6 +75,7 @@ def main(argv):
     p.add_argument("--skin", type=float, default=None)
     p.add_argument("--cycles", type=int, required=True)
     p.add_argument("--json", required=True)
+    p.add_argument("--ceiling", action="store_true", help="also the in-step ceiling of 2 workers")
     args = p.parse_args(argv)
     from mpi4py import MPI
     from bench.run.binding import BindingError, establish
@@ -88,12 +104,17 @@ def main(argv):
     one = SerialMode().setup(own, dt=dt, **opts)
     two.warmup()
     one.warmup()
-    kinds = ("two", 0, 1)
+    kinds = ["two", ("serial", 0), ("serial", 1)]
+    half = None
+    if args.ceiling:   # the in-step ceiling's copies, at half the particles
+        half = SerialMode().setup(load_prepared(args.scene, particles=max(1, particles // 2)), dt=dt, **opts)
+        half.warmup()
+        kinds += [("alone", 0), ("alone", 1), "in_step"]
     times = {k: [] for k in kinds}
     parts = {c: [] for c in COLUMNS[1:]}
     for cycle in range(args.cycles + 1):   # cycle 0 untimed: every path run once
-        for j in range(3):
-            kind = kinds[(j + cycle) % 3]
+        for j in range(len(kinds)):
+            kind = kinds[(j + cycle) % len(kinds)]
             cart.Barrier()
             if kind == "two":
                 rows = _block(two, BLOCK_STEPS)[DROP_STEPS:]
@@ -103,15 +124,21 @@ def main(argv):
                     times["two"].append(float(both[:, :, 0].max(axis=0).mean()))
                     for c, col in enumerate(COLUMNS[1:], start=1):
                         parts[col].append(float(both[:, :, c].mean()))
-            elif kind == rank:
-                rows = _block(one, BLOCK_STEPS)[DROP_STEPS:]
+            elif kind == "in_step":   # both halves at once, meeting after every step as the ranks do
+                mine = _in_step_block(half, BLOCK_STEPS, cart.Barrier)[DROP_STEPS:].mean()
+                if cycle:
+                    times["in_step"].append(float(np.mean(cart.allgather(mine))))
+            elif kind[1] == rank:
+                rows = _block(one if kind[0] == "serial" else half, BLOCK_STEPS)[DROP_STEPS:]
                 cart.Ibarrier().Wait()
                 if cycle:
                     times[kind].append(float(rows[:, 0].mean()))
             else:
                 _idle(cart)
-    # the serial block of each CPU was timed on that rank only
-    times[1] = cart.bcast(times[1], root=1)
+    # the blocks of each CPU were timed on that rank only
+    for k in kinds[1:]:
+        if k != "in_step" and k[1] == 1:
+            times[k] = cart.bcast(times[k], root=1)
     snap_two = two.snapshot()                     # gathered on rank 0
     snap_one = cart.gather(one.snapshot(), root=0)
     two.release()
@@ -120,8 +147,11 @@ def main(argv):
         doc = {"scene": args.scene, "particles": particles, "skin": args.skin, "cycles": args.cycles,
                "block_steps": BLOCK_STEPS, "drop_steps": DROP_STEPS,
                "steps": (args.cycles + 1) * BLOCK_STEPS, "identical": identical, "affinity": affinity,
-               "two_ranks_s": times["two"], "serial_cpu0_s": times[0], "serial_cpu1_s": times[1],
-               "two_ranks_parts_s": parts}
+               "two_ranks_s": times["two"], "serial_cpu0_s": times[("serial", 0)],
+               "serial_cpu1_s": times[("serial", 1)], "two_ranks_parts_s": parts}
+        if half is not None:
+            doc.update(ceiling_particles=int(half.state.n), alone_cpu0_s=times[("alone", 0)],
+                       alone_cpu1_s=times[("alone", 1)], in_step_s=times["in_step"])
         write_json(args.json, doc)
     cart.Free()
     return 0

@@ -123,17 +123,40 @@ def test_in_job_row_from_its_cycles():
     assert row["verdict"] == "unresolved"
     assert row["cpu_skew"] == pytest.approx(0.32 / 0.30)
     assert row["exchange_us"] == pytest.approx(20.0) and row["overhead_bound_us"] == pytest.approx(59.0)
+    assert "of_ceiling" not in row   # run without --ceiling
+
+
+def test_in_job_ceiling_from_its_cycles():
+    """--in-job with --ceiling: a cycle's in-step ceiling is the mean of the half copies alone on
+    each CPU over the halves in step ((0.17 + 0.19) / 2 / 0.20 = 0.90, (0.18 + 0.18) / 2 / 0.20 =
+    0.90, (0.17 + 0.17) / 2 / 0.19 = 0.8947: median 0.90); the 2 ranks' efficiency serial / (2 x 2
+    ranks) over it, 0.32 / 0.40 / 0.90 = 0.8889, 0.31 / 0.42 / 0.90 = 0.8201, 0.32 / 0.40 / 0.8947 =
+    0.8941: geometric mean 0.8670, interval [0.7690, 0.9775] (Student, 2 degrees of freedom)."""
+    from bench.studies.perf_overhead import REBUILD_TARGETS, TARGETS, in_job_row
+    doc = {"scene": "pluviation", "particles": 1521, "cycles": 3, "block_steps": 10, "steps": 40, "identical": True,
+           "affinity": None, "serial_cpu0_s": [0.30e-3, 0.32e-3, 0.31e-3], "serial_cpu1_s": [0.34e-3, 0.30e-3, 0.33e-3],
+           "two_ranks_s": [0.20e-3, 0.21e-3, 0.20e-3],
+           "two_ranks_parts_s": {"commuT": [40e-6] * 3, "syncT": [20e-6] * 3, "migraT": [0.0] * 3,
+                                 "wire_s": [3e-6] * 3},
+           "ceiling_particles": 760, "alone_cpu0_s": [0.17e-3, 0.18e-3, 0.17e-3],
+           "alone_cpu1_s": [0.19e-3, 0.18e-3, 0.17e-3], "in_step_s": [0.20e-3, 0.20e-3, 0.19e-3]}
+    row = in_job_row(doc, dict(TARGETS, **REBUILD_TARGETS), strict=False)
+    assert row["ceiling_particles"] == 760 and row["ceiling_step"] == pytest.approx(0.90)
+    assert row["of_ceiling"] == pytest.approx(0.8670, abs=1e-4)
+    assert row["of_ceiling_lo"] == pytest.approx(0.7690, abs=1e-4)
+    assert row["of_ceiling_hi"] == pytest.approx(0.9775, abs=1e-4)
 
 
 def test_in_job_comparison_runs_one_mpi_job():
-    """--in-job 2 on the 300-particle gas at --skin 0: one MPI job of 2 pinned ranks, 3 cycles
-    (the first untimed) of 10-step blocks; each timed cycle gives a 2-rank block and one serial
-    block on each CPU, the 2 ranks and both serial copies end bit-identical (the job compares
-    their snapshots with np.array_equal), and the speedup is the geometric mean of the cycles'
-    serial / 2-rank ratios, inside its interval."""
+    """--in-job 2 --ceiling on the 300-particle gas at --skin 0: one MPI job of 2 pinned ranks, 3
+    cycles (the first untimed) of 10-step blocks; each timed cycle gives a 2-rank block, one serial
+    block on each CPU and the ceiling's three blocks of a 150-particle copy; the 2 ranks and both
+    serial copies end bit-identical (the job compares their snapshots with np.array_equal), and
+    the speedup is the geometric mean of the cycles' serial / 2-rank ratios, inside its
+    interval."""
     from bench.studies.perf_overhead import measure
     lines = []
-    rep = measure(1, lines.append, small_steps=50, scenes=(("gas", 300, 40),), skin=0, in_job=2)
+    rep = measure(1, lines.append, small_steps=50, scenes=(("gas", 300, 40),), skin=0, in_job=2, ceiling=True)
     (row,) = rep["mpi"]
     assert row["identical"] and row["cycles"] == 2 and row["steps"] == 30 and row["particles"] == 300
     s = row["samples"]
@@ -143,13 +166,16 @@ def test_in_job_comparison_runs_one_mpi_job():
     assert row["speedup"] == pytest.approx(math.sqrt(ratios[0] * ratios[1]))
     assert row["speedup_lo"] <= row["speedup"] <= row["speedup_hi"]
     assert [len(r["cpus"]) for r in row["affinity"]["ranks"]] == [1, 1]   # pinned, one CPU each
-    assert len(lines) == 3 and "in one MPI job" in lines[1] and "identical" in lines[1]
+    c = row["ceiling_samples"]
+    assert row["ceiling_particles"] == 150 and len(c["alone_cpu0"]) == len(c["in_step"]) == 2
+    assert row["of_ceiling_lo"] <= row["of_ceiling"] <= row["of_ceiling_hi"]
+    assert len(lines) == 4 and "in one MPI job" in lines[1] and "identical" in lines[1]
+    assert "ceiling of 2 workers" in lines[2]
 
 
 def test_in_job_is_refused_elsewhere():
-    """--in-job is a way of --what overhead's comparison: with another --what, or beside --ceiling
-    (the other way), one line naming the option, exit 2, no traceback."""
-    for args in (("--what", "pairs", "--in-job"), ("--what", "overhead", "--in-job", "5", "--ceiling")):
-        res = bench("perf", *args)
-        assert res.returncode == 2 and "Traceback" not in res.stderr
-        assert res.stderr.strip().count("\n") == 0 and "--in-job" in res.stderr
+    """--in-job is a way of --what overhead's comparison: with another --what it is one line
+    naming the option, exit 2, no traceback."""
+    res = bench("perf", "--what", "pairs", "--in-job")
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert res.stderr.strip().count("\n") == 0 and "--in-job" in res.stderr
