@@ -129,8 +129,8 @@ def _in_job(scene, particles, skin, cycles, tmp, ceiling=False, timeout=900):
             raise RuntimeError(f"the in-job comparison of {scene} did not end within {timeout} s; killed") from None
         raise
     if proc.returncode != 0 or not os.path.exists(raw):
-        lines = (err.strip() or out.strip() or "no output").splitlines()
-        raise RuntimeError(f"the in-job comparison of {scene} failed (exit status {proc.returncode}): {lines[-1]}")
+        last = (err.strip() or out.strip() or "no output").splitlines()[-1].removeprefix("bench: error: ")
+        raise RuntimeError(f"the in-job comparison of {scene} failed (exit status {proc.returncode}): {last}")
     with open(raw) as fh:
         return json.load(fh)
 
