@@ -284,9 +284,7 @@ class _Blocks:
         the list carries it by gid with no per-particle rows (nobody came), and its reference
         positions stay those of the halo's rebuild, against which decide measures the moves."""
         self._history_back()
-        ref = self.pairs.ref
-        self.build_list(rows=False)
-        self.pairs.ref = ref
+        self.build_list(rows=False, ref=self.pairs.ref)
 
     def leaver_history(self):
         """Before migration: the rows of the particles leaving this block only (as LAMMPS's fix

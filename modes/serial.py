@@ -197,10 +197,12 @@ class SerialMode:
     def _estimate_call(self, kernel, args):
         return self.kernel_call("estimate_pairs", kernel, args)
 
-    def build_list(self, rows=True):
+    def build_list(self, rows=True, ref=None):
         """The neighbour list: pairs within r_i + r_j + skin, their history (carried from the last
         list, or from the state's rows on a first build and where particles migrate; rows=False:
-        no particle came since the state's rows were written, MPI's relist), and the wall list
+        no particle came since the state's rows were written, MPI's relist), its reference
+        positions (ref [n_owned, 3], the list's own to keep: MPI's relist keeps the halo's
+        rebuild's; None: the owned positions now), and the wall list
         (the particles within their bounding radius plus half the skin of a wall)."""
         self.epoch += 1  # the kernels' arguments may take other types now (kernel_call)
         clock = self.clock
@@ -221,7 +223,7 @@ class SerialMode:
         # and where particles migrated (MPI) the pairs of those that came take their rows (state)
         self.pairs.set(m, s.gid, s.n_owned, s.hist_start, s.hist_partner, s.hist_val, s.pos,
                        by_gid=self.deliver != STORE, carry=bool(self.pairs.rebuilds), rows=self.migrates and rows,
-                       carry_sorted=self.carry_sorted, ref=self.rebuild_ref())
+                       carry_sorted=self.carry_sorted, ref=self._list_ref(ref))
         t3 = clock()
         self.pairs.near = np.zeros(s.n_owned, dtype=np.int8)
         self.wall_list(s.n_owned, s.pos, reach, *self.wall_planes(), s.wall_hist, self.pairs.near)
@@ -237,6 +239,13 @@ class SerialMode:
         placing = self.placing_s
         self.build_phases = {"derive": t1 - t0, "find_pairs": t2 - t1 - placing, "carry": t3 - t2 + placing,
                              "wall_list": t4 - t3, "cut": t5 - t4, "gather_list": t6 - t5}
+
+    def _list_ref(self, keep):
+        """The new list's reference positions: keep where given (no copy of the owned positions
+        only to be replaced), else rebuild_ref's (the threads' wall list still fills the array it
+        hands out)."""
+        fill = self.rebuild_ref()
+        return fill if keep is None else keep
 
     def rebuild_ref(self):
         """The array that is to hold the owned positions at this rebuild (PairList.ref) where the
