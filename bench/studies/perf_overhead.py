@@ -104,6 +104,12 @@ def _run(scene, particles, steps, mapping, out, warmup=20, skin=None):
     return times
 
 
+def overhead_bound(targets, wire):
+    """The exchanges' bound [s] for a step whose messages take wire [s] on the wire: factor x wire +
+    the added microseconds of targets (TARGETS, REBUILD_TARGETS)."""
+    return targets["overhead_over_wire_factor"] * wire + 1e-6 * targets["overhead_over_wire_add_us"]
+
+
 def _in_job(scene, particles, skin, cycles, tmp, ceiling=False, timeout=900):
     """The comparison of one scene inside one MPI job (module docstring; bench.studies.
     perf_overhead_rank): its JSON document. RuntimeError (one line) where the job cannot run or
@@ -145,7 +151,7 @@ def in_job_row(doc, targets, strict):
     paired = math.exp(statistics.mean(math.log(a / b) for a, b in zip(serial, two)))
     parts = {k: statistics.mean(v) for k, v in doc["two_ranks_parts_s"].items()}
     exchange = parts["commuT"] - parts["syncT"] + parts["migraT"]
-    bound = targets["overhead_over_wire_factor"] * parts["wire_s"] + 1e-6 * targets["overhead_over_wire_add_us"]
+    bound = overhead_bound(targets, parts["wire_s"])
     skew = [max(a, b) / min(a, b) for a, b in zip(doc["serial_cpu0_s"], doc["serial_cpu1_s"])]
     return {"scene": doc["scene"], "particles": doc["particles"], "method": "in_job", "cycles": doc["cycles"],
             "block_steps": doc["block_steps"], "steps": doc["steps"], "identical": doc["identical"],
@@ -261,7 +267,7 @@ def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceilin
             over = _median(two, "commuT") + _median(two, "migraT")
             sync = _median(two, "syncT")
             wire = _median(two, "wireT")
-            bound = targets["overhead_over_wire_factor"] * wire + 1e-6 * targets["overhead_over_wire_add_us"]
+            bound = overhead_bound(targets, wire)
             row = {"scene": scene, "particles": n, "steps": steps, "serial_ms": 1e3 * t1, "two_ranks_ms": 1e3 * t2,
                    "speedup": t1 / t2, "speedup_lo": lo, "speedup_hi": hi,
                    "verdict": speedup_verdict(lo, hi, targets["mpi_speedup"], strict=skin != 0),
