@@ -131,7 +131,8 @@ def build_parser():
                          "phases: every phase of a step at 1 and --threads T, speedup and Karp-Flatt "
                          "serial fraction (none of these is part of all)")
     pf.add_argument("--repeats", type=positive_int, default=3,
-                    help="--what overhead: alternating runs per configuration; --what skin: round-robin "
+                    help="--what overhead: alternating runs per configuration (with --in-job: MPI jobs a scene, "
+                         "the verdict's interval over the jobs); --what skin: round-robin "
                          "rounds; --what split: timing rounds; medians (default 3)")
     pf.add_argument("--procs", type=positive_int, default=None,
                     help="--what comm: ranks, on the most cubic grid (default: the mapping's); --what "

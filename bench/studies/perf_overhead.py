@@ -59,6 +59,17 @@ while the other sleeps, and on both at once meeting after every step (an MPI bar
 cycle's in-step ceiling is the mean of the two alone over the in-step time, and the 2 ranks'
 efficiency is read against it cycle by cycle (of_ceiling: their geometric mean, with its
 interval).
+
+With --in-job and --repeats R the comparison runs in R jobs a scene, the scenes' jobs alternating
+(A B A B ...). The cycles of one job share its state: which CPU runs slower, where the host puts
+the two vCPUs, the neighbours' load, for the whole job; the jobs do not. On a 2-vCPU VM two jobs
+of the same code minutes apart gave intervals that did not overlap (1521 falling ellipsoids at
+--skin 0: [1.23, 1.33] and [1.48, 1.53]): a job's interval over its cycles covers the noise
+within a job only. Over R >= 2 jobs the verdict's interval is therefore over the jobs' paired
+speedups, each job one batch (the batch means of bench.sweep.intervals, Law, "Simulation Modeling
+and Analysis", 5th ed., 9.5.3): the geometric mean of the jobs' speedups with the Student interval
+of their logs (R - 1 degrees of freedom; of_ceiling the same way), the jobs' own rows kept beside
+it (jobs). One job (--repeats 1) gives its cycles' interval, as before.
 """
 import json
 import math
@@ -163,6 +174,37 @@ def in_job_row(doc, targets, strict):
             "affinity": doc["affinity"], **_in_job_ceiling(doc, serial, two)}
 
 
+def in_job_jobs(rows, targets, strict):
+    """The report row of R in-job comparisons of one scene (rows: in_job_row of each job; module
+    docstring): one job's row as it is (jobs 1); over R >= 2 jobs the geometric mean of their
+    speedups with the Student interval of their logs and its verdict, serial_ms, two_ranks_ms and
+    cpu_skew the jobs' medians, the exchanges, syncT and wire the jobs' means, identical where
+    every job ended bit-identical, of_ceiling (where measured) as the speedup, and the jobs' rows
+    under `jobs_rows`."""
+    if len(rows) == 1:
+        return dict(rows[0], jobs=1)
+    logs = [math.log(r["speedup"]) for r in rows]
+    lo, hi = mean_interval(logs)
+    row = {"scene": rows[0]["scene"], "particles": rows[0]["particles"], "method": "in_job", "jobs": len(rows),
+           "cycles": rows[0]["cycles"], "block_steps": rows[0]["block_steps"], "steps": rows[0]["steps"],
+           "identical": all(r["identical"] for r in rows),
+           "serial_ms": statistics.median(r["serial_ms"] for r in rows),
+           "two_ranks_ms": statistics.median(r["two_ranks_ms"] for r in rows),
+           "speedup": math.exp(statistics.mean(logs)), "speedup_lo": math.exp(lo), "speedup_hi": math.exp(hi),
+           "verdict": speedup_verdict(math.exp(lo), math.exp(hi), targets["mpi_speedup"], strict),
+           "cpu_skew": statistics.median(r["cpu_skew"] for r in rows)}
+    for k in ("sync_us", "exchange_us", "wire_us", "overhead_bound_us", "exchange_over_bound"):
+        row[k] = statistics.mean(r[k] for r in rows)
+    if all("of_ceiling" in r for r in rows):
+        shares = [math.log(r["of_ceiling"]) for r in rows]
+        clo, chi = mean_interval(shares)
+        row.update(ceiling_step=statistics.median(r["ceiling_step"] for r in rows),
+                   of_ceiling=math.exp(statistics.mean(shares)), of_ceiling_lo=math.exp(clo),
+                   of_ceiling_hi=math.exp(chi))
+    row["jobs_rows"] = rows
+    return row
+
+
 def _in_job_ceiling(doc, serial, two):
     """The in-step ceiling of an in-job comparison run with --ceiling (module docstring), else {}:
     per cycle, ceiling = the mean of the two CPUs' half copies alone / the halves in step, and the
@@ -222,8 +264,8 @@ def speedup_verdict(lo, hi, target, strict=False):
 def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceiling=False, in_job=None):
     """Run the figures above (scenes: (scene, particles, steps) of the MPI comparison, at the
     neighbour-list skin fraction `skin`, None: the default; ceiling: each round also measures the
-    in-step ceiling of 2 workers; in_job: the MPI comparison inside one MPI job of that many
-    cycles instead); returns the report (perf.json): targets, skin, small, mpi [one row per
+    in-step ceiling of 2 workers; in_job: the MPI comparison inside MPI jobs of that many cycles
+    instead, `repeats` jobs a scene); returns the report (perf.json): targets, skin, small, mpi [one row per
     scene], load averages."""
     targets = dict(TARGETS, **REBUILD_TARGETS) if skin == 0 else TARGETS
     report = {"targets": targets, "skin": skin, "load_start": os.getloadavg(), "in_job": in_job}
@@ -236,15 +278,25 @@ def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceilin
         log(f"48 particles (pluviation), serial: {report['small']['us_per_step']:.1f} us/step "
             f"(wall {report['small']['wall_us_per_step']:.1f} us/step); target <= {TARGETS['small_us_per_step']:g}")
         report["mpi"] = []
+        jobs = {scene: [] for scene, _, _ in scenes}
+        for r in range(repeats if in_job else 0):   # the scenes' jobs alternating (module docstring)
+            for scene, n, steps in scenes:
+                row = in_job_row(_in_job(scene, n, skin, in_job, tmp, ceiling), targets, strict=skin != 0)
+                if not row["identical"]:   # the modes' trajectories must agree bit for bit (DESIGN.md)
+                    raise RuntimeError(f"the in-job comparison of {scene}: the 2 ranks and the serial copies ended "
+                                       f"in different states")
+                jobs[scene].append(row)
         for scene, n, steps in (scenes if in_job else ()):
-            row = in_job_row(_in_job(scene, n, skin, in_job, tmp, ceiling), targets, strict=skin != 0)
-            if not row["identical"]:   # the modes' trajectories must agree bit for bit (DESIGN.md)
-                raise RuntimeError(f"the in-job comparison of {scene}: the 2 ranks and the serial copies ended "
-                                   f"in different states")
+            row = in_job_jobs(jobs[scene], targets, strict=skin != 0)
             report["mpi"].append(row)
-            log(f"{scene} {n}, 2 ranks against serial in one MPI job ({row['cycles']} cycles of "
-                f"{row['block_steps']}-step blocks): {row['two_ranks_ms']:.3f} against {row['serial_ms']:.3f} ms/step, "
-                f"speedup {row['speedup']:.2f} [{row['speedup_lo']:.2f}, {row['speedup_hi']:.2f}] (target "
+            each = "" if row["jobs"] == 1 else (
+                f" over {row['jobs']} jobs (their interval; each job's "
+                + ", ".join(f"{j['speedup']:.2f} [{j['speedup_lo']:.2f}, {j['speedup_hi']:.2f}]"
+                            for j in row["jobs_rows"]) + ")")
+            where = "one MPI job" if row["jobs"] == 1 else "MPI jobs"
+            log(f"{scene} {n}, 2 ranks against serial in {where} ({row['cycles']} cycles of "
+                f"{row['block_steps']}-step blocks a job): {row['two_ranks_ms']:.3f} against {row['serial_ms']:.3f} "
+                f"ms/step, speedup {row['speedup']:.2f} [{row['speedup_lo']:.2f}, {row['speedup_hi']:.2f}]{each} (target "
                 f"{'>= ' if skin == 0 else '> '}{targets['mpi_speedup']:g}: {row['verdict']}); the CPUs' serial "
                 f"skew {row['cpu_skew']:.2f}; exchanges {row['exchange_us']:.1f} us, wire {row['wire_us']:.1f} us: "
                 f"{row['exchange_over_bound']:.2f} of {targets['overhead_over_wire_factor']:g} wire + "

@@ -147,6 +147,36 @@ def test_in_job_ceiling_from_its_cycles():
     assert row["of_ceiling_hi"] == pytest.approx(0.9775, abs=1e-4)
 
 
+def test_in_job_jobs_interval_over_the_jobs():
+    """--in-job with --repeats 3: the jobs' speedups 1.30, 1.50, 1.45 (each with a narrow interval
+    of its own cycles) give the geometric mean exp(mean(log)) = 1.4141 with the Student interval of
+    their logs (t(0.975, 2) = 4.303): [1.1743, 1.7027], unresolved against 1.5, where every job's own
+    interval alone would have said "not met" or "met"; of_ceiling 0.76, 0.80, 0.78 the same way:
+    0.7798 [0.7317, 0.8311]; the step times the jobs' medians; one job is its own row."""
+    from bench.studies.perf_overhead import REBUILD_TARGETS, TARGETS, in_job_jobs
+
+    def job(s, share, two_ms):
+        return {"scene": "pluviation", "particles": 1521, "method": "in_job", "cycles": 100, "block_steps": 10,
+                "steps": 1010, "identical": True, "serial_ms": 0.29, "two_ranks_ms": two_ms, "speedup": s,
+                "speedup_lo": s - 0.02, "speedup_hi": s + 0.02, "verdict": "met" if s > 1.52 else "not met",
+                "cpu_skew": 1.05, "sync_us": 20.0, "exchange_us": 15.0, "wire_us": 4.0, "overhead_bound_us": 62.0,
+                "exchange_over_bound": 15.0 / 62.0, "ceiling_step": 0.9, "of_ceiling": share}
+
+    targets = dict(TARGETS, **REBUILD_TARGETS)
+    rows = [job(1.30, 0.76, 0.22), job(1.50, 0.80, 0.19), job(1.45, 0.78, 0.20)]
+    row = in_job_jobs(rows, targets, strict=False)
+    assert row["jobs"] == 3 and row["jobs_rows"] == rows and row["identical"]
+    assert row["speedup"] == pytest.approx(1.41406, abs=1e-4)
+    assert row["speedup_lo"] == pytest.approx(1.17434, abs=1e-4)
+    assert row["speedup_hi"] == pytest.approx(1.70272, abs=1e-4)
+    assert row["verdict"] == "unresolved"
+    assert row["two_ranks_ms"] == pytest.approx(0.20) and row["serial_ms"] == pytest.approx(0.29)
+    assert row["of_ceiling"] == pytest.approx(0.77983, abs=1e-4)
+    assert row["of_ceiling_lo"] == pytest.approx(0.73169, abs=1e-4)
+    assert row["of_ceiling_hi"] == pytest.approx(0.83113, abs=1e-4)
+    assert in_job_jobs(rows[:1], targets, strict=False) == dict(rows[0], jobs=1)
+
+
 def test_in_job_comparison_runs_one_mpi_job():
     """--in-job 2 --ceiling on the 300-particle gas at --skin 0: one MPI job of 2 pinned ranks, 3
     cycles (the first untimed) of 10-step blocks; each timed cycle gives a 2-rank block, one serial
@@ -159,6 +189,7 @@ def test_in_job_comparison_runs_one_mpi_job():
     rep = measure(1, lines.append, small_steps=50, scenes=(("gas", 300, 40),), skin=0, in_job=2, ceiling=True)
     (row,) = rep["mpi"]
     assert row["identical"] and row["cycles"] == 2 and row["steps"] == 30 and row["particles"] == 300
+    assert row["jobs"] == 1   # one repeat: one job, its cycles' interval
     s = row["samples"]
     assert len(s["two_ranks"]) == len(s["serial_cpu0"]) == len(s["serial_cpu1"]) == 2
     serial = [0.5 * (a + b) for a, b in zip(s["serial_cpu0"], s["serial_cpu1"])]
