@@ -158,7 +158,7 @@ def build_parser():
                          "ranks' efficiency against it")
     pf.add_argument("--in-job", type=positive_int, nargs="?", const=100, default=None, metavar="C",
                     help="--what overhead: compare 2 ranks with serial inside one MPI job, C cycles (default 100) "
-                         "of 10-step blocks alternating the 2 ranks and each rank's serial copy on its own "
+                         "of 50-step blocks alternating the 2 ranks and each rank's serial copy on its own "
                          "CPU, instead of alternating runs; with --ceiling the in-step ceiling's copies in the "
                          "same cycles")
     pf.add_argument("--out", default=None, help="write perf.json here")

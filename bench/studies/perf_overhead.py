@@ -44,9 +44,10 @@ round, the speedup over the rounds whose skew is at most CLEAN_SKEW is reported,
 and verdict, and the number of such rounds: a second reading, never the verdict itself.
 
 With --in-job C the MPI comparison is made inside one MPI job instead of alternating runs
-(bench.studies.perf_overhead_rank): C cycles, each of three blocks of 10 steps in a rotating order,
-the 2 ranks together, then each rank alone stepping a serial copy of the whole scene on its own
-CPU (pinned) while the other sleeps. A cycle's serial time is the mean of its two CPUs' blocks, so
+(bench.studies.perf_overhead_rank): C cycles, each of three blocks of 50 steps (the first 20 left
+out: the switch's transient, perf_overhead_rank) in a rotating order, the 2 ranks together, then
+each rank alone stepping a serial copy of the whole scene on its own CPU (pinned) while the other
+sleeps. A cycle's serial time is the mean of its two CPUs' blocks, so
 a CPU that runs slower counts on both sides; the speedup is the geometric mean of the cycles'
 serial / 2-rank ratios with its interval (paired over the cycles, which lie seconds apart instead
 of a run's minutes: the interval's own centre, where the ratio of medians of the alternating runs

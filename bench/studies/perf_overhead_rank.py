@@ -16,12 +16,23 @@ ceiling's three blocks of a serial copy at half the particles (stepped at the wh
 step): alone on rank 0's CPU, alone on rank 1's (the other asleep), and on both at once, meeting
 after every step at an MPI barrier (its time is step and meeting, the mean of the two ranks').
 
-A block's time is the mean over its steps, after its first DROP_STEPS (the caches refilled after
-the other set-up ran), of the step's totalT, for the 2 ranks the larger of the two ranks' (the
+A block's time is the mean over its steps, after its first DROP_STEPS, of the step's totalT, for the 2 ranks the larger of the two ranks' (the
 runs.csv definition, bench.sweep.records.module_times); commuT, syncT, migraT and wire_s of the
 2-rank blocks are means over both ranks and the same steps. Rank 0 writes FILE (JSON): the cycles'
 times, the ranks' CPU sets, the step count and the end states' comparison. No records, no
 supervisor: the figures are the modes' own step times.
+
+After a switch of set-up a block's steps run slow for some milliseconds, longer for the 2 ranks:
+the caches refill, and a CPU that slept through the other rank's serial block comes back slowly.
+Medians over the blocks of each step of 40-step blocks (2-vCPU VM, --skin 0, 30 cycles): 1521
+falling ellipsoids, 2 ranks 391-406, 203-210, 190-192, 186 us at steps 0-3, 181-182 at step 8,
+179 at step 20, 176-177 from step 30 on; serial 371-423, 299-300, 287-289 us, 283 at step 8,
+281 from step 20 on. Packed 500: 2 ranks 803-810, 532, 511 us, 452-456 at step 8, ~450 from
+step 20 on; serial 908-1020, 816-834, 776-808 us, 720-745 from step 20 on. With the blocks of
+10 steps, 2 dropped, that the study first had, the transient was a fifth of each timed block
+and weighed on the 2 ranks: their steady ratio (281.5 / 177 = 1.59 on the falling scene) read
+as ~1.54. A long run steps at the steady state, so blocks are now BLOCK_STEPS = 50 steps with
+the first DROP_STEPS = 20 left out (9 ms of packed steps, 3.6 ms of falling ones).
 """
 import argparse
 import sys
@@ -29,8 +40,8 @@ import time
 
 import numpy as np
 
-BLOCK_STEPS = 10   # steps a block
-DROP_STEPS = 2     # first steps of a block left out of its time (caches refilled)
+BLOCK_STEPS = 50   # steps a block
+DROP_STEPS = 20    # first steps of a block left out of its time (the switch's transient: docstring)
 IDLE_POLL_S = 2e-4  # the sleeping rank's poll of the barrier that ends a serial block
 COLUMNS = ("totalT", "commuT", "syncT", "migraT", "wire_s")
 

@@ -179,7 +179,7 @@ def test_in_job_jobs_interval_over_the_jobs():
 
 def test_in_job_comparison_runs_one_mpi_job():
     """--in-job 2 --ceiling on the 300-particle gas at --skin 0: one MPI job of 2 pinned ranks, 3
-    cycles (the first untimed) of 10-step blocks; each timed cycle gives a 2-rank block, one serial
+    cycles (the first untimed) of 50-step blocks; each timed cycle gives a 2-rank block, one serial
     block on each CPU and the ceiling's three blocks of a 150-particle copy; the 2 ranks and both
     serial copies end bit-identical (the job compares their snapshots with np.array_equal), and
     the speedup is the geometric mean of the cycles' serial / 2-rank ratios, inside its
@@ -188,7 +188,7 @@ def test_in_job_comparison_runs_one_mpi_job():
     lines = []
     rep = measure(1, lines.append, small_steps=50, scenes=(("gas", 300, 40),), skin=0, in_job=2, ceiling=True)
     (row,) = rep["mpi"]
-    assert row["identical"] and row["cycles"] == 2 and row["steps"] == 30 and row["particles"] == 300
+    assert row["identical"] and row["cycles"] == 2 and row["steps"] == 150 and row["particles"] == 300
     assert row["jobs"] == 1   # one repeat: one job, its cycles' interval
     s = row["samples"]
     assert len(s["two_ranks"]) == len(s["serial_cpu0"]) == len(s["serial_cpu1"]) == 2
