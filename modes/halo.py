@@ -399,7 +399,7 @@ class Halo:
     modes.wire.Traffic: bytes, messages and wire time, all and across nodes) accumulates what
     this rank sends until the caller resets it."""
 
-    def __init__(self, cart, grid, coords, halo="26", wire=None, remote=frozenset()):
+    def __init__(self, cart, grid, coords, halo="26", wire=None, remote=frozenset(), window=None):
         if halo not in ("26", "6"):
             raise ValueError(f"halo must be '26' or '6', got {halo!r}")
         self.halo = halo
@@ -430,6 +430,9 @@ class Halo:
         self.held = None       # the same, in PER_PARTICLE order
         self.entries = {}      # the compiled entry points of the ghost records' kernels (their types are fixed)
         self.with_quat = True
+        # the forward exchange through the node's shared-memory window (modes.window; --halo 26 only),
+        # or None: by messages
+        self.window = window if halo == "26" else None
 
     def set_links(self, wire, remote):
         """The wire model of the links (or None) and the neighbour ranks on another node; the
@@ -440,7 +443,8 @@ class Halo:
 
     def clone(self):
         """The same neighbours and grid, without a forward plan."""
-        return Halo(self.cart, self.grid, self.coords, halo=self.halo, wire=self.wire, remote=self.remote)
+        return Halo(self.cart, self.grid, self.coords, halo=self.halo, wire=self.wire, remote=self.remote,
+                    window=self.window)
 
     def reset_counters(self):
         self.traffic.reset()
@@ -597,6 +601,8 @@ class Halo:
             self._finish_append(state, view)
         self.rounds.append(_Round(self.cart, self.neighbour_list, self.ranks, send_idx, send_counts, recv_counts, n,
                                   mwidth, (self.wire, self.remote), self.entries))
+        if self.window is not None:
+            self.window.layout(self.neighbour_list, send_counts)
         return m
 
     def _start(self, rd, state):
@@ -605,12 +611,27 @@ class Halo:
         self.startall(rd.requests)
         self.traffic.add(rd.traffic)
 
+    def publish(self, state):
+        """Through the shared window (modes.window): write the owned particles' moving fields that the
+        neighbours' ghosts take into this step's slot, before the step's allreduce. Returns whether
+        they fit (True without a window or a round); where a rank's did not, every rank calls grow
+        after the allreduce."""
+        if self.window is None or not self.rounds:
+            return True
+        return self.window.publish(self.rounds[0].send_idx, state, self.with_quat, self.entries, call_entry)
+
+    def grow(self, state):
+        """Every rank, after an allreduce that said some rank's rows did not fit its segment: a new
+        window, the rows written again (collective over the node)."""
+        self.window.grow(self.rounds[0].send_idx, state, self.with_quat, self.entries, call_entry)
+
     def forward_start(self, state):
         """Pack the owned particles' moving fields for the first round of the next forward exchange
         and start its messages: called at the end of a step, after integration, so that they travel
         while the ranks agree on the next step (the collective decision), which also absorbs their
-        skew. Completed by forward() on a step between rebuilds, discarded by build() on a rebuild."""
-        if self.rounds and not self.started:
+        skew. Completed by forward() on a step between rebuilds, discarded by build() on a rebuild.
+        Nothing through a shared window (publish)."""
+        if self.rounds and not self.started and self.window is None:
             self._start(self.rounds[0], state)
             self.started = True
 
@@ -622,7 +643,13 @@ class Halo:
     def forward(self, state):
         """Refresh the ghosts' moving fields from their owners (a step between rebuilds): per round,
         pack and start the persistent requests (the first round's may have been started by
-        forward_start), wait, unpack. Allocates nothing."""
+        forward_start), wait, unpack. Allocates nothing. Through a shared window: copy the rows the
+        neighbours published before the last step's allreduce (modes.window)."""
+        if self.window is not None:
+            rd = self.rounds[0]
+            self.window.read(self.ranks, self.neighbour_list, rd.plan[4], rd.g0, state, self.with_quat, self.entries,
+                             call_entry)
+            return
         for i, rd in enumerate(self.rounds):
             if i == 0 and self.started:
                 self.started = False

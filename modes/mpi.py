@@ -44,6 +44,7 @@ from modes.newton import NDIR, NewtonPlan, cross_plan, ghost_owner_directions
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 from modes.wire import WireModel, pingpong
+from modes.window import SharedWindow
 
 # ping-pong message sizes [B] of a run's wire model: a count message to the largest ghost messages
 WIRE_SIZES = (8, 512, 4096, 32768, 262144)
@@ -65,6 +66,10 @@ _NO_ROWS = np.zeros((0, HIST_LEN))
 _NONE = np.zeros(0, dtype=np.int64)
 _NO_CROSS_PAIRS = (_NONE, np.zeros(NDIR, dtype=np.int64), _NONE, np.zeros(NDIR, dtype=np.int64), _NONE, _NONE, _NONE,
                    _NONE, _NONE, _NO_ROWS, np.zeros(0, dtype=np.int8))
+# how the ghosts' moving fields travel between rebuilds: auto (a shared-memory window where every
+# rank runs on one node, --halo 26: modes.window; else messages), shared (the window, refused where
+# it cannot be), messages (the paper's way)
+FORWARD = ("auto", "shared", "messages")
 # the halo skin of a run with --skin 0, a fraction of the largest bounding diameter (bench run's
 # default list skin, dem.pairs.DEFAULT_SKIN): the ghosts and owners are re-chosen only when a
 # particle has moved half of it (LAMMPS's comm cutoff: force cutoff + skin)
@@ -78,9 +83,13 @@ class _Blocks:
     migrates = True
 
     def setup(self, scene, dt, cart=None, skin=None, halo="26", update_grid=0, balance="extent", wire=True,
-              newton=None, halo_skin=None, **kw):
+              newton=None, halo_skin=None, forward="auto", **kw):
         if balance not in BALANCE:
             raise ModeError(f"unknown balance {balance!r} ({', '.join(BALANCE)})")
+        if forward not in FORWARD:
+            raise ModeError(f"unknown forward {forward!r} ({', '.join(FORWARD)})")
+        if forward == "shared" and halo != "26":
+            raise ModeError("--forward shared needs --halo 26 (the three sweeps forward what earlier sweeps brought)")
         if newton is not None and not isinstance(newton, (bool, np.bool_)):
             raise ModeError(f"newton must be true or false, got {newton!r}")
         from mpi4py import MPI
@@ -143,7 +152,11 @@ class _Blocks:
         self.block_counts = block_counts(self.grid, s.pos)
         mine = np.flatnonzero(np.all(self.grid.block_of(s.pos) == self.coords, axis=1))
         s.permute_keep(mine)
-        self.halo = Halo(cart, self.grid, self.coords, halo=halo)
+        self.shared_window = self._window(cart, forward, halo)
+        self.shared_owner = self   # a warm-up twin (a copy) shares the window and does not free it
+        self.forward_windows = None  # the windows made (modes.window allocations), kept when it is freed
+        self.forward_transport = "shared" if self.shared_window is not None else "messages"
+        self.halo = Halo(cart, self.grid, self.coords, halo=halo, window=self.shared_window)
         # where each rank runs (collective): the neighbours on another node are counted apart
         self.hosts = cart.allgather(socket.gethostname())
         me = cart.Get_rank()
@@ -154,7 +167,7 @@ class _Blocks:
         self.halo.set_links(self.wire, self.remote)
         self.steps_done = 0
         self.grid_updates = 0
-        self.decision = np.zeros(6)
+        self.decision = np.zeros(7)
         self.counts_check = 0.0  # this rank's term of the cross pairs' counts checksum (modes.newton)
         self.leaving = None  # the owned particles' blocks, outside marks and count (BlockGrid.leavers)
         self.found_next = None  # the same, found at the end of the step before a rebuild (decide)
@@ -166,6 +179,20 @@ class _Blocks:
             touch.append(self.coords[axis] == (0 if w[1] == "-" else dims[axis] - 1))
         self.touches_walls = any(touch)
         return self
+
+    def _window(self, cart, forward, halo):
+        """The node's shared window of the forward exchange (modes.window; collective), or None: by
+        messages. auto: where every rank runs on one node, with --halo 26, and a forward exchange
+        runs at all (a skin or a halo skin); shared: refused in one line where the ranks span nodes."""
+        if forward == "messages" or halo != "26" or (forward == "auto" and self.halo_skin <= 0):
+            return None
+        window = SharedWindow(cart, Halo.record_widths(self.kind)[1])
+        if window.whole:
+            return window
+        if forward == "shared":
+            raise ModeError("--forward shared needs every rank on one node (these ranks span nodes: use auto or "
+                            "messages)")
+        return None
 
     def _fresh(self):
         super()._fresh()
@@ -188,6 +215,10 @@ class _Blocks:
         rank's buffers (a script that skipped it once died in malloc at exit)."""
         self.halo.free()
         self._free_plan()
+        if self.shared_window is not None and self.shared_owner is self:   # collective over the node
+            self.forward_windows = self.shared_window.allocations
+            self.shared_window.free()
+            self.shared_window = None
 
     def _free_plan(self):
         if self.plan is not None:
@@ -391,9 +422,14 @@ class _Blocks:
         if d[0] and not self._refit_due(self.steps_done + 2):
             self.found_next = self.grid.leavers(self.state.pos[:self.state.n_owned], self.coords)
             d[5] = float(self.found_next[2])
+        # through a shared window the ghosts' rows are written before the allreduce, which orders
+        # them before the neighbours' reads (modes.window); a rank whose rows do not fit asks for more
+        d[6] = 0.0 if self.halo.publish(self.state) else 1.0
         t = self.clock()
         self.cart.Allreduce(self.mpi.IN_PLACE, d, op=self.mpi.SUM)
         self.sync_time = self.clock() - t
+        if d[6] > 0.0:
+            self.halo.grow(self.state)
         self.migration_due = d[5] > 0.0
         if d[4] != 0.0:
             raise RuntimeError(f"cross-border pair lists disagree between neighbour ranks at step "
@@ -436,15 +472,19 @@ class _Blocks:
         it; the gathered values are rank 0's, None elsewhere). At the start: newton, balance (with
         update_grid), the MPI library, the ghosts' fields and bytes, each rank's wire model and place
         (host, CPUs, block, neighbours, those on another node), the nodes, the particles of each
-        block [px][py][pz] and the grid's box and inner cuts [m]. At the end: grid updates and cuts."""
+        block [px][py][pz] and the grid's box and inner cuts [m], how the forward exchange travels
+        (forward_transport: shared or messages). At the end: grid updates and cuts, the shared
+        windows made (forward_windows; None by messages)."""
         info = super().run_info(end)
         cuts = [c.tolist() for c in self.grid.inner_cuts()]
         if end:
-            info.update(grid_updates=self.grid_updates, block_cuts_final=cuts)
+            windows = self.shared_window.allocations if self.shared_window is not None else self.forward_windows
+            info.update(grid_updates=self.grid_updates, block_cuts_final=cuts, forward_windows=windows)
             return info
         cart, root = self.cart, self.cart.Get_rank() == 0
         info.update(newton=self.newton, balance=self.balance if self.update_grid else None,
-                    halo_skin=self.halo_skin_fraction, halo_skin_m=self.halo_skin)
+                    halo_skin=self.halo_skin_fraction, halo_skin_m=self.halo_skin,
+                    forward_transport=self.forward_transport)
         info["mpi_library"] = self.mpi.Get_library_version().strip().splitlines()[0]
         info["ghost_fields"] = list(ghost_fields(self.kind))
         record, moving = Halo.record_widths(self.kind)

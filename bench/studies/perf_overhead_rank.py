@@ -16,11 +16,11 @@ ceiling's three blocks of a serial copy at half the particles (stepped at the wh
 step): alone on rank 0's CPU, alone on rank 1's (the other asleep), and on both at once, meeting
 after every step at an MPI barrier (its time is step and meeting, the mean of the two ranks').
 
-A block's time is the mean over its steps, after its first DROP_STEPS, of the step's totalT, for the 2 ranks the larger of the two ranks' (the
-runs.csv definition, bench.sweep.records.module_times); commuT, syncT, migraT and wire_s of the
-2-rank blocks are means over both ranks and the same steps. Rank 0 writes FILE (JSON): the cycles'
-times, the ranks' CPU sets, the step count and the end states' comparison. No records, no
-supervisor: the figures are the modes' own step times.
+A block's time is the mean over its steps, after its first DROP_STEPS, of the step's totalT, for
+the 2 ranks the larger of the two ranks' (the runs.csv definition, bench.sweep.records.module_times);
+commuT, syncT, migraT and wire_s of the 2-rank blocks are means over both ranks and the same steps.
+Rank 0 writes FILE (JSON): the cycles' times, the ranks' CPU sets, the step count and the end
+states' comparison. No records, no supervisor: the figures are the modes' own step times.
 
 After a switch of set-up a block's steps run slow for some milliseconds, longer for the 2 ranks:
 the caches refill, and a CPU that slept through the other rank's serial block comes back slowly.

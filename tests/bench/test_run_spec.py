@@ -208,9 +208,9 @@ def test_recorded_options():
     args.contact_method = "exact"
     assert recorded(args, parse_mapping("1-1-1-1-1"), "run.json") == {
         "threaded": None, "pin": True, "neighbor": "linkcell", "preset": None, "contact_method": "exact",
-        "halo": None, "update_grid": None}
+        "halo": None, "forward": None, "update_grid": None}
     assert recorded(args, parse_mapping("2-2-1-1-2"), "run.json") == {
         "threaded": "detection", "pin": True, "neighbor": "linkcell", "preset": None, "contact_method": "exact",
-        "halo": "6", "update_grid": 4}
+        "halo": "6", "forward": "auto", "update_grid": 4}
     assert recorded(args, parse_mapping("2-2-1-1-2"), "checkpoint") == {"neighbor": "linkcell",
                                                                         "contact_method": "exact"}

@@ -193,8 +193,10 @@ def test_rebuilds_decided_together_and_forward_sends_moving_fields(tmp_path):
     quaternion = 13 doubles = 104 bytes a ghost for ellipsoids, so rank 0's bytes equal 104 x rank
     1's ghosts on those steps; a step followed by a rebuild sends nothing (the decision comes first).
     Newton off: the forward exchange alone; the reverse one is
-    test_newton_resolves_each_cross_border_pair_once's."""
-    _, steps, info = mpi_run(tmp_path, "gas", 400, "2-2-1-1-1", "--newton", "off")
+    test_newton_resolves_each_cross_border_pair_once's. Forward by messages (--forward messages; the
+    shared window's is test_shared_forward_sends_no_message)."""
+    _, steps, info = mpi_run(tmp_path, "gas", 400, "2-2-1-1-1", "--newton", "off", "--forward", "messages")
+    assert info["forward_transport"] == "messages"
     wide = steps.pivot(index="step", columns="rank")
     rebuilt = wide["neighbor_rebuilt"][0]
     assert (rebuilt == wide["neighbor_rebuilt"][1]).all()
@@ -207,6 +209,27 @@ def test_rebuilds_decided_together_and_forward_sends_moving_fields(tmp_path):
     assert (between["bytes_sent"][0] == 104 * between["n_ghost"][1]).all()
     assert (between["bytes_sent"][1] == 104 * between["n_ghost"][0]).all()
     assert (before["msgs_sent"][0] == 0).all() and (before["bytes_sent"][1] == 0).all()
+
+
+@pytest.mark.parametrize("mapping", ["2-2-1-1-1", "8-2-2-2-1", "2-2-1-1-2"])
+def test_shared_forward_sends_no_message(tmp_path, tmp_path_factory, mapping):
+    """--forward shared (every rank on one node): between rebuilds the ghosts' moving fields pass
+    through the node's shared-memory window (modes.window), so a step that does not rebuild sends no
+    message at all (with newton off, no reverse exchange either), where by messages it sends one per
+    neighbour; the gas (migration, contacts across faces, edges and
+    corners on 2x2x2 blocks; hybrid 2 x 2 threads) ends bit-identical to serial. The window starts
+    empty and is made anew whenever a rank's rows outgrow its segment, at least once
+    (forward_windows in run.json)."""
+    ref = serial_state(tmp_path_factory, "gas", 400)
+    got, steps, info = mpi_run(tmp_path, "gas", 400, mapping, "--newton", "off", "--forward", "shared")
+    assert info["forward_transport"] == "shared" and info["forward"] == "shared"
+    assert info["forward_windows"] >= 2
+    wide = steps.pivot(index="step", columns="rank")
+    rebuilt = wide["neighbor_rebuilt"][0]
+    between = wide[rebuilt == 0]
+    assert len(between) > 0 and (between["n_ghost"] > 0).all().all()
+    assert (between["msgs_sent"] == 0).all().all() and (between["bytes_sent"] == 0).all().all()
+    assert_same(ref, got)
 
 
 def test_wire_time_is_the_measured_model_of_the_bytes_sent(tmp_path):
