@@ -37,7 +37,7 @@ import sys
 
 from bench.run.binding import NODE_CPUS_ENV, plan_binding, read_topology
 from bench.run.lifeline import Interrupted, child_env, inherited_lock
-from bench.run.options import halo_skin_refusal, setup_mode, too_few_ranks
+from bench.run.options import forward_refusal, halo_skin_refusal, setup_mode, too_few_ranks
 from bench.run.spec import rank_argv
 from bench.run.threads_env import check_size, usable_cpus
 from bench.run.transport import transport_env
@@ -75,7 +75,8 @@ def launch_mpi(args, mapping, scene, out, ts):
         if args.skin is not None:
             fit_skin(grid, width, args.skin * 2.0 * float(scene.state.rbound.max()), explicit=True)
         halo_skin = getattr(args, "halo_skin", None)
-        refusal = halo_skin_refusal(args.skin, halo_skin, getattr(args, "preset", None))
+        refusal = halo_skin_refusal(args.skin, halo_skin, getattr(args, "preset", None)) or \
+            forward_refusal(getattr(args, "forward", "auto"), args.halo, getattr(args, "hosts", None))
         if refusal:
             raise ModeError(refusal)
         if halo_skin is not None:

@@ -165,6 +165,18 @@ def halo_skin_refusal(skin, halo_skin, preset=None):
     return None if skin == 0 else "--halo-skin needs --skin 0 (with a list skin the halo takes the list's)"
 
 
+def forward_refusal(forward, halo, hosts=""):
+    """The one line refusing --forward shared where no window can be (--halo 6, whose sweeps forward
+    what earlier sweeps brought; ranks on more than one host), or None."""
+    if forward != "shared":
+        return None
+    if halo == "6":
+        return "--forward shared needs --halo 26 (the three sweeps forward what earlier sweeps brought)"
+    if len({h for h in (hosts or "").split(",") if h}) > 1:
+        return "--forward shared needs every rank on one node (--hosts names several: use auto or messages)"
+    return None
+
+
 def mode_options(mapping, args, scheme):
     """The setup options of the mode that runs `mapping` (each mode refuses options it lacks)."""
     opts = {"neighbor": args.neighbor, "skin": getattr(args, "skin", None),

@@ -26,7 +26,7 @@ from bench.run.records import RecordError
 from bench.run.spec import add_run_arguments
 from dem.contact import DEFAULT_CONTACT_METHOD
 from dem.timestep import TimeStep, choose_time_step
-from modes.base import parse_mapping
+from modes.base import ModeError, parse_mapping
 
 
 def _first_to_say(out):
@@ -71,7 +71,13 @@ def main(argv):
     scene.extras["clock0"] = clock0
     scene.extras["load_s"] = time.perf_counter() - clock0
     scheme = run_scheme(mapping, args)
-    mode = setup_mode(mapping, args, scene, ts.dt, comm=cart)
+    try:
+        mode = setup_mode(mapping, args, scene, ts.dt, comm=cart)
+    except ModeError as e:  # the set-up decides collectively, so every rank refuses alike: rank 0 says it
+        if cart.Get_rank() == 0:
+            print(f"bench: error: {e}", file=sys.stderr, flush=True)
+        beat.stop()
+        return 1
     beat.phase = "running"
     try:
         execute(args, scene, mapping, scheme, mode, args.out, ts, comm=cart, beat=beat)

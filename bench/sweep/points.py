@@ -8,7 +8,7 @@ import hashlib
 import json
 from dataclasses import field, fields, make_dataclass
 
-from bench.run.options import halo_skin_refusal, too_few_ranks
+from bench.run.options import forward_refusal, halo_skin_refusal, too_few_ranks
 from bench.run.spec import POINT_FIELDS, REQUIRED
 from modes.base import ModeError, parse_mapping
 from modes.parallel import SCHEMES, SPLIT_SCHEMES
@@ -89,7 +89,8 @@ def make_points(mappings, schemes, *values, **options):
             shared[f.name] = f.neutral if value is None and f.neutral is not REQUIRED else value
     if shared["skin"] is not None:
         shared["skin"] = float(shared["skin"])
-    refusal = halo_skin_refusal(shared["skin"], shared["halo_skin"], shared["preset"])
+    refusal = halo_skin_refusal(shared["skin"], shared["halo_skin"], shared["preset"]) or \
+        forward_refusal(shared["forward"], shared["halo"], shared["hosts"])
     if refusal:
         raise ModeError(refusal)
     for s in schemes:

@@ -19,8 +19,8 @@ from tests.helpers import GOOD, bench, make_scene, write
 RUN_JSON_KEYS = [
     "command", "argv", "scene", "scene_source", "particles", "steps", "mapping", "mode", "procs", "px", "py", "pz",
     "threads", "scheme", "threading", "affinity", "mpi_transport", "threaded", "pin", "neighbor", "preset",
-    "contact_method", "halo", "forward", "update_grid", "preset_overrides", "skin", "skin_m", "skin_requested", "halo_skin",
-    "halo_skin_m", "newton",
+    "contact_method", "halo", "forward", "update_grid", "preset_overrides", "skin", "skin_m", "skin_requested",
+    "halo_skin", "halo_skin_m", "newton",
     "balance", "dt", "dt_auto", "dt_critical", "dt_details", "walls", "gravity", "materials", "environment",
     "warmup_s", "warmup_steps", "threading_layer", "build", "stable", "max_overlap_ratio", "status", "pid", "host",
     "restart", "checkpoint_every", "step_first", "step_last", "snapshot_format", "time_start", "stability_reason",

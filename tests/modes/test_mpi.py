@@ -232,6 +232,21 @@ def test_shared_forward_sends_no_message(tmp_path, tmp_path_factory, mapping):
     assert_same(ref, got)
 
 
+def test_shared_forward_refused_where_it_cannot_be(tmp_path):
+    """--forward shared needs --halo 26 (the three sweeps forward what earlier sweeps brought) and
+    every rank on one node (--hosts with two hosts): bench run and bench sweep refuse each in one
+    line naming --forward, exit 2, before any rank starts; an unknown value is argparse's one line."""
+    one_line_error(bench("run", "--scene", "gas", "--particles", "200", "--steps", "5", "--mapping", "2-2-1-1-1",
+                         "--halo", "6", "--forward", "shared", "--out", str(tmp_path / "a")), "--forward", "--halo 26")
+    one_line_error(bench("sweep", "--scene", "gas", "--particles", "200", "--steps", "5", "--mappings", "2-2-1-1-1",
+                         "--halo", "6", "--forward", "shared", "--out", str(tmp_path / "b")), "--forward", "--halo 26")
+    one_line_error(bench("run", "--scene", "gas", "--particles", "200", "--steps", "5", "--mapping", "2-2-1-1-1",
+                         "--hosts", "node1,node2", "--forward", "shared", "--out", str(tmp_path / "c")),
+                   "--forward", "one node")
+    one_line_error(bench("run", "--scene", "gas", "--mapping", "2-2-1-1-1", "--forward", "bogus",
+                         "--out", str(tmp_path / "d")), "--forward")
+
+
 def test_wire_time_is_the_measured_model_of_the_bytes_sent(tmp_path):
     """run.json holds each rank's ping-pong fit of its link (latency alpha > 0, bandwidth beta > 0,
     the same for both ends); steps.csv's wire_s is sum over the step's messages of
