@@ -49,11 +49,11 @@ RUN_COLUMNS = ["point", "mapping", "procs", "px", "py", "pz", "threads", "cores"
                "skin", "halo_skin", "preset", "binding",
                "foreign_cores", "foreign_cpu_s", "step_spread", "totalT_spread", "flag",
                "totalT_lo", "totalT_hi", "speedup_lo", "speedup_hi", "efficiency_lo", "efficiency_hi", "totalT_reps",
-               "resolved", "nodes", "wire_internodeT"]
+               "resolved", "nodes", "wire_internodeT", "forward"]
 
 
 TEXT_COLUMNS = ("point", "mapping", "scheme", "neighbor", "scene", "status", "reason", "stable", "contact_method",
-                "preset", "binding", "flag", "totalT_reps", "resolved")
+                "preset", "binding", "flag", "totalT_reps", "resolved", "forward")
 
 LOAD_FLAG_CORES = 0.25      # foreign CPUs busy on average during a repeat's timed steps
 SPREAD_FLAG_REPEATS = 0.10  # (max - min) / median of totalT over the repeats
@@ -212,6 +212,7 @@ def summarise(point, rep_dirs, ref_state, t1, statuses=None):
         bindings.append(binding_word(info.get("affinity")))
         row.update(particles=info["particles"], steps=info["steps"], stable=info["stable"], skin=info.get("skin"),
                    halo_skin=info.get("halo_skin"), preset=info.get("preset") or "",
+                   forward=info.get("forward_transport") or "",
                    nodes=len(info.get("nodes") or [info.get("host")]))
         state = dict(np.load(os.path.join(d, "state.npz")))
     for k in times[0]:

@@ -230,6 +230,19 @@ def test_newton_passes_to_the_mpi_points(tmp_path):
     one_line_error(bench("sweep", "--file", str(sweep_file), "--dry-run", "--out", str(tmp_path / "dry3")), "newton")
 
 
+def test_forward_passes_to_the_mpi_points(tmp_path):
+    """--forward shared|messages reaches the points with more than one process (hybrid ones too),
+    not the serial and thread points; auto (the default) keeps a point's key (folder name) as it was
+    before the option."""
+    from bench.sweep.points import make_points
+    lines = dry_run_commands(tmp_path / "dry", "--mappings", "1-1-1-1-2,2-2-1-1-1,2-2-1-1-2", "--forward", "messages")
+    assert len(lines) == 4
+    assert ["--forward messages" in line for line in lines] == ["--mapping 2-2-1-1" in line for line in lines]
+    args = (["2-2-1-1-1"], ["dynamic"], "pluviation", 200, 15, 0, "linkcell", None, False, "26")
+    assert make_points(*args, forward="auto")[1].key == "2-2-1-1-1-822c84b2"
+    assert make_points(*args, forward="messages")[1].key != "2-2-1-1-1-822c84b2"
+
+
 def test_collect_rebuilds_runs_csv(tmp_path):
     """bench collect gathers the point folders (as Slurm jobs leave them) into the same rows, with
     the speedups of a local sweep: S = T(1)/T(p), so 1.0 exactly for the serial row, and efficiency
