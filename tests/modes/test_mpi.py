@@ -312,12 +312,14 @@ from dem.timestep import choose_time_step
 from modes.mpi import MpiMode
 cart = MPI.COMM_WORLD.Create_cart([2, 1, 1], periods=[False] * 3, reorder=False)
 sc = load_prepared("packed", particles=500)
-m = MpiMode().setup(sc, dt=choose_time_step(sc).dt, cart=cart)
+m = MpiMode().setup(sc, dt=choose_time_step(sc).dt, cart=cart, forward=sys.argv[2])
 m.warmup()
 m.step()  # the first build: migration, ghosts, list
 s, p, h = m.state, m.pairs, m.halo
+w = h.window
+buffers = (lambda: [h.rounds[0].send_buf, h.rounds[0].recv_buf]) if w is None else (lambda: [w.mem, *w.slots])
 keep = lambda: [s.pos, s.vel, s.quat, s.angmom, s.wall_hist, p.pi, p.hist, p.pf, p.on, m.rot, m.omega,
-                h.rounds[0].send_buf, h.rounds[0].recv_buf, m.plan.send_buf, m.plan.recv_buf]
+                *buffers(), m.plan.send_buf, m.plan.recv_buf]
 arrays = keep()
 before = rtsys.get_allocation_stats().alloc
 rows = [m.step() for _ in range(20)]
@@ -331,13 +333,15 @@ with open(sys.argv[1] + f"/rank{cart.Get_rank()}.json", "w") as fh:
 """
 
 
-def test_forward_steps_allocate_nothing(tmp_path):
+@pytest.mark.parametrize("forward", ["messages", "shared"])
+def test_forward_steps_allocate_nothing(tmp_path, forward):
     """Under MPI a step between rebuilds allocates nothing either: on both ranks numba's allocator
     counts nothing (NRT statistics: every kernel of such a step, pack, unpack, derive, resolve and
-    finish, runs without the runtime), the state, pair list and exchange buffers stay the same
-    objects, and each step sends one message for the forward exchange to the one neighbour, and one
-    more where the rank resolves pairs whose other end the neighbour owns (newton: their terms go
-    back); what one rank sends, the other receives."""
+    finish, runs without the runtime), the state, pair list and exchange buffers (or the shared
+    window and its slots) stay the same objects, and each step sends one message for the forward
+    exchange to the one neighbour (none through the shared window), and one more where the rank
+    resolves pairs whose other end the neighbour owns (newton: their terms go back); what one rank
+    sends, the other receives."""
     import subprocess
     import sys
     from tests.helpers import ROOT
@@ -345,15 +349,15 @@ def test_forward_steps_allocate_nothing(tmp_path):
     probe.write_text(MPI_ALLOCATION_PROBE)
     mpiexec = os.path.join(os.path.dirname(sys.executable), "mpiexec")
     env = dict(os.environ, NUMBA_NRT_STATS="1", NUMBA_NUM_THREADS="1", PYTHONPATH=ROOT)
-    res = subprocess.run([mpiexec, "-n", "2", sys.executable, str(probe), str(tmp_path)], capture_output=True,
-                         text=True, env=env, timeout=600, cwd=ROOT)
+    res = subprocess.run([mpiexec, "-n", "2", sys.executable, str(probe), str(tmp_path), forward],
+                         capture_output=True, text=True, env=env, timeout=600, cwd=ROOT)
     assert res.returncode == 0, res.stderr
     ranks = [json.loads((tmp_path / f"rank{r}.json").read_text()) for r in (0, 1)]
     assert sorted(r["rank"] for r in ranks) == [0, 1]
     for r in ranks:
         assert r["rebuilt"] == 0 and r["ghosts"] > 0, r
         assert r["allocs"] == 0 and r["same"], r
-        assert r["msgs"] == [1 + (r["sent"] > 0)] * 20, r
+        assert r["msgs"] == [(forward == "messages") + (r["sent"] > 0)] * 20, r
     assert ranks[0]["sent"] == ranks[1]["received"] and ranks[1]["sent"] == ranks[0]["received"]
     assert ranks[0]["sent"] + ranks[1]["sent"] > 0
 
