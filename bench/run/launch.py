@@ -76,7 +76,7 @@ def launch_mpi(args, mapping, scene, out, ts):
             fit_skin(grid, width, args.skin * 2.0 * float(scene.state.rbound.max()), explicit=True)
         halo_skin = getattr(args, "halo_skin", None)
         refusal = halo_skin_refusal(args.skin, halo_skin, getattr(args, "preset", None)) or \
-            forward_refusal(getattr(args, "forward", "auto"), args.halo, getattr(args, "hosts", None))
+            forward_refusal(getattr(args, "forward", "messages"), args.halo, getattr(args, "hosts", None))
         if refusal:
             raise ModeError(refusal)
         if halo_skin is not None:

@@ -186,7 +186,7 @@ def mode_options(mapping, args, scheme):
     if mapping.procs > 1:
         opts.update(halo=args.halo, update_grid=args.update_grid, balance=args.balance,
                     newton={"on": True, "off": False}.get(getattr(args, "newton", "auto")),
-                    halo_skin=getattr(args, "halo_skin", None), forward=getattr(args, "forward", "auto"))
+                    halo_skin=getattr(args, "halo_skin", None), forward=getattr(args, "forward", "messages"))
     return opts
 
 

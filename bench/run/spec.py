@@ -176,13 +176,13 @@ FIELDS = (
     Field("halo", "ghost exchange: 26 direct messages (default, the paper's) or 3 sweeps of 6", choices=["26", "6"],
           default="26", point="always", neutral=REQUIRED, scope="procs", record="run.json",
           sweep={"help": "MPI points: ghosts in 26 direct messages (default, the paper's) or 3 sweeps of 6"}),
-    Field("forward", "P > 1: how the ghosts' moving fields travel between neighbour rebuilds: auto (default) "
-          "through a shared-memory window (MPI-3) where every rank runs on one node with --halo 26, else by messages; "
-          "shared: the window (refused where the ranks span nodes or with --halo 6); messages: always by messages "
-          "(the paper's way)", choices=["auto", "shared", "messages"], default="auto", point="given", scope="procs",
+    Field("forward", "P > 1: how the ghosts' moving fields travel between neighbour rebuilds: messages (default, "
+          "the paper's way); shared: through a shared-memory window (MPI-3) of the node (refused where the ranks "
+          "span nodes or with --halo 6); auto: the window where every rank runs on one node with --halo 26, else "
+          "messages", choices=["auto", "shared", "messages"], default="messages", point="given", scope="procs",
           record="run.json",
-          sweep={"help": "MPI and hybrid points: the ghosts' moving fields between rebuilds through a shared-memory "
-                         "window on one node (auto, default; shared) or by messages"}),
+          sweep={"help": "MPI and hybrid points: the ghosts' moving fields between rebuilds by messages (default) or "
+                         "through a shared-memory window on one node (shared; auto: where it can be)"}),
     Field("update_grid", "fit the block grid to the particles at the start and every K steps (the paper's "
           "updateGrid; default 0: blocks divide the box)", type=nonneg_int, default=0, metavar="K", point="given",
           scope="procs", record="run.json",

@@ -211,6 +211,6 @@ def test_recorded_options():
         "halo": None, "forward": None, "update_grid": None}
     assert recorded(args, parse_mapping("2-2-1-1-2"), "run.json") == {
         "threaded": "detection", "pin": True, "neighbor": "linkcell", "preset": None, "contact_method": "exact",
-        "halo": "6", "forward": "auto", "update_grid": 4}
+        "halo": "6", "forward": "messages", "update_grid": 4}
     assert recorded(args, parse_mapping("2-2-1-1-2"), "checkpoint") == {"neighbor": "linkcell",
                                                                         "contact_method": "exact"}

@@ -231,16 +231,16 @@ def test_newton_passes_to_the_mpi_points(tmp_path):
 
 
 def test_forward_passes_to_the_mpi_points(tmp_path):
-    """--forward shared|messages reaches the points with more than one process (hybrid ones too),
-    not the serial and thread points; auto (the default) keeps a point's key (folder name) as it was
+    """--forward shared|auto reaches the points with more than one process (hybrid ones too), not
+    the serial and thread points; messages (the default) keeps a point's key (folder name) as it was
     before the option."""
     from bench.sweep.points import make_points
-    lines = dry_run_commands(tmp_path / "dry", "--mappings", "1-1-1-1-2,2-2-1-1-1,2-2-1-1-2", "--forward", "messages")
+    lines = dry_run_commands(tmp_path / "dry", "--mappings", "1-1-1-1-2,2-2-1-1-1,2-2-1-1-2", "--forward", "shared")
     assert len(lines) == 4
-    assert ["--forward messages" in line for line in lines] == ["--mapping 2-2-1-1" in line for line in lines]
+    assert ["--forward shared" in line for line in lines] == ["--mapping 2-2-1-1" in line for line in lines]
     args = (["2-2-1-1-1"], ["dynamic"], "pluviation", 200, 15, 0, "linkcell", None, False, "26")
-    assert make_points(*args, forward="auto")[1].key == "2-2-1-1-1-822c84b2"
-    assert make_points(*args, forward="messages")[1].key != "2-2-1-1-1-822c84b2"
+    assert make_points(*args, forward="messages")[1].key == "2-2-1-1-1-822c84b2"
+    assert make_points(*args, forward="shared")[1].key != "2-2-1-1-1-822c84b2"
 
 
 def test_collect_rebuilds_runs_csv(tmp_path):
