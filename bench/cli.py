@@ -121,7 +121,7 @@ def build_parser():
                     help="timed steps (default 20; --what skin: steps per round, default 1000)")
     pf.add_argument("--what", default="all",
                     choices=["all", "pairs", "ellipsoids", "spheres", "comm", "overhead", "skin", "contention",
-                             "split", "phases"],
+                             "split", "phases", "forward"],
                     help="comm: OSU-style ping-pong between neighbour ranks (latency, bandwidth, fitted "
                          "alpha/beta); overhead: the fixed cost of a step (48 particles) and 2 ranks against "
                          "serial with commuT + migraT against the wire; skin: the cost of a step against the "
@@ -129,23 +129,28 @@ def build_parser():
                          "nothing (independent serial copies of the scene at particles/procs each); split: "
                          "the costs behind the thread schemes' cost model, measured on the mixed crystal; "
                          "phases: every phase of a step at 1 and --threads T, speedup and Karp-Flatt "
-                         "serial fraction (none of these is part of all)")
+                         "serial fraction; forward: the ghosts' forward exchange by messages against the "
+                         "shared-memory window, alternating inside MPI jobs of --procs ranks (none of these "
+                         "is part of all)")
     pf.add_argument("--repeats", type=positive_int, default=3,
                     help="--what overhead: alternating runs per configuration (with --in-job: MPI jobs a scene, "
-                         "the verdict's interval over the jobs); --what skin: round-robin "
+                         "the verdict's interval over the jobs); --what forward: MPI jobs (the verdict's interval "
+                         "over them); --what skin: round-robin "
                          "rounds; --what split: timing rounds; medians (default 3)")
     pf.add_argument("--procs", type=positive_int, default=None,
-                    help="--what comm: ranks, on the most cubic grid (default: the mapping's); --what "
+                    help="--what comm and forward: ranks, on the most cubic grid (default: the mapping's); --what "
                          "contention: workers (default 2)")
     pf.add_argument("--scene", default="packed",
-                    help="--what contention: built-in scene name or a .toml file (default packed)")
+                    help="--what contention and forward: built-in scene name or a .toml file (default packed)")
     pf.add_argument("--mapping", default=None,
-                    help="--what comm: P-px-py-pz-T block grid of the ranks (default 2-2-1-1-1; T ignored)")
+                    help="--what comm and forward: P-px-py-pz-T block grid of the ranks (default 2-2-1-1-1; T "
+                         "ignored)")
     pf.add_argument("--patterns", action="store_true",
                     help="--what comm: also time the forward exchange's MPI patterns (Isend/Irecv, persistent, "
                          "Neighbor_alltoallv) at 104, 12480 and 52000 B a message")
-    pf.add_argument("--timeout", type=positive_int, default=120,
-                    help="--what comm: seconds before the ranks are killed (default 120)")
+    pf.add_argument("--timeout", type=positive_int, default=None,
+                    help="--what comm: seconds before the ranks are killed (default 120); --what forward: "
+                         "seconds a job (default 600)")
     pf.add_argument("--threads", type=positive_int, default=1,
                     help="also time each thread scheme at T threads (packed ellipsoids)")
     pf.add_argument("--skin", type=skin_fraction, default=None, metavar="F",
@@ -160,7 +165,8 @@ def build_parser():
                     help="--what overhead: compare 2 ranks with serial inside one MPI job, C cycles (default 100) "
                          "of 50-step blocks alternating the 2 ranks and each rank's serial copy on its own "
                          "CPU, instead of alternating runs; with --ceiling the in-step ceiling's copies in the "
-                         "same cycles")
+                         "same cycles; --what forward: the cycles a job (default 40), each a block of each "
+                         "transport")
     pf.add_argument("--out", default=None, help="write perf.json here")
 
     nd = sub.add_parser("node", help="the many-core check of this node: unpinned and pinned sweeps, the ceiling, "
@@ -173,8 +179,14 @@ def build_parser():
     nd.add_argument("--schemes-particles", type=positive_int, default=2500, help="Table 1's scene (default 2500)")
     nd.add_argument("--schemes-repeats", type=positive_int, default=21, help="Table 1's rounds (default 21)")
     nd.add_argument("--sweep-time", type=positive_int, default=160,
-                    help="seconds for each sweep (default 160: the whole check within 6 minutes)")
+                    help="seconds for each sweep (default 160)")
     nd.add_argument("--schemes-time", type=positive_int, default=40, help="seconds for Table 1 (default 40)")
+    nd.add_argument("--forward-jobs", type=positive_int, default=3,
+                    help="MPI jobs of the forward exchange's comparison at C ranks (default 3)")
+    nd.add_argument("--forward-cycles", type=positive_int, default=10,
+                    help="cycles a job of that comparison, each a 50-step block of each transport (default 10)")
+    nd.add_argument("--forward-time", type=positive_int, default=75,
+                    help="seconds for that comparison (default 75)")
     nd.add_argument("--point-timeout", type=positive_int, default=200, help="seconds a run (default 200)")
     nd.add_argument("--out", default="results/node", help="folder for the records and verdict.md")
 
@@ -484,14 +496,16 @@ def cmd_perf(args):
     if args.ceiling and args.what != "overhead":
         raise UsageError(f"bench perf: --ceiling is for --what overhead (2 ranks against 2 workers), "
                          f"not {args.what}")
-    if args.in_job is not None and args.what != "overhead":
-        raise UsageError(f"bench perf: --in-job is for --what overhead, not {args.what}")
+    if args.in_job is not None and args.what not in ("overhead", "forward"):
+        raise UsageError(f"bench perf: --in-job is for --what overhead and forward, not {args.what}")
     if args.what == "overhead":
         from bench.studies.perf_overhead import measure
         return _perf_report(args, lambda: measure(args.repeats, print, skin=args.skin, ceiling=args.ceiling,
                                                   in_job=args.in_job))
     if args.what == "contention":
         return _one_line(_perf_contention)(args)
+    if args.what == "forward":
+        return _one_line(_perf_forward)(args)
     if args.what == "comm":
         from bench.studies.perf_comm import perf_comm
         return _one_line(perf_comm)(args)
@@ -519,6 +533,12 @@ def _perf_split(args):
     for line in report_lines(rep):
         print(line)
     return rep
+
+
+def _perf_forward(args):
+    from bench.studies.perf_forward import measure
+    return _perf_report(args, lambda: measure(args.mapping, args.procs, args.scene, args.particles, args.skin,
+                                              args.repeats, args.in_job, args.timeout or 600, print))
 
 
 def _perf_contention(args):

@@ -11,16 +11,23 @@ is started on, what decides how a step should be split there:
    C serial copies sharing nothing, and meeting every step) for C threads, 4 x C/4 and C ranks,
    into DIR/pinned;
 3. Table 1 in kind at C threads (`bench schemes`, 2.5k packed ellipsoids), into DIR/schemes;
+4. the ghosts' forward exchange at C ranks by messages against the shared-memory window, on the
+   same scene, alternating inside MPI jobs (`bench perf --what forward`, bench.studies.perf_forward),
+   into DIR/forward: the window's case is a rank with many neighbours on one node, which 2 cores
+   cannot show;
 
-(each part within its own time limit, by default 160 + 160 + 40 s: the whole check within 6
-minutes), then writes DIR/verdict.md: each comparison the issue sets a target for, as a ratio measured
-within one sweep, beside the target and the repeats' spread of the two times (a ratio closer to 1
-than the larger spread is called a tie). Every part has its own time limit, so that a part that
+(each part within its own time limit, by default 160 + 160 + 40 + 75 s; the first three took 3-5
+minutes on a lent 16-core machine), then writes DIR/verdict.md: each comparison the issue sets a
+target for, as a ratio measured within one sweep, beside the target and the repeats' spread of the
+two times (a ratio closer to 1 than the larger spread is called a tie), and the forward exchange's
+ranking with its 95 % interval over the jobs. Every part has its own time limit, so that a part that
 runs long leaves the others their time; what did not finish is named in the verdict.
 The figures are each sweep's own (efficiency.png, modules.png, ...) and DIR/schemes/schemes.png.
 """
+import json
 import math
 import os
+import statistics
 import subprocess
 import sys
 
@@ -104,10 +111,11 @@ def _compare(label, a, b, target, what="totalT", lower_is_better=True):
            f"{'met' if met else 'NOT met'}; {conf})"
 
 
-def verdict(cores, unpinned, pinned, ceiling, schemes, steps=None, missing=()):
+def verdict(cores, unpinned, pinned, ceiling, schemes, steps=None, missing=(), forward=None):
     """The lines of DIR/verdict.md from the records (DataFrames or None): runs.csv of each sweep,
-    ceiling.csv, schemes.csv, and the mean busy imbalance of each point (steps: {mapping: max/mean
-    of the threads' busy time, median over steps})."""
+    ceiling.csv, schemes.csv, the mean busy imbalance of each point (steps: {mapping: max/mean
+    of the threads' busy time, median over steps}) and the forward exchange's report (forward: the
+    perf.json of `bench perf --what forward`, or None)."""
     quarter = max(1, cores // 4)
     t_q, r_q = mapping(1, quarter), mapping(quarter, 1)
     t_c, r_c = mapping(1, cores), mapping(cores, 1)
@@ -170,7 +178,21 @@ def verdict(cores, unpinned, pinned, ceiling, schemes, steps=None, missing=()):
             lo, hi = (float(r.get(f"efficiency_own_{e}", math.nan)) for e in ("lo", "hi"))
             lines.append(f"- Table 1 link-cell {r['method']}: eff_own {eff:.2f}{_ci(lo, hi)}{extra} "
                          f"(target >= {TARGET_LINKCELL_EFF:g}: {_verdict(eff, lo, hi, TARGET_LINKCELL_EFF)})")
+    if forward:
+        lines.append(_forward_line(forward))
     return lines
+
+
+def _forward_line(rep):
+    """The verdict's line of `bench perf --what forward`'s report (bench.studies.perf_forward)."""
+    said = {"shared": "the shared window is faster", "messages": "the messages are faster",
+            "tie": "no ranking at 95 %"}[rep["faster"]]
+    msgs = [statistics.mean(r["parts_us"][fw]["msgs_sent"] for r in rep["jobs_rows"]) for fw in ("messages", "shared")]
+    return (f"- forward exchange at {rep['procs']} ranks ({rep['mapping']}), messages / shared window, step time: "
+            f"{rep['ratio']:.3f}{_ci(rep['ratio_lo'], rep['ratio_hi'])} over {rep['jobs']} jobs of {rep['cycles']} "
+            f"cycles ({1e3 * rep['messages_ms']:.0f} against {1e3 * rep['shared_ms']:.0f} us a step; messages a "
+            f"step, all ranks: {msgs[0]:.0f} against {msgs[1]:.0f}): {said}"
+            + ("" if rep["identical"] else "; END STATES DIFFER"))
 
 
 def _ci(lo, hi):
@@ -191,6 +213,14 @@ def _verdict(value, lo, hi, target):
 def _read(path):
     try:
         return pd.read_csv(path)
+    except (OSError, ValueError):
+        return None
+
+
+def _read_json(path):
+    try:
+        with open(path) as fh:
+            return json.load(fh)
     except (OSError, ValueError):
         return None
 
@@ -224,6 +254,11 @@ def node_check(args, log=print):
              (f"Table 1 at {cores} threads", ["schemes", "--particles", str(args.schemes_particles), "--threads",
                                               str(cores), "--repeats", str(args.schemes_repeats),
                                               "--out", os.path.join(out, "schemes")], args.schemes_time)]
+    if cores >= 2:
+        parts.append((f"the forward exchange at {cores} ranks",
+                      ["perf", "--what", "forward", "--procs", str(cores), "--particles", str(args.particles),
+                       "--repeats", str(args.forward_jobs), "--in-job", str(args.forward_cycles),
+                       "--out", os.path.join(out, "forward")], args.forward_time))
     missing = []
     for name, argv, limit in parts:
         log(f"== {name}: bench {' '.join(argv)}")
@@ -237,7 +272,8 @@ def node_check(args, log=print):
     pinned = _read(os.path.join(out, "pinned", "runs.csv"))
     lines = verdict(cores, unpinned, pinned, _read(os.path.join(out, "pinned", "ceiling.csv")),
                     _read(os.path.join(out, "schemes", "schemes.csv")),
-                    steps=_busy_imbalance(os.path.join(out, "unpinned"), unpinned), missing=missing)
+                    steps=_busy_imbalance(os.path.join(out, "unpinned"), unpinned), missing=missing,
+                    forward=_read_json(os.path.join(out, "forward", "perf.json")))
     cpu = environment().get("cpu_model", "CPU model unknown")
     lines[1:1] = ["", f"{cpu}, {cores} cores used of {os.cpu_count()}; {args.particles} packed ellipsoids, "
                       f"{args.steps} steps, {args.repeats} repeats. Commands: see log; records in the folders "

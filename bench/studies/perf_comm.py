@@ -48,9 +48,9 @@ def dims_create(procs):
     return sorted(dims, reverse=True)
 
 
-def resolve_mapping(procs, mapping):
+def resolve_mapping(procs, mapping, what="comm"):
     """The Mapping to measure from --procs / --mapping (ModeError, one line, when they disagree,
-    are malformed, or give fewer than 2 ranks)."""
+    are malformed, or give fewer than 2 ranks); what names the study in that line."""
     if mapping:
         m = parse_mapping(mapping)
         if procs is not None and procs != m.procs:
@@ -61,7 +61,8 @@ def resolve_mapping(procs, mapping):
     else:
         m = parse_mapping(DEFAULT_MAPPING)
     if m.procs < 2:
-        raise ModeError(f"--what comm needs at least 2 ranks (MPI ping-pong), got P = {m.procs}")
+        why = {"comm": "MPI ping-pong", "forward": "ghosts to forward"}[what]
+        raise ModeError(f"--what {what} needs at least 2 ranks ({why}), got P = {m.procs}")
     return m
 
 

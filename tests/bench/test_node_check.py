@@ -98,3 +98,19 @@ def test_verdict_names_what_is_missing():
 ])
 def test_bad_input(tmp_path, args, words):
     one_line_error(bench("node", *(["--out", str(tmp_path / "n")] if "--out" not in args else []), *args), *words)
+
+
+def test_verdict_reads_the_forward_exchange():
+    """The fourth part's report (bench perf --what forward at C ranks): its ratio messages / shared
+    with the interval over its jobs, the two step times and the messages of all ranks a step (the
+    jobs' mean: 120 and 116 by messages, 40 through the window), and the ranking it allows."""
+    rows = [{"parts_us": {"messages": {"msgs_sent": m}, "shared": {"msgs_sent": 40.0}}} for m in (120.0, 116.0)]
+    forward = {"procs": 16, "mapping": "16-4-2-2-1", "ratio": 1.08, "ratio_lo": 1.02, "ratio_hi": 1.14, "jobs": 2,
+               "cycles": 10, "messages_ms": 2.10, "shared_ms": 1.95, "faster": "shared", "identical": True,
+               "jobs_rows": rows}
+    lines = verdict(16, None, None, None, None, forward=forward)
+    assert ("- forward exchange at 16 ranks (16-4-2-2-1), messages / shared window, step time: 1.080 [1.02, 1.14] "
+            "over 2 jobs of 10 cycles (2100 against 1950 us a step; messages a step, all ranks: 118 against 40): "
+            "the shared window is faster") in lines
+    tie = verdict(16, None, None, None, None, forward=dict(forward, ratio_lo=0.97, faster="tie", identical=False))
+    assert tie[-1].endswith("no ranking at 95 %; END STATES DIFFER")
