@@ -167,6 +167,10 @@ def build_parser():
                          "CPU, instead of alternating runs; with --ceiling the in-step ceiling's copies in the "
                          "same cycles; --what forward: the cycles a job (default 40), each a block of each "
                          "transport")
+    pf.add_argument("--work", action="store_true",
+                    help="--what phases: run the threads mode's T ranges one after another on one thread, so "
+                         "that each phase's time is the work of the T-range algorithm: its inflation over "
+                         "serial, and the speedup T cores can give it at most")
     pf.add_argument("--out", default=None, help="write perf.json here")
 
     nd = sub.add_parser("node", help="the many-core check of this node: unpinned and pinned sweeps, the ceiling, "
@@ -496,6 +500,8 @@ def cmd_perf(args):
     if args.ceiling and args.what != "overhead":
         raise UsageError(f"bench perf: --ceiling is for --what overhead (2 ranks against 2 workers), "
                          f"not {args.what}")
+    if args.work and args.what != "phases":
+        raise UsageError(f"bench perf: --work is for --what phases, not {args.what}")
     if args.in_job is not None and args.what not in ("overhead", "forward"):
         raise UsageError(f"bench perf: --in-job is for --what overhead and forward, not {args.what}")
     if args.what == "overhead":
@@ -520,7 +526,7 @@ def cmd_perf(args):
             raise UsageError("bench perf --what phases needs --threads T >= 2")
         from bench.studies.perf_phases import measure as phases
         return _one_line(lambda a: _perf_report(a, lambda: phases(a.particles, a.threads, a.steps or 20,
-                                                                  a.repeats, log=print)))(args)
+                                                                  a.repeats, log=print, work=a.work)))(args)
     if args.steps is None:
         args.steps = 20
     from bench.studies.perf import perf

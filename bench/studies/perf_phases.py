@@ -34,9 +34,21 @@ TARGET_KARP_FLATT = 0.02, gets its verdict from that interval: met where e_hi <=
 where e_lo > 0.02, unresolved between (bench.sweep.intervals.verdict). A phase the threads have
 and the serial mode lacks (cut, gather_list) has a speedup far below 1 and misses it by design of
 the question: it is a serial phase the threads add.
+
+`--work` asks what each phase costs at T ranges, whatever the cores: the threads mode keeps its T
+ranges (every loop split T ways, every table and pass the T threads have) but numba runs them on
+one thread (numba.set_num_threads(1): a prange over the T ranges then runs them one after another),
+so each phase's time is the whole work of the T-range algorithm. Its ratio to the serial mode's
+time, the work inflation W = w_T / t1 (paired interval over the rounds, as the speedups'), bounds
+what T cores can give: a speedup of at most T / W, and a phase whose work grows with T (a table of
+T x n entries, each thread passing over every particle) shows it here on 2 cores as it would on T.
+Rounds alternate the serial mode and the T-range mode on one thread, as above, after one untimed
+rebuild of both (under the dynamic scheme the one thread takes every chunk of the scan, and its
+buffer grows to hold them); no verdict (issue 32 sets its targets on speedups).
 """
 import copy
 
+import numba
 import numpy as np
 
 from bench.run.prepare import load_prepared
@@ -82,16 +94,21 @@ def _modes(scene, dt, threads, scheme, skin):
     return serial, par
 
 
-def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print):
-    """The report: per case, per phase, t1 and tT [s] (medians), speedup and Karp-Flatt e."""
+def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print, work=False):
+    """The report: per case, per phase, t1 and tT [s] (medians), speedup and Karp-Flatt e; work: the
+    T ranges on one thread instead (module docstring): t1, wT [s], the work inflation W and T / W."""
     if threads < 2:
         raise ValueError("--what phases needs --threads T >= 2")
     scene = load_prepared("packed", particles=particles)
     dt = choose_time_step(scene).dt
     report = {"what": "phases", "particles": scene.n, "threads": threads, "scheme": scheme, "steps": steps,
-              "repeats": repeats, "cases": {}}
+              "repeats": repeats, "work": work, "cases": {}}
     for name, skin, force in CASES:
         serial, par = _modes(scene, dt, threads, scheme, skin)
+        if work:   # after the warm-up at T threads: the T ranges one after another on one thread
+            numba.set_num_threads(1)
+            for mode in (serial, par):   # untimed: the one thread's scan buffers grow to its pairs
+                step_phases(mode, True)
         samples = ({}, {})
         rounds = ({}, {})   # {phase: [R] the round's median} at 1 and T threads
         for _ in range(repeats):  # alternating rounds: serial K steps, threads K steps
@@ -108,8 +125,12 @@ def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print
             if phase not in samples[0] or phase not in samples[1]:
                 continue
             t1, tt = float(np.median(samples[0][phase])), float(np.median(samples[1][phase]))
-            rows[phase] = phase_row(t1, tt, rounds[0][phase], rounds[1][phase], threads)
+            row = work_row if work else phase_row
+            rows[phase] = row(t1, tt, rounds[0][phase], rounds[1][phase], threads)
         report["cases"][name] = rows
+        if work:
+            _log_work(log, name, scene.n, threads, scheme, repeats, steps, rows)
+            continue
         log(f"# {name}: {scene.n} packed ellipsoids, {threads} threads ({scheme}) against serial, "
             f"{repeats} alternating rounds of {steps} steps, medians; 95 % intervals paired over the rounds; "
             f"target: Karp-Flatt <= {TARGET_KARP_FLATT:g} (issue 32)")
@@ -120,6 +141,26 @@ def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print
                 f"{format_interval(r['speedup_lo'], r['speedup_hi']):>16s} {r['karp_flatt']:10.3f} "
                 f"{format_interval(r['karp_flatt_lo'], r['karp_flatt_hi']):>16s} {r['verdict']}")
     return report
+
+
+def _log_work(log, name, n, threads, scheme, repeats, steps, rows):
+    log(f"# {name}: {n} packed ellipsoids, the work of {threads} ranges ({scheme}) on one thread against serial, "
+        f"{repeats} alternating rounds of {steps} steps, medians; 95 % intervals paired over the rounds")
+    log(f"{'phase':12s} {'serial [ms]':>12s} {f'{threads} ranges [ms]':>15s} {'work x':>8s} {'95 %':>16s} "
+        f"{'speedup at most':>16s}")
+    for phase, r in rows.items():
+        log(f"{phase:12s} {1e3 * r['t1_s']:12.4f} {1e3 * r['wT_s']:15.4f} {r['inflation']:8.3f} "
+            f"{format_interval(r['inflation_lo'], r['inflation_hi']):>16s} {r['speedup_bound']:16.2f}")
+
+
+def work_row(t1, wt, rounds1, roundsW, threads):
+    """One phase's work report (--work): t1_s, wT_s (medians over every step [s]: serial, and the T
+    ranges on one thread), the work inflation wT / t1 with its 95 % interval paired over the rounds,
+    and the speedup T cores can give it at most, T / inflation."""
+    w = wt / t1 if t1 > 0 else float("nan")
+    lo, hi = ratio_interval(roundsW, rounds1)
+    return {"t1_s": t1, "wT_s": wt, "inflation": w, "inflation_lo": lo, "inflation_hi": hi,
+            "speedup_bound": threads / w if w > 0 else float("nan")}
 
 
 def phase_row(t1, tt, rounds1, roundsT, threads):

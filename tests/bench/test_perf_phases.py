@@ -62,3 +62,37 @@ def test_phase_row_interval_and_verdict():
     assert r["karp_flatt_lo"] > 70 and r["verdict"] == "not met"
     r = phase_row(1.0e-3, 0.5e-3, [1.0e-3], [0.5e-3], 2)   # one round: no interval, no verdict either way
     assert math.isnan(r["speedup_lo"]) and r["verdict"] == "unresolved"
+
+
+def test_work_row_inflation_and_bound():
+    """--work: a phase's work at T ranges over its serial time, paired over the rounds. Rounds of
+    1.0, 1.1, 0.9 ms serial against 1.5, 1.6, 1.4 ms for 16 ranges on one thread: ratios 1.5,
+    1.4545, 1.5556, log mean 0.407330, s 0.033609, t(0.975, 2) = 4.302653: W in [1.38243, 1.63365]
+    (worked by hand); the medians 1.0 and 1.5 ms give W = 1.5, and 16 cores can give the phase at
+    most 16 / 1.5 = 10.67x."""
+    from bench.studies.perf_phases import work_row
+    r = work_row(1.0e-3, 1.5e-3, [1.0e-3, 1.1e-3, 0.9e-3], [1.5e-3, 1.6e-3, 1.4e-3], 16)
+    assert r["inflation"] == pytest.approx(1.5) and r["speedup_bound"] == pytest.approx(16 / 1.5)
+    assert (r["inflation_lo"], r["inflation_hi"]) == pytest.approx((1.38243, 1.63365), abs=1e-4)
+
+
+def test_work_runs_the_ranges_on_one_thread(tmp_path):
+    """`--work` end to end at 4 ranges: every case's phases are reported as work (wT_s, inflation =
+    wT_s / t1_s, speedup bound = 4 / inflation), and the range cut, a phase the serial mode has not,
+    costs work at 4 ranges that serial does not spend (inflation above 1)."""
+    import json
+    res = bench("perf", "--what", "phases", "--threads", "4", "--work", "--particles", "300", "--steps", "2",
+                "--repeats", "2", "--out", str(tmp_path), timeout=600)
+    assert res.returncode == 0, res.stderr
+    rep = json.loads((tmp_path / "perf.json").read_text())
+    assert rep["work"] and set(rep["cases"]) == {"skin 0.1", "skin 0.1, rebuild", "skin 0"}
+    for rows in rep["cases"].values():
+        for r in rows.values():
+            assert r["inflation"] == pytest.approx(r["wT_s"] / r["t1_s"])
+            assert r["speedup_bound"] == pytest.approx(4 / r["inflation"])
+    assert rep["cases"]["skin 0"]["cut"]["inflation"] > 1
+    assert "ranges [ms]" in res.stdout and "speedup at most" in res.stdout
+
+
+def test_work_is_for_phases():
+    one_line_error(bench("perf", "--what", "comm", "--work"), "--work is for --what phases")
