@@ -22,19 +22,16 @@ must end with both set-ups' states identical bit for bit (else exit 1). `bench n
 C ranks on the node it checks (issue 32: the window's case is a rank with up to 26 neighbours on a
 many-core node; at 2 ranks of the 2-core VM 23 jobs tied, 0.992 [0.978, 1.007]).
 """
-import json
 import math
 import os
-import signal
 import statistics
-import subprocess
 import sys
 import tempfile
 
 from bench.run.launch import mpiexec_path
 from bench.run.threads_env import usable_cpus
-from bench.run.transport import transport_env
 from bench.studies.perf_comm import resolve_mapping
+from bench.studies.perf_overhead import run_job
 from bench.sweep.intervals import mean_interval
 
 DEFAULT_CYCLES = 40
@@ -80,24 +77,6 @@ def summarize(rows):
             "shared_ms": statistics.median(r["shared_ms"] for r in rows)}
 
 
-def _job(cmd, timeout):
-    """Run one job (its own session: on a timeout or an interruption the whole job is killed, no
-    rank outlives the study); RuntimeError (one line) where it fails."""
-    proc = subprocess.Popen(cmd, start_new_session=True, env=transport_env(dict(os.environ)),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        out, err = proc.communicate(timeout=timeout)
-    except BaseException as e:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.communicate()
-        if isinstance(e, subprocess.TimeoutExpired):
-            raise RuntimeError(f"the forward comparison did not end within {timeout} s; killed") from None
-        raise
-    if proc.returncode != 0:
-        last = (err.strip() or out.strip() or "no output").splitlines()[-1].removeprefix("bench: error: ")
-        raise RuntimeError(f"the forward comparison failed (exit status {proc.returncode}): {last}")
-
-
 def measure(mapping=None, procs=None, scene="packed", particles=None, skin=None, repeats=3, cycles=None,
             timeout=600, log=print):
     """The `bench perf --what forward` report (module docstring). ModeError (one line) for a bad
@@ -127,9 +106,7 @@ def measure(mapping=None, procs=None, scene="packed", particles=None, skin=None,
                 cmd += ["--skin", repr(float(skin))]
             if pin:
                 cmd.append("--pin")
-            _job(cmd, timeout)
-            with open(raw) as fh:
-                doc = json.load(fh)
+            doc = run_job(cmd, raw, timeout, "the forward comparison")
             row = job_row(doc)
             rows.append(row)
             log(f"job {r + 1}/{repeats}: {m} {scene} {doc['particles']}: messages {row['messages_ms']:.3f}, "

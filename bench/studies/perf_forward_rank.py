@@ -21,12 +21,11 @@ window sends no forward message between rebuilds). With --pin each rank is bound
 a CPU of its own (bench.run.binding, as `--pin`). Rank 0 writes FILE (JSON). No records, no
 supervisor: the figures are the modes' own step times.
 """
-import argparse
 import sys
 
 import numpy as np
 
-from bench.studies.perf_overhead_rank import DROP_STEPS, BLOCK_STEPS, _same
+from bench.studies.perf_overhead_rank import BLOCK_STEPS, DROP_STEPS, _same, job_arguments
 
 COLUMNS = ("totalT", "commuT", "syncT", "neighborT", "compuT", "neighbor_rebuilt", "msgs_sent")
 FORWARDS = ("messages", "shared")
@@ -42,13 +41,8 @@ def _block(mode, steps):
 
 
 def main(argv):
-    p = argparse.ArgumentParser(prog="bench.studies.perf_forward_rank")
+    p = job_arguments("bench.studies.perf_forward_rank")
     p.add_argument("--dims", type=int, nargs=3, required=True)
-    p.add_argument("--scene", required=True)
-    p.add_argument("--particles", type=int, default=None)
-    p.add_argument("--skin", type=float, default=None)
-    p.add_argument("--cycles", type=int, required=True)
-    p.add_argument("--json", required=True)
     p.add_argument("--pin", action="store_true", help="bind each rank to a CPU of its own")
     args = p.parse_args(argv)
     from mpi4py import MPI

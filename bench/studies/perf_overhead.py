@@ -136,19 +136,27 @@ def _in_job(scene, particles, skin, cycles, tmp, ceiling=False, timeout=900):
         cmd += ["--skin", repr(float(skin))]
     if ceiling:
         cmd.append("--ceiling")
+    return run_job(cmd, raw, timeout, f"the in-job comparison of {scene}")
+
+
+def run_job(cmd, raw, timeout, what):
+    """Run one MPI job (cmd: mpiexec and its program) in a session of its own and read the JSON it
+    writes to raw; on a timeout or an interruption the session is killed (mpiexec's proxies and
+    ranks with it: no rank outlives the study). RuntimeError (one line naming `what`) where it
+    times out, fails or writes nothing."""
     proc = subprocess.Popen(cmd, start_new_session=True, env=transport_env(dict(os.environ)),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         out, err = proc.communicate(timeout=timeout)
-    except BaseException as e:   # a timeout or an interruption: no rank outlives the study
-        os.killpg(proc.pid, signal.SIGKILL)   # mpiexec's session: its proxies and ranks with it
+    except BaseException as e:
+        os.killpg(proc.pid, signal.SIGKILL)
         proc.communicate()
         if isinstance(e, subprocess.TimeoutExpired):
-            raise RuntimeError(f"the in-job comparison of {scene} did not end within {timeout} s; killed") from None
+            raise RuntimeError(f"{what} did not end within {timeout} s; killed") from None
         raise
     if proc.returncode != 0 or not os.path.exists(raw):
         last = (err.strip() or out.strip() or "no output").splitlines()[-1].removeprefix("bench: error: ")
-        raise RuntimeError(f"the in-job comparison of {scene} failed (exit status {proc.returncode}): {last}")
+        raise RuntimeError(f"{what} failed (exit status {proc.returncode}): {last}")
     with open(raw) as fh:
         return json.load(fh)
 

@@ -79,13 +79,20 @@ def _same(a, b):
     return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
 
 
-def main(argv):
-    p = argparse.ArgumentParser(prog="bench.studies.perf_overhead_rank")
+def job_arguments(prog):
+    """The arguments an in-job rank program takes from its study (the scene, its particles and
+    skin, the cycles, the JSON file rank 0 writes); the program adds its own."""
+    p = argparse.ArgumentParser(prog=prog)
     p.add_argument("--scene", required=True)
     p.add_argument("--particles", type=int, default=None)
     p.add_argument("--skin", type=float, default=None)
     p.add_argument("--cycles", type=int, required=True)
     p.add_argument("--json", required=True)
+    return p
+
+
+def main(argv):
+    p = job_arguments("bench.studies.perf_overhead_rank")
     p.add_argument("--ceiling", action="store_true", help="also the in-step ceiling of 2 workers")
     args = p.parse_args(argv)
     from mpi4py import MPI
