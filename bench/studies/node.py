@@ -24,7 +24,6 @@ ranking with its 95 % interval over the jobs. Every part has its own time limit,
 runs long leaves the others their time; what did not finish is named in the verdict.
 The figures are each sweep's own (efficiency.png, modules.png, ...) and DIR/schemes/schemes.png.
 """
-import json
 import math
 import os
 import statistics
@@ -33,7 +32,7 @@ import sys
 
 import pandas as pd
 
-from bench.run.records import environment
+from bench.run.records import environment, read_json_file
 from bench.sweep.intervals import format_interval, verdict as interval_verdict
 
 # issue 32's targets on C cores
@@ -217,14 +216,6 @@ def _read(path):
         return None
 
 
-def _read_json(path):
-    try:
-        with open(path) as fh:
-            return json.load(fh)
-    except (OSError, ValueError):
-        return None
-
-
 def _busy_imbalance(sweep_dir, runs):
     """{mapping: median over steps of steps.csv `imbalance`} of the thread points of a sweep."""
     out = {}
@@ -273,7 +264,7 @@ def node_check(args, log=print):
     lines = verdict(cores, unpinned, pinned, _read(os.path.join(out, "pinned", "ceiling.csv")),
                     _read(os.path.join(out, "schemes", "schemes.csv")),
                     steps=_busy_imbalance(os.path.join(out, "unpinned"), unpinned), missing=missing,
-                    forward=_read_json(os.path.join(out, "forward", "perf.json")))
+                    forward=read_json_file(os.path.join(out, "forward", "perf.json")))
     cpu = environment().get("cpu_model", "CPU model unknown")
     lines[1:1] = ["", f"{cpu}, {cores} cores used of {os.cpu_count()}; {args.particles} packed ellipsoids, "
                       f"{args.steps} steps, {args.repeats} repeats. Commands: see log; records in the folders "

@@ -25,19 +25,10 @@ import sys
 
 import numpy as np
 
-from bench.studies.perf_overhead_rank import BLOCK_STEPS, DROP_STEPS, _same, job_arguments
+from bench.studies.perf_overhead_rank import BLOCK_STEPS, DROP_STEPS, _block, _same, job_arguments
 
 COLUMNS = ("totalT", "commuT", "syncT", "neighborT", "compuT", "neighbor_rebuilt", "msgs_sent")
 FORWARDS = ("messages", "shared")
-
-
-def _block(mode, steps):
-    """steps of `mode`: [steps, len(COLUMNS)] of their rows (0 where a row lacks one)."""
-    out = np.zeros((steps, len(COLUMNS)))
-    for k in range(steps):
-        row = mode.step()
-        out[k] = [row.get(c, 0.0) or 0.0 for c in COLUMNS]
-    return out
 
 
 def main(argv):
@@ -83,7 +74,7 @@ def main(argv):
         order = FORWARDS if cycle % 2 == 0 else FORWARDS[::-1]
         for fw in order:
             cart.Barrier()
-            rows = _block(modes[fw], BLOCK_STEPS)[DROP_STEPS:]
+            rows = _block(modes[fw], BLOCK_STEPS, COLUMNS)[DROP_STEPS:]
             total = np.empty(rows.shape[0])
             cart.Allreduce(np.ascontiguousarray(rows[:, 0]), total, op=MPI.MAX)
             sums = np.empty(len(COLUMNS) - 1)

@@ -46,12 +46,12 @@ IDLE_POLL_S = 2e-4  # the sleeping rank's poll of the barrier that ends a serial
 COLUMNS = ("totalT", "commuT", "syncT", "migraT", "wire_s")
 
 
-def _block(mode, steps):
-    """steps of `mode`, returning [steps, len(COLUMNS)] of their rows (0 where a row lacks one)."""
-    out = np.zeros((steps, len(COLUMNS)))
+def _block(mode, steps, columns=COLUMNS):
+    """steps of `mode`, returning [steps, len(columns)] of their rows (0 where a row lacks one)."""
+    out = np.zeros((steps, len(columns)))
     for k in range(steps):
         row = mode.step()
-        out[k] = [row.get(c, 0.0) or 0.0 for c in COLUMNS]
+        out[k] = [row.get(c, 0.0) or 0.0 for c in columns]
     return out
 
 

@@ -205,8 +205,8 @@ def test_in_job_comparison_runs_one_mpi_job():
 
 
 def test_in_job_is_refused_elsewhere():
-    """--in-job is a way of --what overhead's comparison: with another --what it is one line
-    naming the option, exit 2, no traceback."""
+    """--in-job is a way of --what overhead's and forward's comparisons: with another --what it is
+    one line naming the option, exit 2, no traceback."""
     res = bench("perf", "--what", "pairs", "--in-job")
     assert res.returncode == 2 and "Traceback" not in res.stderr
     assert res.stderr.strip().count("\n") == 0 and "--in-job" in res.stderr
