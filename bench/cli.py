@@ -505,7 +505,9 @@ def cmd_perf(args):
     if args.in_job is not None and args.what not in ("overhead", "forward"):
         raise UsageError(f"bench perf: --in-job is for --what overhead and forward, not {args.what}")
     if args.what == "overhead":
+        from bench.run.lifeline import raise_on_signals
         from bench.studies.perf_overhead import measure
+        raise_on_signals()   # SIGTERM and SIGHUP end a run or an MPI job as Ctrl-C does
         return _perf_report(args, lambda: measure(args.repeats, print, skin=args.skin, ceiling=args.ceiling,
                                                   in_job=args.in_job))
     if args.what == "contention":
@@ -542,7 +544,9 @@ def _perf_split(args):
 
 
 def _perf_forward(args):
+    from bench.run.lifeline import raise_on_signals
     from bench.studies.perf_forward import measure
+    raise_on_signals()   # SIGTERM and SIGHUP end its MPI job as Ctrl-C does (bench.studies.perf_overhead run_job)
     return _perf_report(args, lambda: measure(args.mapping, args.procs, args.scene, args.particles, args.skin,
                                               args.repeats, args.in_job, args.timeout or 600, print))
 

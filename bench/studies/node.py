@@ -21,7 +21,8 @@ minutes on a lent 16-core machine), then writes DIR/verdict.md: each comparison 
 target for, as a ratio measured within one sweep, beside the target and the repeats' spread of the
 two times (a ratio closer to 1 than the larger spread is called a tie), and the forward exchange's
 ranking with its 95 % interval over the jobs. Every part has its own time limit, so that a part that
-runs long leaves the others their time; what did not finish is named in the verdict.
+runs long leaves the others their time (past it the part gets SIGTERM, on which it stops its own
+runs and MPI jobs, and SIGKILL PART_GRACE_S later); what did not finish is named in the verdict.
 The figures are each sweep's own (efficiency.png, modules.png, ...) and DIR/schemes/schemes.png.
 """
 import math
@@ -43,6 +44,7 @@ TARGET_CEILING = 0.90            # C ranks at >= 0.9 of the in-step ceiling
 TARGET_PIN = 1.0                 # pinned at least as fast as unpinned
 TARGET_DYNAMIC_SPEEDUP = 11.0    # Table 1 dynamic all-pairs at 16 threads (the paper: 11.15x at 12)
 TARGET_LINKCELL_EFF = 0.70       # link-cell detection efficiency against its own serial
+PART_GRACE_S = 20                # seconds a part past its limit has to stop its processes after SIGTERM
 
 
 def grid(procs):
@@ -229,6 +231,28 @@ def _busy_imbalance(sweep_dir, runs):
     return out
 
 
+def _part(cmd, limit, grace=PART_GRACE_S):
+    """Run one part (a `bench` command) for at most `limit` seconds: its exit status, or None past
+    the limit, when it is sent SIGTERM, which each part turns into a stop of its own processes (a
+    sweep's runs, a study's MPI job: bench.run.lifeline), and SIGKILL `grace` seconds later if it
+    has not ended."""
+    proc = subprocess.Popen(cmd)
+    try:
+        return proc.wait(timeout=limit)
+    except subprocess.TimeoutExpired:
+        proc.terminate()
+        try:
+            proc.wait(timeout=grace)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        return None
+    except BaseException:   # the check interrupted: the part stops its own processes as above
+        proc.terminate()
+        proc.wait()
+        raise
+
+
 def node_check(args, log=print):
     """The `bench node` command: the three parts (module docstring), then the verdict. Exit 0 when
     every part finished, 4 when one did not (the verdict names it)."""
@@ -253,12 +277,11 @@ def node_check(args, log=print):
     missing = []
     for name, argv, limit in parts:
         log(f"== {name}: bench {' '.join(argv)}")
-        try:
-            res = subprocess.run([sys.executable, "-m", "bench", *argv], timeout=limit)
-            if res.returncode not in (0, 4):
-                missing.append(f"{name} (exit {res.returncode})")
-        except subprocess.TimeoutExpired:
+        rc = _part([sys.executable, "-m", "bench", *argv], limit)
+        if rc is None:
             missing.append(f"{name} (past {limit} s)")
+        elif rc not in (0, 4):
+            missing.append(f"{name} (exit {rc})")
     unpinned = _read(os.path.join(out, "unpinned", "runs.csv"))
     pinned = _read(os.path.join(out, "pinned", "runs.csv"))
     lines = verdict(cores, unpinned, pinned, _read(os.path.join(out, "pinned", "ceiling.csv")),

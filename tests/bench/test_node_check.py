@@ -114,3 +114,23 @@ def test_verdict_reads_the_forward_exchange():
             "the shared window is faster") in lines
     tie = verdict(16, None, None, None, None, forward=dict(forward, ratio_lo=0.97, faster="tie", identical=False))
     assert tie[-1].endswith("no ranking at 95 %; END STATES DIFFER")
+
+
+def test_a_part_past_its_time_gets_sigterm_then_sigkill(tmp_path):
+    """A part past its limit is sent SIGTERM, which a `bench` command turns into a stop of its own
+    processes (bench.run.lifeline); one that ignores it is killed after the grace. Both return None
+    (named missing in the verdict); a part that ends in time returns its exit status."""
+    import sys
+    import time
+    from bench.studies.node import _part
+    mark = tmp_path / "term"
+    polite = ("import signal, sys, time\n"
+              f"signal.signal(signal.SIGTERM, lambda s, f: (open({str(mark)!r}, 'w').write('term'), sys.exit(0)))\n"
+              "time.sleep(60)\n")
+    assert _part([sys.executable, "-c", polite], 2) is None
+    assert mark.read_text() == "term"
+    deaf = "import signal, time\nsignal.signal(signal.SIGTERM, signal.SIG_IGN)\ntime.sleep(60)\n"
+    t0 = time.time()
+    assert _part([sys.executable, "-c", deaf], 1, grace=1) is None
+    assert time.time() - t0 < 20
+    assert _part([sys.executable, "-c", "raise SystemExit(4)"], 30) == 4

@@ -4,11 +4,16 @@ messages against the shared-memory window inside MPI jobs. The transport never c
 message; the statistics follow their definitions (worked by hand below)."""
 import json
 import math
+import os
+import signal
+import subprocess
+import sys
+import time
 
 import pytest
 
 from bench.studies.perf_forward import faster, job_row, summarize
-from tests.helpers import bench, one_line_error
+from tests.helpers import ROOT, bench, one_line_error
 
 
 def test_forward_jobs_end_identical_and_the_window_sends_no_forward_message(tmp_path):
@@ -74,3 +79,37 @@ def test_bad_input(args, words):
 
 def test_in_job_is_for_overhead_and_forward_only():
     one_line_error(bench("perf", "--what", "comm", "--in-job", "3"), "--in-job is for --what overhead and forward")
+
+
+def _forward_ranks():
+    """The processes of a forward comparison's MPI job (its ranks name their program)."""
+    import psutil
+    left = []
+    for p in psutil.process_iter(["pid", "cmdline"]):
+        try:
+            if any("perf_forward_rank" in a for a in (p.info["cmdline"] or [])):
+                left.append(p.info["pid"])
+        except psutil.Error:
+            pass
+    return left
+
+
+@pytest.mark.parametrize("sig,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_interrupted_comparison_leaves_no_rank(sig, code):
+    """SIGTERM (as `bench node` sends a part past its time) or Ctrl-C of `bench perf --what forward`
+    while its ranks step: one line, exit 128 + the signal, and no rank of its MPI job left."""
+    proc = subprocess.Popen([sys.executable, "-m", "bench", "perf", "--what", "forward", "--particles", "300",
+                             "--repeats", "1", "--in-job", "100000"], cwd=ROOT, env=dict(os.environ, PYTHONPATH=ROOT),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    end = time.time() + 240
+    while len(_forward_ranks()) < 2 and time.time() < end:
+        time.sleep(0.2)
+    assert len(_forward_ranks()) >= 2, "the ranks never started"
+    time.sleep(3.0)   # past their set-up: stepping
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == code, err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "interrupted by " + signal.Signals(sig).name in lines[0], err
+    time.sleep(1.0)
+    assert _forward_ranks() == [], "orphan ranks"
