@@ -77,13 +77,30 @@ def summarize(rows):
             "shared_ms": statistics.median(r["shared_ms"] for r in rows)}
 
 
+def _prepare(scene, particles, skin):
+    """Before any rank starts: the scene loaded (a bad one: its one line), its build stage run and
+    cached (the rested pack), and the kernels the ranks run compiled into numba's cache by a serial
+    twin and the halo's and Newton's compile calls, so that 2 P processes neither build the pack nor
+    compile at once (bench.run.launch warm_cache)."""
+    import copy
+    from bench.run.prepare import load_prepared
+    from dem.timestep import choose_time_step
+    from modes.halo import compile_kernels
+    from modes.newton import compile_kernels as compile_newton_kernels
+    from modes.serial import SerialMode
+    built = load_prepared(scene, particles=particles)
+    opts = {} if skin is None else {"skin": skin}
+    SerialMode().setup(copy.copy(built), dt=choose_time_step(built).dt, **opts).warmup()
+    compile_kernels()
+    compile_newton_kernels()
+
+
 def measure(mapping=None, procs=None, scene="packed", particles=None, skin=None, repeats=3, cycles=None,
             timeout=600, log=print):
     """The `bench perf --what forward` report (module docstring). ModeError (one line) for a bad
     mapping; RuntimeError (one line) where a job fails or ends with the two states apart."""
     m = resolve_mapping(procs, mapping, what="forward")
-    from dem.scene import load_scene
-    load_scene(scene, particles=particles)   # a bad scene: its one line, before any rank starts
+    _prepare(scene, particles, skin)
     exe = mpiexec_path()
     if exe is None:
         raise RuntimeError("--what forward needs mpiexec (pip install mpich, or a system MPI)")
