@@ -167,6 +167,9 @@ def build_parser():
                          "CPU, instead of alternating runs; with --ceiling the in-step ceiling's copies in the "
                          "same cycles; --what forward: the cycles a job (default 40), each a block of each "
                          "transport")
+    pf.add_argument("--forward", choices=["messages", "shared", "auto"], default=None,
+                    help="--what overhead --in-job: how the 2 ranks' ghosts travel between rebuilds (default "
+                         "messages; shared: the node's shared-memory window, modes/window.py)")
     pf.add_argument("--work", action="store_true",
                     help="--what phases: run the threads mode's T ranges one after another on one thread, so "
                          "that each phase's time is the work of the T-range algorithm: its inflation over "
@@ -504,12 +507,14 @@ def cmd_perf(args):
         raise UsageError(f"bench perf: --work is for --what phases, not {args.what}")
     if args.in_job is not None and args.what not in ("overhead", "forward"):
         raise UsageError(f"bench perf: --in-job is for --what overhead and forward, not {args.what}")
+    if args.forward is not None and (args.what != "overhead" or args.in_job is None):
+        raise UsageError("bench perf: --forward is for --what overhead --in-job (--what forward compares both)")
     if args.what == "overhead":
         from bench.run.lifeline import raise_on_signals
         from bench.studies.perf_overhead import measure
         raise_on_signals()   # SIGTERM and SIGHUP end a run or an MPI job as Ctrl-C does
         return _perf_report(args, lambda: measure(args.repeats, print, skin=args.skin, ceiling=args.ceiling,
-                                                  in_job=args.in_job))
+                                                  in_job=args.in_job, forward=args.forward or "messages"))
     if args.what == "contention":
         return _one_line(_perf_contention)(args)
     if args.what == "forward":

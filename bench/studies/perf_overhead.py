@@ -122,7 +122,7 @@ def overhead_bound(targets, wire):
     return targets["overhead_over_wire_factor"] * wire + 1e-6 * targets["overhead_over_wire_add_us"]
 
 
-def _in_job(scene, particles, skin, cycles, tmp, ceiling=False, timeout=900):
+def _in_job(scene, particles, skin, cycles, tmp, ceiling=False, timeout=900, forward="messages"):
     """The comparison of one scene inside one MPI job (module docstring; bench.studies.
     perf_overhead_rank): its JSON document. RuntimeError (one line) where the job cannot run or
     fails."""
@@ -136,6 +136,7 @@ def _in_job(scene, particles, skin, cycles, tmp, ceiling=False, timeout=900):
         cmd += ["--skin", repr(float(skin))]
     if ceiling:
         cmd.append("--ceiling")
+    cmd += ["--forward", forward]
     return run_job(cmd, raw, timeout, f"the in-job comparison of {scene}")
 
 
@@ -180,7 +181,8 @@ def in_job_row(doc, targets, strict):
             "cpu_skew": statistics.median(skew), "sync_us": 1e6 * parts["syncT"], "exchange_us": 1e6 * exchange,
             "wire_us": 1e6 * parts["wire_s"], "overhead_bound_us": 1e6 * bound, "exchange_over_bound": exchange / bound,
             "samples": {"serial_cpu0": doc["serial_cpu0_s"], "serial_cpu1": doc["serial_cpu1_s"], "two_ranks": two},
-            "affinity": doc["affinity"], **_in_job_ceiling(doc, serial, two)}
+            "affinity": doc["affinity"], "forward_transport": doc.get("forward_transport", "messages"),
+            **_in_job_ceiling(doc, serial, two)}
 
 
 def in_job_jobs(rows, targets, strict):
@@ -197,6 +199,7 @@ def in_job_jobs(rows, targets, strict):
     row = {"scene": rows[0]["scene"], "particles": rows[0]["particles"], "method": "in_job", "jobs": len(rows),
            "cycles": rows[0]["cycles"], "block_steps": rows[0]["block_steps"], "steps": rows[0]["steps"],
            "identical": all(r["identical"] for r in rows),
+           "forward_transport": rows[0].get("forward_transport", "messages"),
            "serial_ms": statistics.median(r["serial_ms"] for r in rows),
            "two_ranks_ms": statistics.median(r["two_ranks_ms"] for r in rows),
            "speedup": math.exp(statistics.mean(logs)), "speedup_lo": math.exp(lo), "speedup_hi": math.exp(hi),
@@ -270,14 +273,16 @@ def speedup_verdict(lo, hi, target, strict=False):
     return verdict(lo, hi, target, strict=strict)
 
 
-def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceiling=False, in_job=None):
+def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceiling=False, in_job=None,
+            forward="messages"):
     """Run the figures above (scenes: (scene, particles, steps) of the MPI comparison, at the
     neighbour-list skin fraction `skin`, None: the default; ceiling: each round also measures the
     in-step ceiling of 2 workers; in_job: the MPI comparison inside MPI jobs of that many cycles
-    instead, `repeats` jobs a scene); returns the report (perf.json): targets, skin, small, mpi [one row per
-    scene], load averages."""
+    instead, `repeats` jobs a scene, its 2-rank side's ghosts forwarded by `forward`: messages,
+    shared or auto, modes/window.py); returns the report (perf.json): targets, skin, forward, small,
+    mpi [one row per scene], load averages."""
     targets = dict(TARGETS, **REBUILD_TARGETS) if skin == 0 else TARGETS
-    report = {"targets": targets, "skin": skin, "load_start": os.getloadavg(), "in_job": in_job}
+    report = {"targets": targets, "skin": skin, "load_start": os.getloadavg(), "in_job": in_job, "forward": forward}
     with tempfile.TemporaryDirectory(prefix="bench-overhead-") as tmp:
         # the fixed cost of a step
         small = [_run("pluviation", 48, small_steps, "1-1-1-1-1", os.path.join(tmp, f"small{r}"))
@@ -290,7 +295,8 @@ def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceilin
         jobs = {scene: [] for scene, _, _ in scenes}
         for r in range(repeats if in_job else 0):   # the scenes' jobs alternating (module docstring)
             for scene, n, steps in scenes:
-                row = in_job_row(_in_job(scene, n, skin, in_job, tmp, ceiling), targets, strict=skin != 0)
+                row = in_job_row(_in_job(scene, n, skin, in_job, tmp, ceiling, forward=forward), targets,
+                                 strict=skin != 0)
                 if not row["identical"]:   # the modes' trajectories must agree bit for bit (DESIGN.md)
                     raise RuntimeError(f"the in-job comparison of {scene}: the 2 ranks and the serial copies ended "
                                        f"in different states")
@@ -303,6 +309,8 @@ def measure(repeats, log, small_steps=2000, scenes=MPI_SCENES, skin=None, ceilin
                 + ", ".join(f"{j['speedup']:.2f} [{j['speedup_lo']:.2f}, {j['speedup_hi']:.2f}]"
                             for j in row["jobs_rows"]) + ")")
             where = "one MPI job" if row["jobs"] == 1 else "MPI jobs"
+            if row["forward_transport"] == "shared":
+                where += ", the 2 ranks' ghosts forwarded through the shared window"
             log(f"{scene} {n}, 2 ranks against serial in {where} ({row['cycles']} cycles of "
                 f"{row['block_steps']}-step blocks a job): {row['two_ranks_ms']:.3f} against {row['serial_ms']:.3f} "
                 f"ms/step, speedup {row['speedup']:.2f} [{row['speedup_lo']:.2f}, {row['speedup_hi']:.2f}]{each} "

@@ -94,6 +94,7 @@ def job_arguments(prog):
 def main(argv):
     p = job_arguments("bench.studies.perf_overhead_rank")
     p.add_argument("--ceiling", action="store_true", help="also the in-step ceiling of 2 workers")
+    p.add_argument("--forward", default="messages", help="the 2 ranks' forward transport (modes/window.py)")
     args = p.parse_args(argv)
     from mpi4py import MPI
     from bench.run.binding import BindingError, establish
@@ -118,7 +119,7 @@ def main(argv):
     dt = choose_time_step(scene).dt
     particles = int(own.n)   # the 2-rank mode keeps its block of `scene`
     opts = {} if args.skin is None else {"skin": args.skin}
-    two = mode_for(parse_mapping("2-2-1-1-1"))().setup(scene, dt=dt, cart=cart, **opts)
+    two = mode_for(parse_mapping("2-2-1-1-1"))().setup(scene, dt=dt, cart=cart, forward=args.forward, **opts)
     one = SerialMode().setup(own, dt=dt, **opts)
     two.warmup()
     one.warmup()
@@ -165,6 +166,7 @@ def main(argv):
         doc = {"scene": args.scene, "particles": particles, "skin": args.skin, "cycles": args.cycles,
                "block_steps": BLOCK_STEPS, "drop_steps": DROP_STEPS,
                "steps": (args.cycles + 1) * BLOCK_STEPS, "identical": identical, "affinity": affinity,
+               "forward_transport": two.forward_transport,
                "two_ranks_s": times["two"], "serial_cpu0_s": times[("serial", 0)],
                "serial_cpu1_s": times[("serial", 1)], "two_ranks_parts_s": parts}
         if half is not None:

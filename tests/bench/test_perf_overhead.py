@@ -204,6 +204,25 @@ def test_in_job_comparison_runs_one_mpi_job():
     assert "ceiling of 2 workers" in lines[2]
 
 
+def test_in_job_two_ranks_through_the_shared_window():
+    """--in-job --forward shared: the 2 ranks' ghosts travel through the node's shared-memory window
+    (run.json's forward_transport, here the job's), and the 2 ranks still end bit-identical to both
+    serial copies (the transport never changes results: DESIGN.md, Determinism)."""
+    from bench.studies.perf_overhead import measure
+    lines = []
+    rep = measure(1, lines.append, small_steps=50, scenes=(("gas", 300, 40),), skin=0, in_job=1, forward="shared")
+    (row,) = rep["mpi"]
+    assert rep["forward"] == "shared" and row["forward_transport"] == "shared" and row["identical"]
+    assert "through the shared window" in lines[1]
+
+
+def test_forward_is_for_the_in_job_comparison():
+    """--forward picks the in-job 2 ranks' transport; elsewhere it is one line naming the option."""
+    res = bench("perf", "--what", "overhead", "--forward", "shared")
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert res.stderr.strip().count("\n") == 0 and "--forward is for --what overhead --in-job" in res.stderr
+
+
 def test_in_job_is_refused_elsewhere():
     """--in-job is a way of --what overhead's and forward's comparisons: with another --what it is
     one line naming the option, exit 2, no traceback."""
