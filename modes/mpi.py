@@ -69,8 +69,10 @@ _NO_CROSS_PAIRS = (_NONE, np.zeros(NDIR, dtype=np.int64), _NONE, np.zeros(NDIR, 
 # how the ghosts' moving fields travel between rebuilds: messages (the default, the paper's way),
 # shared (a shared-memory window of the node: modes.window; refused where it cannot be), auto (the
 # window where every rank runs on one node with --halo 26, else messages). At 2 ranks on a 2-vCPU
-# VM the two tie (23 jobs alternating 50-step blocks of each, falling ellipsoids: messages / shared
-# 0.992 [0.978, 1.007]), so the default stays the paper's
+# VM the two tied one day (23 jobs alternating 50-step blocks of each, falling ellipsoids: messages
+# / shared 0.992 [0.978, 1.007]) and the window led by 3 % another (16 jobs, 1.032 and 1.035; packed
+# scenes tied: `bench perf --what forward`); the default stays the paper's, which needs no room in
+# the node's shared-memory file system (MPI_Win_allocate_shared: /dev/shm)
 FORWARD = ("auto", "shared", "messages")
 # the halo skin of a run with --skin 0, a fraction of the largest bounding diameter (bench run's
 # default list skin, dem.pairs.DEFAULT_SKIN): the ghosts and owners are re-chosen only when a

@@ -33,7 +33,11 @@ mean 0.992 [0.978, 1.007]. Within a job the ranking holds (its quartiles on one 
 to job it turns: the window's writes and reads cost 5 us a step in some jobs (publish 3.4-4.0 us,
 the copy 1.6-2.9 us) and the messages' start and wait in others. With one neighbour the messages'
 per-neighbour cost is small; the window's case is a rank with many neighbours on one node (up to
-26), which a 2-core machine cannot show. The default therefore stays the paper's (messages).
+26), which a 2-core machine cannot show. Another day, by `bench perf --what forward` (the same
+method, in the repository), the window led on the falling ellipsoids by 3 % (8 jobs at each skin:
+1.032 [1.019, 1.045] and 1.035 [1.023, 1.048]) and tied on packed scenes (500 at --skin 0, 10 000).
+The default stays the paper's (messages), which also needs no room in the node's shared-memory file
+system (the window's segments; a container's /dev/shm may be small).
 """
 import numpy as np
 from numba import njit

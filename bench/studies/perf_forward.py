@@ -29,9 +29,10 @@ import sys
 import tempfile
 
 from bench.run.launch import mpiexec_path
-from bench.run.threads_env import usable_cpus
+from bench.run.threads_env import check_size, usable_cpus
 from bench.studies.perf_comm import resolve_mapping
 from bench.studies.perf_overhead import run_job
+from modes.base import ModeError
 from bench.sweep.intervals import mean_interval
 
 DEFAULT_CYCLES = 40
@@ -98,8 +99,12 @@ def _prepare(scene, particles, skin):
 def measure(mapping=None, procs=None, scene="packed", particles=None, skin=None, repeats=3, cycles=None,
             timeout=600, log=print):
     """The `bench perf --what forward` report (module docstring). ModeError (one line) for a bad
-    mapping; RuntimeError (one line) where a job fails or ends with the two states apart."""
+    mapping or more ranks than bench run starts on this node's CPUs; RuntimeError (one line) where
+    a job fails or ends with the two states apart."""
     m = resolve_mapping(procs, mapping, what="forward")
+    too_big = check_size(f"{m.procs}-{m.px}-{m.py}-{m.pz}-1")   # bench run's limit of ranks started here
+    if too_big:
+        raise ModeError(too_big)
     _prepare(scene, particles, skin)
     exe = mpiexec_path()
     if exe is None:

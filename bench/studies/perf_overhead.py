@@ -181,7 +181,7 @@ def in_job_row(doc, targets, strict):
             "cpu_skew": statistics.median(skew), "sync_us": 1e6 * parts["syncT"], "exchange_us": 1e6 * exchange,
             "wire_us": 1e6 * parts["wire_s"], "overhead_bound_us": 1e6 * bound, "exchange_over_bound": exchange / bound,
             "samples": {"serial_cpu0": doc["serial_cpu0_s"], "serial_cpu1": doc["serial_cpu1_s"], "two_ranks": two},
-            "affinity": doc["affinity"], "forward_transport": doc.get("forward_transport", "messages"),
+            "affinity": doc["affinity"], "forward_transport": doc["forward_transport"],
             **_in_job_ceiling(doc, serial, two)}
 
 
@@ -199,7 +199,7 @@ def in_job_jobs(rows, targets, strict):
     row = {"scene": rows[0]["scene"], "particles": rows[0]["particles"], "method": "in_job", "jobs": len(rows),
            "cycles": rows[0]["cycles"], "block_steps": rows[0]["block_steps"], "steps": rows[0]["steps"],
            "identical": all(r["identical"] for r in rows),
-           "forward_transport": rows[0].get("forward_transport", "messages"),
+           "forward_transport": rows[0]["forward_transport"],
            "serial_ms": statistics.median(r["serial_ms"] for r in rows),
            "two_ranks_ms": statistics.median(r["two_ranks_ms"] for r in rows),
            "speedup": math.exp(statistics.mean(logs)), "speedup_lo": math.exp(lo), "speedup_hi": math.exp(hi),

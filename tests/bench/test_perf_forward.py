@@ -72,6 +72,7 @@ def test_faster_reads_the_whole_interval():
     (["--procs", "1"], ["--what forward needs at least 2 ranks"]),
     (["--mapping", "2-2-2-1-1"], ["malformed mapping"]),
     (["--scene", "nosuch"], ["unknown scene 'nosuch'"]),
+    (["--procs", "100000"], ["100000 ranks x 1 threads started here is more than"]),
 ])
 def test_bad_input(args, words):
     one_line_error(bench("perf", "--what", "forward", *args), *words)

@@ -112,7 +112,8 @@ def test_in_job_row_from_its_cycles():
     3 wireT + 50 us = 59 us."""
     from bench.studies.perf_overhead import REBUILD_TARGETS, TARGETS, in_job_row
     doc = {"scene": "pluviation", "particles": 1521, "cycles": 3, "block_steps": 10, "steps": 40, "identical": True,
-           "affinity": None, "serial_cpu0_s": [0.30e-3, 0.32e-3, 0.31e-3], "serial_cpu1_s": [0.34e-3, 0.30e-3, 0.33e-3],
+           "affinity": None, "forward_transport": "messages",
+           "serial_cpu0_s": [0.30e-3, 0.32e-3, 0.31e-3], "serial_cpu1_s": [0.34e-3, 0.30e-3, 0.33e-3],
            "two_ranks_s": [0.20e-3, 0.21e-3, 0.20e-3],
            "two_ranks_parts_s": {"commuT": [40e-6, 50e-6, 45e-6], "syncT": [20e-6, 30e-6, 25e-6], "migraT": [0.0] * 3,
                                  "wire_s": [3e-6] * 3}}
@@ -134,7 +135,8 @@ def test_in_job_ceiling_from_its_cycles():
     0.8941: geometric mean 0.8670, interval [0.7690, 0.9775] (Student, 2 degrees of freedom)."""
     from bench.studies.perf_overhead import REBUILD_TARGETS, TARGETS, in_job_row
     doc = {"scene": "pluviation", "particles": 1521, "cycles": 3, "block_steps": 10, "steps": 40, "identical": True,
-           "affinity": None, "serial_cpu0_s": [0.30e-3, 0.32e-3, 0.31e-3], "serial_cpu1_s": [0.34e-3, 0.30e-3, 0.33e-3],
+           "affinity": None, "forward_transport": "messages",
+           "serial_cpu0_s": [0.30e-3, 0.32e-3, 0.31e-3], "serial_cpu1_s": [0.34e-3, 0.30e-3, 0.33e-3],
            "two_ranks_s": [0.20e-3, 0.21e-3, 0.20e-3],
            "two_ranks_parts_s": {"commuT": [40e-6] * 3, "syncT": [20e-6] * 3, "migraT": [0.0] * 3,
                                  "wire_s": [3e-6] * 3},
@@ -160,7 +162,8 @@ def test_in_job_jobs_interval_over_the_jobs():
                 "steps": 1010, "identical": True, "serial_ms": 0.29, "two_ranks_ms": two_ms, "speedup": s,
                 "speedup_lo": s - 0.02, "speedup_hi": s + 0.02, "verdict": "met" if s > 1.52 else "not met",
                 "cpu_skew": 1.05, "sync_us": 20.0, "exchange_us": 15.0, "wire_us": 4.0, "overhead_bound_us": 62.0,
-                "exchange_over_bound": 15.0 / 62.0, "ceiling_step": 0.9, "of_ceiling": share}
+                "exchange_over_bound": 15.0 / 62.0, "ceiling_step": 0.9, "of_ceiling": share,
+                "forward_transport": "messages"}
 
     targets = dict(TARGETS, **REBUILD_TARGETS)
     rows = [job(1.30, 0.76, 0.22), job(1.50, 0.80, 0.19), job(1.45, 0.78, 0.20)]
