@@ -50,6 +50,9 @@ def _csr_rows(start, rows):
     return idx, counts
 
 
+GID_LIMIT = 1 << 31   # global ids lie in [0, GID_LIMIT): a pair's two make one int64 key (dem.pairs.pair_key)
+
+
 class State:
     """Arrays of n particles (owned first, then ghosts).
 
@@ -67,6 +70,8 @@ class State:
                  n_walls=0, poly=None):
         n = len(gid)
         self.gid = np.ascontiguousarray(gid, dtype=np.int64)
+        if n and (self.gid.min() < 0 or self.gid.max() >= GID_LIMIT):
+            raise ValueError(f"global ids must lie in [0, {GID_LIMIT}), got {self.gid.min()} to {self.gid.max()}")
         self.shape = np.ascontiguousarray(shape, dtype=np.int8)
         self.axes = np.ascontiguousarray(axes, dtype=np.float64).reshape(n, 3)
         self.poly = (np.zeros((n, 0)) if poly is None else

@@ -81,7 +81,7 @@ class ThreadsMode(SerialMode):
         self.work_imbalance = 1.0
         self.row_plan = None       # (n, row_start, rows) of the scheme (scheme_rows), kept while n holds
         self.pair_t = None     # the threads' pair buffers pi_t, pj_t [T, >= cap], kept between rebuilds
-        self.row_count = None  # the threads' counts per row of the list's placing [T, >= n + COUNT_PAD]
+        self.block_count = None  # the threads' counts per block of rows of the list's placing [T, >= nb + COUNT_PAD]
         self.placed = None     # (m, None | view) of the last scan: its pair count, the list's sorted view
         self.carried = None    # the pair count of the last scan where it carried the history as it placed
         self.ref_fill = None   # the list's reference positions of this rebuild, for the wall list to fill
@@ -140,8 +140,9 @@ class ThreadsMode(SerialMode):
     def find_pairs(self, radii):
         """The neighbour estimate by the T threads in one call (modes.parallel.find_pairs_threads):
         the grid (binning and scan-ordered copies), the scan under the scheme counting each thread's
-        pairs per row; then the threads place them into the list in gid order (SPLIT), or into the
-        list in thread order and its sorted view (modes.parallel.place_by_gid)."""
+        pairs per block of rows (modes.parallel.block_shift); then the threads place them into the
+        list in gid order (SPLIT), or into the list in thread order and its sorted view
+        (modes.parallel.place_by_gid)."""
         s = self.state
         n = s.n
         if self.row_plan is None or self.row_plan[0] != n:
@@ -150,8 +151,10 @@ class ThreadsMode(SerialMode):
         # rows are scan-order positions; explicit schemes index them, static/dynamic use identity
         cutoff = grid_cutoff(self.neighbor, radii)
         offsets = np.empty(self.threads + 1, dtype=np.int64)
-        if self.row_count is None or self.row_count.shape[1] < n + par.COUNT_PAD:
-            self.row_count = np.empty((self.threads, n + par.COUNT_PAD), dtype=np.int64)
+        shift = par.block_shift(n, self.threads)
+        nb = ((n - 1) >> shift) + 1 if n else 0
+        if self.block_count is None or self.block_count.shape[1] < nb + par.COUNT_PAD:
+            self.block_count = np.empty((self.threads, nb + par.COUNT_PAD), dtype=np.int64)
         rank = gid_ranks(s.gid)
         while True:
             if self.pair_t is None or self.pair_t[0].shape[1] < self.cap:
@@ -160,7 +163,7 @@ class ThreadsMode(SerialMode):
             pi_t, pj_t = self.pair_t
             m, top = par.find_pairs_threads(self.code, self.threads, cutoff, s.pos, radii, s.gid, s.n_owned, row_start,
                                             rows, pi_t, pj_t, self.counts, self.tests, self.scan_busy, offsets, rank,
-                                            self.row_count)
+                                            shift, self.block_count)
             if m >= 0:
                 break
             self.cap = int(top * 1.25) + 64
@@ -172,7 +175,7 @@ class ThreadsMode(SerialMode):
         t0 = self.clock()
         if self.deliver == SPLIT:   # the list itself in gid order
             cut = self._placing_cut()
-            later, got = par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, self.row_count, pi, pj,
+            later, got = par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, self.block_count, shift, pi, pj,
                                           self.no_order, p.carry_args(m, s.gid) if carries else None,
                                           cut and cut[1:])
             self.placed = (m, None)
@@ -180,7 +183,7 @@ class ThreadsMode(SerialMode):
         else:                       # the list in thread order, seen in gid order through its view
             par.compact_pairs(self.threads, pi_t, pj_t, offsets, pi, pj)
             view = (np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64))
-            par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, self.row_count, *view,
+            par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, self.block_count, shift, *view,
                              p.carry_args(m, s.gid, view[2]) if carries else None)
             self.placed = (m, view)
         self.carried = m if carries else None

@@ -9,7 +9,8 @@ from bench.run.prepare import load_prepared
 from dem.timestep import choose_time_step
 from dem.pairs import (DEFAULT_SKIN, PairList, adjacency_in_order, history_from_csr, history_to_csr,
                        gid_ranks, pair_adjacency, pair_adjacency_of, sort_by_gid, sort_pairs_by_gid, sorted_view)
-from modes.parallel import COUNT_PAD, adjacency_in_order_threads, adjacency_marked_threads, place_by_gid
+from modes.parallel import (COUNT_PAD, adjacency_in_order_threads, adjacency_marked_threads, block_shift,
+                            place_by_gid)
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
 
@@ -169,6 +170,17 @@ def test_adjacency_in_order_needs_no_sort(rng, stored):
         got = [adjacency_in_order(*args, n_owned)] + [adjacency_in_order_threads(t, *args, n_owned) for t in (1, 2, 3)]
         for start, items in got:
             assert np.array_equal(start, ref[0]) and np.array_equal(items, ref[1])
+
+
+def _block_counts(threads, pi_t, offsets, rank, shift, n):
+    """The scan's counts for modes.parallel.place_by_gid: each thread's pairs per block of 2^shift
+    rows (the rank of the first end), rows padded apart, the padding holding junk the placing
+    must not read."""
+    nb = ((n - 1) >> shift) + 1
+    count = np.full((threads, nb + COUNT_PAD), 99, dtype=np.int64)
+    for t in range(threads):
+        count[t, :nb] = np.bincount(rank[pi_t[t, :offsets[t + 1] - offsets[t]]] >> shift, minlength=nb)
+    return count
 
 
 def _random_pairs(rng, n, m, gid):
@@ -386,16 +398,17 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
             for t in range(threads):
                 pi_t[t, :offsets[t + 1] - offsets[t]] = pi[offsets[t]:offsets[t + 1]]
                 pj_t[t, :offsets[t + 1] - offsets[t]] = pj[offsets[t]:offsets[t + 1]]
-            row_count = np.full((threads, n + COUNT_PAD), 99, dtype=np.int64)   # the scan's counts, padded
-            for t in range(threads):
-                row_count[t, :n] = np.bincount(rank[pi[offsets[t]:offsets[t + 1]]], minlength=n)
-            ti, tj = np.empty_like(pi), np.empty_like(pj)
-            place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count.copy(), ti, tj, np.zeros(0, dtype=np.int64))
-            assert np.array_equal(ti, si) and np.array_equal(tj, sj)
-            # the sorted view of their concatenation: the pairs' indices moved with them
-            view = (np.empty_like(pi), np.empty_like(pj), np.empty_like(pi))
-            place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count, *view)
-            assert all(np.array_equal(a, b) for a, b in zip(view, (si, sj, ref)))
+            # blocks of one row, of 8, and the mode's own (block_shift: 80 rows in at most 16 T blocks)
+            for shift in (0, 3, block_shift(n, threads)):
+                blocks = _block_counts(threads, pi_t, offsets, rank, shift, n)
+                ti, tj = np.empty_like(pi), np.empty_like(pj)
+                place_by_gid(threads, pi_t, pj_t, offsets, rank, blocks.copy(), shift, ti, tj,
+                             np.zeros(0, dtype=np.int64))
+                assert np.array_equal(ti, si) and np.array_equal(tj, sj)
+                # the sorted view of their concatenation: the pairs' indices moved with them
+                view = (np.empty_like(pi), np.empty_like(pj), np.empty_like(pi))
+                place_by_gid(threads, pi_t, pj_t, offsets, rank, blocks, shift, *view)
+                assert all(np.array_equal(a, b) for a, b in zip(view, (si, sj, ref)))
         assert all(np.array_equal(a, b) for a, b in zip(sorted_view(pi, pj, gid), (si, sj, ref)))
         full = pair_adjacency(si, sj, gid, 60)
         mark = (rng.random(60) < 0.2).astype(np.int8)
@@ -566,17 +579,18 @@ def test_placing_threads_carry_and_cut_as_the_separate_passes(rng):
                 for t in range(threads):
                     pi_t[t, :offsets[t + 1] - offsets[t]] = pi[order][offsets[t]:offsets[t + 1]]
                     pj_t[t, :offsets[t + 1] - offsets[t]] = pj[order][offsets[t]:offsets[t + 1]]
-                row_count = np.zeros((threads, n + COUNT_PAD), dtype=np.int64)
-                for t in range(threads):
-                    row_count[t, :n] = np.bincount(rank[pi_t[t, :offsets[t + 1] - offsets[t]]], minlength=n)
+                shift = (0, 2, block_shift(n, threads))[threads % 3]
+                blocks = _block_counts(threads, pi_t, offsets, rank, shift, n)
                 for shares in (np.ones(threads), rng.uniform(0.3, 3.0, threads)):
-                    ti, tj = np.empty_like(pi), np.empty_like(pj)
+                    # the list's buffers, longer than the list (PairList.buffers)
+                    ti, tj = np.full(m + 5, -1, dtype=np.int64), np.full(m + 5, -1, dtype=np.int64)
                     hist, on = np.full((m, HIST_LEN), -1.0), np.full(m, 7, dtype=np.int8)
                     bounds, gat = np.zeros(threads + 1, dtype=np.int64), np.full(n_owned, 5, dtype=np.int8)
-                    later, got = place_by_gid(threads, pi_t, pj_t, offsets, rank, row_count.copy(), ti, tj,
+                    later, got = place_by_gid(threads, pi_t, pj_t, offsets, rank, blocks.copy(), shift, ti, tj,
                                               np.zeros(0, dtype=np.int64),
                                               (gid, None, osi, osj, gid, None, oon, ohist, hist, on),
                                               (shares, n_owned, gid, bounds, gat))
+                    ti, tj = ti[:m], tj[:m]
                     assert np.array_equal(ti, si) and np.array_equal(tj, sj)
                     # the rows of the pairs that carry one (a pair without history has no row to read)
                     assert np.array_equal(on, want_on) and np.array_equal(hist[on == 1], want_hist[want_on == 1])
@@ -594,3 +608,40 @@ def test_placing_threads_carry_and_cut_as_the_separate_passes(rng):
                     assert np.array_equal(adj_start, want_adj[0]) and np.array_equal(adj_items, want_adj[1])
                     if size == 500 and threads > 1:
                         assert 0 < bounds[1] < m and gat.sum() > 0
+
+
+def test_sorting_network_of_eight_sorts_every_input(rng):
+    """modes.parallel._sort8, the placing's 19-comparator network (Knuth, TAOCP vol. 3, 5.3.4):
+    a comparator network sorts every input if it sorts every input of 0s and 1s (the 0-1
+    principle, ibid. exercise 5.3.4-36), so all 256 such inputs are checked, then 200 random
+    permutations of distinct keys and inputs with repeats and the largest int64 (the padding of
+    a short row) must come out as numpy's sort."""
+    from modes.parallel import _sort8
+    for bits in range(256):
+        v = np.array([(bits >> k) & 1 for k in range(8)], dtype=np.int64)
+        want = np.sort(v)
+        _sort8(v)
+        assert np.array_equal(v, want)
+    top = np.iinfo(np.int64).max
+    for _ in range(200):
+        v = rng.permutation(np.concatenate([rng.integers(0, 1 << 40, 5), [top, top, 3]])).astype(np.int64)
+        want = np.sort(v)
+        _sort8(v)
+        assert np.array_equal(v, want)
+
+
+@pytest.mark.parametrize("n, threads", [(1, 1), (80, 1), (80, 7), (12000, 2), (12000, 16), (1_000_000, 64)])
+def test_placing_blocks_are_few_and_whole(n, threads):
+    """modes.parallel.block_shift: blocks of 2^shift rows, at most PLACE_BLOCKS (16) per thread, and
+    no larger than that needs (halving them would pass 16 T): 12k rows at 2 threads in 24 blocks
+    of 512, at 16 threads in 188 of 64."""
+    from modes.parallel import PLACE_BLOCKS
+    shift = block_shift(n, threads)
+    blocks = ((n - 1) >> shift) + 1
+    assert blocks <= PLACE_BLOCKS * threads
+    if shift:
+        assert ((n - 1) >> (shift - 1)) + 1 > PLACE_BLOCKS * threads
+    if (n, threads) == (12000, 2):
+        assert (shift, blocks) == (9, 24)
+    if (n, threads) == (12000, 16):
+        assert (shift, blocks) == (6, 188)
