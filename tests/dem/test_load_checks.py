@@ -139,3 +139,20 @@ def test_screen_bound_is_never_below_the_depth():
         assert depth[0] <= bound + 1e-12, (parts, depth[0], bound)
     # the offsets make most pairs touch: 113 ellipsoid, 46 sphere and 40 poly-ellipsoid partners of 300
     assert min(touching.values()) > 20 and sum(touching.values()) > 100, touching
+
+
+def test_global_ids_beyond_the_pair_key_refused():
+    """dem.pairs.pair_key packs a pair's two global ids into one int64 (gid_i 2^32 + gid_j), exact
+    and ordered as the pairs for ids in [0, 2^31): a state with an id outside it is refused with a
+    message naming the range, and the largest id allowed, 2^31 - 1, is kept."""
+    from dem.state import GID_LIMIT, State
+    assert GID_LIMIT == 2 ** 31
+
+    def state(gid):
+        n = len(gid)
+        return State(np.array(gid), np.zeros(n), np.full((n, 3), 0.01), np.ones(n), np.ones((n, 3)), np.zeros(n),
+                     np.zeros((n, 3)), np.zeros((n, 3)), np.tile([1.0, 0, 0, 0], (n, 1)), np.zeros((n, 3)))
+    assert state([0, 2 ** 31 - 1]).gid[1] == 2 ** 31 - 1
+    for bad in ([0, 2 ** 31], [-1, 3]):
+        with pytest.raises(ValueError, match=r"global ids must lie in \[0, 2147483648\)"):
+            state(bad)
