@@ -353,15 +353,9 @@ def place_by_gid(threads, pi_t, pj_t, offsets, rank, block_count, shift, spi, sp
     viewed = order.shape[0] > 0
     nb = ((n - 1) >> shift) + 1 if n > 0 else 0
     # the staging list: block-major, then thread, each thread's pairs of a block in its own order
+    # (T x nb counts, at most 16 T^2: one thread's walk)
     base = np.empty(nb + 1, dtype=np.int64)
-    acc = 0
-    for b in range(nb):
-        base[b] = acc
-        for t in range(threads):
-            c = block_count[t, b]
-            block_count[t, b] = acc
-            acc += c
-    base[nb] = acc
+    _offsets_by_row(block_count, nb, base)
     # thread g places blocks run[g] .. run[g+1]-1: the block boundary nearest to g m / T pairs
     run = np.empty(threads + 1, dtype=np.int64)
     run[0] = 0
