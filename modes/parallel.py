@@ -319,17 +319,18 @@ def place_by_gid(threads, pi_t, pj_t, offsets, rank, block_count, shift, spi, sp
     of 2^shift rows (the rank of the first end, rank [n]: gid_ranks; nb = ceil(n / 2^shift)
     blocks, at most PLACE_BLOCKS T: block_shift), from each thread's pairs per block, counted by
     the scan (block_count [T, >= nb], rows COUNT_PAD or more apart: scan_threads; overwritten).
-    Each thread moves its own pairs (first end's rank, second end, index) into the blocks' part
-    of a staging list, block by block and within a block in thread order; then each thread takes
-    a run of whole blocks of about equal pairs, sorts them by row within the block (a counting
-    sort over its 2^shift rows, in cache) straight into their places in the list, and orders each
-    row by the rank of the second end (_order_short_row: a sorting network where a row holds up
-    to 8 pairs, as nearly all do: packed ellipsoids hold 3-7 a row, and an insertion sort there
-    mispredicted a branch at about every pair: 0.44 against 0.14 ms for the same 57k pairs
-    already in order). Where order [m] is not empty, order[a] = the index of spi[a]'s pair in the
-    threads' list concatenated in thread order (compact_pairs): the sorted view of a list kept in
-    thread order (dem.pairs.sorted_view). The keys are distinct, so the order is the one
-    dem.pairs.sort_by_gid gives. Three parallel regions with a cut, two without.
+    Each thread moves its own pairs (first end's rank, second end, index: int32, local indices and
+    pair counts being below 2^31) into the blocks' part of a staging list, block by block and within
+    a block in thread order; then each thread takes a run of whole blocks of about equal pairs,
+    sorts them by row within the block (a counting sort over its 2^shift rows, in cache) straight
+    into their places in the list, and orders each row by the rank of the second end
+    (_order_short_row: a sorting network where a row holds up to 8 pairs, as nearly all do: packed
+    ellipsoids hold 3-7 a row, and an insertion sort there mispredicted a branch at about every
+    pair: 0.44 against 0.14 ms for the same 57k pairs already in order). Where order [m] is not
+    empty, order[a] = the index of spi[a]'s pair in the threads' list concatenated in thread order
+    (compact_pairs): the sorted view of a list kept in thread order (dem.pairs.sorted_view). The
+    keys are distinct, so the order is the one dem.pairs.sort_by_gid gives. Three parallel regions
+    with a cut, two without.
 
     The former placing counted each thread's pairs per row (a T x n table that every thread
     zeroed, summed and read: a pass over every particle per thread, which more threads do not
