@@ -616,7 +616,9 @@ def lattice_order(count, nx, ny, order):
     if order == "rows":
         return sites
     code = np.zeros(count, dtype=np.int64)
-    for bit in range(20):   # 2^20 sites a direction
+    # the sites' bits, 21 at most a direction (63 in a code); beyond 2^21 sites along one
+    # direction the order is still a permutation of the sites, no longer the curve's
+    for bit in range(min(int(sites.max()).bit_length(), 21)):
         for d in range(3):
             code |= ((sites[:, d] >> bit) & 1) << (3 * bit + d)
     return sites[np.argsort(code, kind="stable")]

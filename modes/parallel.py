@@ -203,11 +203,17 @@ def grid_threads(threads, pos, rbound, gid, cutoff):
     return dims, cell_start, cell_items, spos, srb, sgid, scell
 
 
+@njit(cache=True)
+def n_blocks(n, shift):
+    """The number of blocks of 2^shift rows that hold n rows: ceil(n / 2^shift)."""
+    return ((n - 1) >> shift) + 1 if n > 0 else 0
+
+
 def block_shift(n, threads):
     """The placing's blocks of rows (place_by_gid): 2^shift consecutive rows of the list, the
     fewest rows a block for which n rows make at most PLACE_BLOCKS T blocks; returns shift."""
     shift = 0
-    while n > 0 and ((n - 1) >> shift) + 1 > PLACE_BLOCKS * threads:
+    while n_blocks(n, shift) > PLACE_BLOCKS * threads:
         shift += 1
     return shift
 
@@ -226,14 +232,14 @@ def scan_threads(code, threads, row_start, rows, grid, n_owned, pi_t, pj_t, coun
     buffers pi_t, pj_t [T, cap]; counts [T], tests [T] (pair tests made) and busy [T] (cycles) per
     thread; block_count [T, >= nb] each thread's pairs per block of 2^shift rows of the list in gid
     order (nb blocks of the rank [n] of their first end: place_by_gid), counted as they are written
-    (while in cache). A thread's
-    pairs past its buffer are counted but not written (counts[t] > cap: the caller scans again)."""
+    (while in cache). A thread's pairs past its buffer are counted but not written (counts[t] > cap:
+    the caller scans again)."""
     n = grid[0].shape[0]
     cap = pi_t.shape[1]
     counts[:] = 0
     tests[:] = 0
     busy[:] = 0
-    nb = ((n - 1) >> shift) + 1 if n > 0 else 0
+    nb = n_blocks(n, shift)
     for t in prange(threads):
         for b in range(nb):
             block_count[t, b] = 0
@@ -282,8 +288,8 @@ def find_pairs_threads(code, threads, cutoff, pos, rbound, gid, n_owned, row_sta
     """The neighbour estimate by T threads in one call: the grid (grid_threads, cells of edge >=
     cutoff) and the scan under the scheme into pi_t, pj_t [T, cap] (scan_threads), offsets [T+1] of
     the threads' pairs in thread order and block_count [T, >= nb] their counts per block of 2^shift
-    rows by the rank [n] of their first end. Returns (m, the largest thread count): m = -1 when a thread's buffer was
-    too small (grow cap to the count and call again). The pairs are then placed into one list in
+    rows by the rank [n] of their first end. Returns (m, the largest thread count): m = -1 when a
+    thread's buffer was too small (grow cap to the count and call again). The pairs are then placed into one list in
     ascending (gid_i, gid_j) (place_by_gid), or in thread order (compact_pairs) and into its sorted
     view (place_by_gid)."""
     grid = grid_threads(threads, pos, rbound, gid, cutoff)
@@ -352,7 +358,7 @@ def place_by_gid(threads, pi_t, pj_t, offsets, rank, block_count, shift, spi, sp
     n = rank.shape[0]
     m = offsets[threads]
     viewed = order.shape[0] > 0
-    nb = ((n - 1) >> shift) + 1 if n > 0 else 0
+    nb = n_blocks(n, shift)
     # the staging list: block-major, then thread, each thread's pairs of a block in its own order
     # (T x nb counts, at most 16 T^2: one thread's walk)
     base = np.empty(nb + 1, dtype=np.int64)

@@ -152,7 +152,7 @@ class ThreadsMode(SerialMode):
         cutoff = grid_cutoff(self.neighbor, radii)
         offsets = np.empty(self.threads + 1, dtype=np.int64)
         shift = par.block_shift(n, self.threads)
-        nb = ((n - 1) >> shift) + 1 if n else 0
+        nb = par.n_blocks(n, shift)
         if self.block_count is None or self.block_count.shape[1] < nb + par.COUNT_PAD:
             self.block_count = np.empty((self.threads, nb + par.COUNT_PAD), dtype=np.int64)
         rank = gid_ranks(s.gid)
