@@ -63,6 +63,12 @@ WEIGHT_BLOCK = 1024   # pairs per prange iteration of the range cut's per-pair l
 COUNT_PAD = 8         # int64 counters between two threads' rows of counts (a cache line)
 PLACE_BLOCKS = 16     # the placing's blocks of rows per thread, at most (block_shift): a thread's run of
 # whole blocks is within half a block, 1/32 of its share, of equal pairs
+# threads up to which the placing's blocks are single rows (block_shift): the staging pass that blocks of
+# several rows need costs about 42 ns of work a particle (12k packed, one core, with the carry and the
+# cut: 1.89 against 1.38 ms), shared by the T threads; single rows need instead one thread's walk over
+# the T x n counts, about 0.45 ns an entry (75-92 us at 16 x 12k), so they are faster while
+# 0.45 T < 42 / T, up to 9 threads
+PLACE_ROWS_THREADS = 8
 OFFSETS_THREADS_FROM = 65536   # counts [T x rows] from which their write offsets are made by the threads
 # entries from which, and ranges from which, the threads place the marked rows' entries and mark the later
 # ends (adjacency_marked_threads, cut_ranges): their bucketed placement does 4.5x one thread's work (77.6k
@@ -210,8 +216,11 @@ def n_blocks(n, shift):
 
 
 def block_shift(n, threads):
-    """The placing's blocks of rows (place_by_gid): 2^shift consecutive rows of the list, the
-    fewest rows a block for which n rows make at most PLACE_BLOCKS T blocks; returns shift."""
+    """The placing's blocks of rows (place_by_gid): 2^shift consecutive rows of the list; single
+    rows (shift 0) up to PLACE_ROWS_THREADS threads, else the fewest rows a block for which n rows
+    make at most PLACE_BLOCKS T blocks; returns shift."""
+    if threads <= PLACE_ROWS_THREADS:
+        return 0
     shift = 0
     while n_blocks(n, shift) > PLACE_BLOCKS * threads:
         shift += 1
@@ -321,27 +330,33 @@ def compact_pairs(threads, pi_t, pj_t, offsets, pi, pj):
 def place_by_gid(threads, pi_t, pj_t, offsets, rank, block_count, shift, spi, spj, order, carry=None, cut=None):
     """The threads' pairs (pi_t, pj_t [T, cap], thread t's offsets[t+1] - offsets[t] of them:
     gid[pi] < gid[pj]) placed in ascending (gid_i, gid_j) into spi, spj [m], with no sort of the
-    whole list and no table or pass that grows with T times the particles: a bucket sort by blocks
-    of 2^shift rows (the rank of the first end, rank [n]: gid_ranks; nb = ceil(n / 2^shift)
-    blocks, at most PLACE_BLOCKS T: block_shift), from each thread's pairs per block, counted by
-    the scan (block_count [T, >= nb], rows COUNT_PAD or more apart: scan_threads; overwritten).
-    Each thread moves its own pairs (first end's rank, second end, index: int32, local indices and
-    pair counts being below 2^31) into the blocks' part of a staging list, block by block and within
-    a block in thread order; then each thread takes a run of whole blocks of about equal pairs,
-    sorts them by row within the block (a counting sort over its 2^shift rows, in cache) straight
-    into their places in the list, and orders each row by the rank of the second end
-    (_order_short_row: a sorting network where a row holds up to 8 pairs, as nearly all do: packed
-    ellipsoids hold 3-7 a row, and an insertion sort there mispredicted a branch at about every
-    pair: 0.44 against 0.14 ms for the same 57k pairs already in order). Where order [m] is not
-    empty, order[a] = the index of spi[a]'s pair in the threads' list concatenated in thread order
-    (compact_pairs): the sorted view of a list kept in thread order (dem.pairs.sorted_view). The
-    keys are distinct, so the order is the one dem.pairs.sort_by_gid gives. Three parallel regions
-    with a cut, two without.
+    whole list: a bucket sort by blocks of 2^shift rows (the rank of the first end, rank [n]:
+    gid_ranks; nb = ceil(n / 2^shift) blocks: block_shift), from each thread's pairs per block,
+    counted by the scan (block_count [T, >= nb], rows COUNT_PAD or more apart: scan_threads;
+    overwritten), whose T x nb counts one thread turns into write offsets.
 
-    The former placing counted each thread's pairs per row (a T x n table that every thread
-    zeroed, summed and read: a pass over every particle per thread, which more threads do not
-    shorten): at 16 ranges on one thread it took 1.05 ms for 12k packed ellipsoids' 57k pairs
-    against 0.72 at 2 ranges (serial's two counting sorts 0.34 ms).
+    Blocks of single rows (shift 0, up to PLACE_ROWS_THREADS threads): each thread moves its own
+    pairs' second ends straight to their places, row by row and within a row in thread order;
+    then each thread takes a run of rows of about equal pairs and orders each row by the rank of
+    the second end. Blocks of several rows (at most PLACE_BLOCKS T, so that the offsets' walk does
+    not grow with T times the particles): each thread moves its own pairs (first end's rank,
+    second end, index: int32, local indices and pair counts being below 2^31) into the blocks'
+    part of a staging list, block by block and within a block in thread order; then each thread
+    takes a run of whole blocks of about equal pairs, sorts them by row within the block (a
+    counting sort over its 2^shift rows, in cache) straight into their places in the list, and
+    orders each row. On 12k packed ellipsoids' 57k pairs, one core, with the carry and the cut:
+    single rows 1.38 ms at 2 ranges and 1.63 at 16, blocks 1.89 and 2.06 (2500: 0.271 against
+    0.364 ms at 2 ranges). The placing before blocks counted each thread's pairs per row too, but
+    had every thread read the whole T x n table (a pass over every particle per thread, which more
+    threads do not shorten).
+
+    A row is ordered by _order_short_row where it holds up to 8 pairs, as nearly all do (packed
+    ellipsoids hold 3-7 a row): a sorting network, where an insertion sort mispredicted a branch
+    at about every pair (0.44 against 0.14 ms for the same 57k pairs already in order). Where
+    order [m] is not empty, order[a] = the index of spi[a]'s pair in the threads' list
+    concatenated in thread order (compact_pairs): the sorted view of a list kept in thread order
+    (dem.pairs.sorted_view). The keys are distinct, so the order is the one dem.pairs.sort_by_gid
+    gives. Three parallel regions with a cut, two without.
 
     carry = (gid, corder, opi, opj, ogid, oorder, oon, ohist, hist, on), or None: each thread then
     also carries the history of the rows it has just placed from the old list
@@ -377,9 +392,11 @@ def place_by_gid(threads, pi_t, pj_t, offsets, rank, block_count, shift, spi, sp
             run[g] = b
         run[g] = max(run[g], run[g - 1])
     run[threads] = nb
-    st_row = np.empty(m, dtype=np.int32)
-    st_j = np.empty(m, dtype=np.int32)
-    st_x = np.empty(m if viewed else 0, dtype=np.int32)
+    # blocks of one row (shift 0) are rows: the staging list is the placed list, rows not yet ordered
+    staged = shift > 0
+    st_row = np.empty(m if staged else 0, dtype=np.int32)
+    st_j = np.empty(m if staged else 0, dtype=np.int32)
+    st_x = np.empty(m if staged and viewed else 0, dtype=np.int32)
     first = np.empty(n, dtype=np.int64)   # the particle of each rank: the first end of every pair of its row
     for t in prange(threads):
         for p in range(t * n // threads, (t + 1) * n // threads):
@@ -390,27 +407,36 @@ def place_by_gid(threads, pi_t, pj_t, offsets, rank, block_count, shift, spi, sp
             b = r >> shift
             u = block_count[t, b]
             block_count[t, b] = u + 1
-            st_row[u] = r
-            st_j[u] = pj_t[t, k]
-            if viewed:
-                st_x[u] = o + k
+            if staged:
+                st_row[u] = r
+                st_j[u] = pj_t[t, k]
+                if viewed:
+                    st_x[u] = o + k
+            else:
+                spj[u] = pj_t[t, k]
+                if viewed:
+                    order[u] = o + k
     for g in prange(threads):
         r0 = min(run[g] << shift, n)
         r1 = min(run[g + 1] << shift, n)
         p0 = base[run[g]]
         p1 = base[run[g + 1]]
         end = np.zeros(r1 - r0 + 1, dtype=np.int64)   # row r0 + x: pairs p0 + end[x - 1] .. p0 + end[x] - 1
-        for q in range(p0, p1):
-            end[st_row[q] - r0 + 1] += 1
-        for x in range(r1 - r0):
-            end[x + 1] += end[x]
-        for q in range(p0, p1):
-            x = st_row[q] - r0
-            u = p0 + end[x]
-            end[x] += 1
-            spj[u] = st_j[q]
-            if viewed:
-                order[u] = st_x[q]
+        if staged:
+            for q in range(p0, p1):
+                end[st_row[q] - r0 + 1] += 1
+            for x in range(r1 - r0):
+                end[x + 1] += end[x]
+            for q in range(p0, p1):
+                x = st_row[q] - r0
+                u = p0 + end[x]
+                end[x] += 1
+                spj[u] = st_j[q]
+                if viewed:
+                    order[u] = st_x[q]
+        else:
+            for x in range(r1 - r0):
+                end[x] = base[r0 + x + 1] - p0
         lo = p0
         keys = np.empty(8, dtype=np.int64)
         held = np.empty(16, dtype=np.int64)

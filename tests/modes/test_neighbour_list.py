@@ -398,8 +398,9 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
             for t in range(threads):
                 pi_t[t, :offsets[t + 1] - offsets[t]] = pi[offsets[t]:offsets[t + 1]]
                 pj_t[t, :offsets[t + 1] - offsets[t]] = pj[offsets[t]:offsets[t + 1]]
-            # blocks of one row, of 8, and the mode's own (block_shift: 80 rows in at most 16 T blocks)
-            for shift in (0, 3, block_shift(n, threads)):
+            # blocks of one row (the mode's own up to 8 threads: block_shift), of 8 and of 32 rows (80
+            # rows in 3 blocks: fewer than the threads)
+            for shift in (0, 3, 5):
                 blocks = _block_counts(threads, pi_t, offsets, rank, shift, n)
                 ti, tj = np.empty_like(pi), np.empty_like(pj)
                 place_by_gid(threads, pi_t, pj_t, offsets, rank, blocks.copy(), shift, ti, tj,
@@ -579,7 +580,7 @@ def test_placing_threads_carry_and_cut_as_the_separate_passes(rng):
                 for t in range(threads):
                     pi_t[t, :offsets[t + 1] - offsets[t]] = pi[order][offsets[t]:offsets[t + 1]]
                     pj_t[t, :offsets[t + 1] - offsets[t]] = pj[order][offsets[t]:offsets[t + 1]]
-                shift = (0, 2, block_shift(n, threads))[threads % 3]
+                shift = (0, 2, 4)[threads % 3]   # blocks of 1, 4 and 16 rows
                 blocks = _block_counts(threads, pi_t, offsets, rank, shift, n)
                 for shares in (np.ones(threads), rng.uniform(0.3, 3.0, threads)):
                     # the list's buffers, longer than the list (PairList.buffers)
@@ -630,18 +631,22 @@ def test_sorting_network_of_eight_sorts_every_input(rng):
         assert np.array_equal(v, want)
 
 
-@pytest.mark.parametrize("n, threads", [(1, 1), (80, 1), (80, 7), (12000, 2), (12000, 16), (1_000_000, 64)])
+@pytest.mark.parametrize("n, threads", [(1, 1), (80, 1), (80, 7), (12000, 2), (12000, 8), (12000, 9), (12000, 16),
+                                        (1_000_000, 64)])
 def test_placing_blocks_are_few_and_whole(n, threads):
-    """modes.parallel.block_shift: blocks of 2^shift rows, at most PLACE_BLOCKS (16) per thread, and
-    no larger than that needs (halving them would pass 16 T): 12k rows at 2 threads in 24 blocks
-    of 512, at 16 threads in 188 of 64."""
-    from modes.parallel import PLACE_BLOCKS
+    """modes.parallel.block_shift: single rows up to PLACE_ROWS_THREADS (8) threads; beyond,
+    blocks of 2^shift rows, at most PLACE_BLOCKS (16) per thread, and no larger than that needs
+    (halving them would pass 16 T): 12k rows at 2 and 8 threads in 12000 blocks of one, at 9 in
+    94 of 128, at 16 in 188 of 64."""
+    from modes.parallel import PLACE_BLOCKS, PLACE_ROWS_THREADS
     shift = block_shift(n, threads)
     blocks = ((n - 1) >> shift) + 1
-    assert blocks <= PLACE_BLOCKS * threads
-    if shift:
-        assert ((n - 1) >> (shift - 1)) + 1 > PLACE_BLOCKS * threads
-    if (n, threads) == (12000, 2):
-        assert (shift, blocks) == (9, 24)
-    if (n, threads) == (12000, 16):
-        assert (shift, blocks) == (6, 188)
+    if threads <= PLACE_ROWS_THREADS:
+        assert shift == 0
+    else:
+        assert blocks <= PLACE_BLOCKS * threads
+        if shift:
+            assert ((n - 1) >> (shift - 1)) + 1 > PLACE_BLOCKS * threads
+    want = {(12000, 2): (0, 12000), (12000, 8): (0, 12000), (12000, 9): (7, 94), (12000, 16): (6, 188)}
+    if (n, threads) in want:
+        assert (shift, blocks) == want[(n, threads)]

@@ -3,6 +3,8 @@ row assignment and work balance are what the schemes promise."""
 import itertools
 import json
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -16,7 +18,7 @@ from modes.parallel import (CONTACT_COST, DYNAMIC, PARTITION, SCHEMES, STATIC, W
                             split_pairs, wall_threads)
 from modes.serial import SerialMode
 from modes.threads import ThreadsMode
-from tests.helpers import bench, one_line_error
+from tests.helpers import ROOT, bench, one_line_error
 
 FIELDS = ("id", "pos", "quat", "vel", "omega")
 
@@ -556,3 +558,39 @@ def test_threads_placing_counts_as_carry():
         mode.build_list()
         assert mode.build_phases == want
         assert mode.placing_s == placing
+
+
+_MANY_THREADS = """
+import sys
+import numpy as np
+from bench.run.prepare import load_prepared
+from dem.timestep import choose_time_step
+from modes.parallel import block_shift
+from modes.serial import SerialMode
+from modes.threads import ThreadsMode
+dt = choose_time_step(load_prepared("packed", particles=400)).dt
+ref = SerialMode().setup(load_prepared("packed", particles=400), dt=dt, skin=0.0)
+for _ in range(15):
+    ref.step()
+want = ref.snapshot()
+print("shift", block_shift(400, 9))
+for scheme in ("dynamic", "frogleap"):
+    mode = ThreadsMode().setup(load_prepared("packed", particles=400), dt=dt, threads=9, scheme=scheme, skin=0.0)
+    for _ in range(15):
+        mode.step()
+    got = mode.snapshot()
+    print(scheme, all(np.array_equal(got[f], want[f]) for f in ("id", "pos", "quat", "vel", "omega")))
+"""
+
+
+def test_nine_threads_place_by_blocks_of_rows():
+    """Beyond PLACE_ROWS_THREADS (8) threads the list is placed by blocks of several rows
+    (modes.parallel.block_shift: 400 rows at 9 threads in 100 blocks of 4, at most 16 T = 144):
+    packed 400 at 9 threads, skin 0 (a rebuild every step, each after the first carrying the
+    history), the dynamic and the frogleap scheme, equals the serial trajectory bit for bit.
+    Its own process: numba's pool is sized before it starts (NUMBA_NUM_THREADS). Each mode loads
+    the scene afresh: a mode steps the scene's arrays in place."""
+    res = subprocess.run([sys.executable, "-c", _MANY_THREADS], capture_output=True, text=True, timeout=600,
+                         env=dict(os.environ, PYTHONPATH=ROOT, NUMBA_NUM_THREADS="9", OMP_WAIT_POLICY="PASSIVE"))
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split() == ["shift", "2", "dynamic", "True", "frogleap", "True"]
