@@ -160,7 +160,8 @@ def build_parser():
                     help="--what overhead: each round (or cycle, --in-job) also measures the in-step ceiling of 2 "
                          "workers (two serial "
                          "copies at half the particles, at the same skin, meeting every step) and reads the 2 "
-                         "ranks' efficiency against it")
+                         "ranks' efficiency against it; --what phases: each round also steps T serial copies "
+                         "at N / T particles meeting every step, and reads each phase's speedup against theirs")
     pf.add_argument("--in-job", type=positive_int, nargs="?", const=100, default=None, metavar="C",
                     help="--what overhead: compare 2 ranks with serial inside one MPI job, C cycles (default 100) "
                          "of 50-step blocks alternating the 2 ranks and each rank's serial copy on its own "
@@ -500,9 +501,11 @@ def cmd_schemes(args):
 
 
 def cmd_perf(args):
-    if args.ceiling and args.what != "overhead":
-        raise UsageError(f"bench perf: --ceiling is for --what overhead (2 ranks against 2 workers), "
-                         f"not {args.what}")
+    if args.ceiling and args.what not in ("overhead", "phases"):
+        raise UsageError(f"bench perf: --ceiling is for --what overhead (2 ranks against 2 workers) and "
+                         f"phases (T threads against T copies), not {args.what}")
+    if args.ceiling and args.work:
+        raise UsageError("bench perf: --ceiling is for the speedups of --what phases, not --work")
     if args.work and args.what != "phases":
         raise UsageError(f"bench perf: --work is for --what phases, not {args.what}")
     if args.in_job is not None and args.what not in ("overhead", "forward"):
@@ -533,7 +536,8 @@ def cmd_perf(args):
             raise UsageError("bench perf --what phases needs --threads T >= 2")
         from bench.studies.perf_phases import measure as phases
         return _one_line(lambda a: _perf_report(a, lambda: phases(a.particles, a.threads, a.steps or 20,
-                                                                  a.repeats, log=print, work=a.work)))(args)
+                                                                  a.repeats, log=print, work=a.work,
+                                                                  ceiling=a.ceiling)))(args)
     if args.steps is None:
         args.steps = 20
     from bench.studies.perf import perf

@@ -13,7 +13,7 @@ import time
 from bench.run.lifeline import PR_SET_PDEATHSIG, _prctl
 
 
-def _meet(counts, me, k):
+def meet(counts, me, k):
     """Spin until every copy has finished step k (counts: shared step counts, slot me is ours)."""
     counts[me] = k
     for c in range(len(counts)):
@@ -44,7 +44,7 @@ def _copy(scene, particles, shape, steps, warmup, barrier, in_step, results, cou
             t = clock()
             mode.step()
             if in_step:
-                _meet(counts, me, k)
+                meet(counts, me, k)
             times.append(clock() - t)
     except Exception as e:
         results.put(("error", f"{type(e).__name__}: {e}"))

@@ -45,12 +45,28 @@ T x n entries, each thread passing over every particle) shows it here on 2 cores
 Rounds alternate the serial mode and the T-range mode on one thread, as above, after one untimed
 rebuild of both (under the dynamic scheme the one thread takes every chunk of the scan, and its
 buffer grows to hold them); no verdict (issue 32 sets its targets on speedups).
+
+`--ceiling` asks what the machine itself lets each phase gain at T: T serial copies of the packed
+scene at N / T particles each (spawned processes sharing nothing: bench.run.copies' ceiling, held
+for the whole case and stepped in its rounds), meeting after every step as the threads meet at
+the end of each phase, step in a third arm of each round. A phase's ceiling time in a step is the
+slowest copy's (the threads' phase ends with its slowest thread), its ceiling speedup C = t1 / tC
+(paired interval over the rounds) and its Karp-Flatt e(C) the serial fraction the machine alone
+imposes: where two cores share memory bandwidth, caches or a host, a loop that streams memory
+gains less than T from T independent copies, and no thread scheme can beat that. The threads'
+share of it, tC / tT (paired interval), says how far the code is from the machine's ceiling.
+The range cut and gather_list, all but empty in the serial mode, have ceilings as meaningless as
+their speedups.
 """
 import copy
+import multiprocessing
+import signal
 
 import numba
 import numpy as np
 
+from bench.run.copies import meet
+from bench.run.lifeline import PR_SET_PDEATHSIG, _prctl
 from bench.run.prepare import load_prepared
 from bench.sweep.intervals import format_interval, ratio_interval, verdict
 from dem.timestep import choose_time_step
@@ -86,6 +102,88 @@ def step_phases(mode, force):
     return out
 
 
+def _phase_copy(particles, skin, force, conn, counts, me):
+    """One ceiling copy (PhaseCopies): the serial mode on its own packed scene of `particles`,
+    stepped `steps` at a time on each command received on conn (None: stop), meeting the other
+    copies after every step (bench.run.copies meet); sends ("ready", n), then ("ok", [{phase: s}]
+    a step) a command, or ("error", line). Dies with its parent; SIGINT is the parent's."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL))
+    try:
+        scene = load_prepared("packed", particles=particles)
+        mode = SerialMode().setup(scene, dt=choose_time_step(scene).dt, skin=skin)
+        mode.warmup()
+        step_phases(mode, True)   # untimed: the list's buffers reach their size
+        conn.send(("ready", scene.n))
+        k = 0
+        while True:
+            steps = conn.recv()
+            if steps is None:
+                return
+            out = []
+            for _ in range(steps):
+                k += 1
+                out.append(step_phases(mode, force))
+                meet(counts, me, k)
+            conn.send(("ok", out))
+    except Exception as e:
+        counts[me] = 2 ** 62   # nobody waits for this copy any more
+        conn.send(("error", f"{type(e).__name__}: {e}"))
+
+
+class PhaseCopies:
+    """`copies` serial copies of the packed scene at `particles` each (_phase_copy), held for a
+    case's rounds: round(steps) steps them together and returns, a step, {phase: the slowest
+    copy's time [s]} over the phases every copy timed in it."""
+
+    def __init__(self, copies, particles, skin, force, timeout=600):
+        ctx = multiprocessing.get_context("spawn")
+        self.timeout = timeout
+        self.counts = ctx.RawArray("q", copies)
+        self.conns, self.procs = [], []
+        for me in range(copies):
+            ours, theirs = ctx.Pipe()
+            proc = ctx.Process(target=_phase_copy, args=(particles, skin, force, theirs, self.counts, me))
+            proc.start()
+            theirs.close()
+            self.conns.append(ours)
+            self.procs.append(proc)
+        self.particles = self._answers()[0]
+
+    def _answers(self):
+        out = []
+        for conn in self.conns:
+            if not conn.poll(self.timeout):
+                raise RuntimeError(f"a ceiling copy gave no answer in {self.timeout} s")
+            status, got = conn.recv()
+            if status == "error":
+                raise RuntimeError(f"a ceiling copy failed: {got}")
+            out.append(got)
+        return out
+
+    def round(self, steps):
+        for conn in self.conns:
+            conn.send(steps)
+        per_copy = self._answers()
+        merged = []
+        for k in range(steps):
+            phases = set.intersection(*(set(c[k]) for c in per_copy))
+            merged.append({ph: max(c[k][ph] for c in per_copy) for ph in phases})
+        return merged
+
+    def close(self):
+        for conn in self.conns:
+            try:
+                conn.send(None)
+            except (BrokenPipeError, OSError):
+                pass
+        for proc in self.procs:
+            proc.join(timeout=10)
+            if proc.is_alive():
+                proc.kill()
+                proc.join()
+
+
 def _modes(scene, dt, threads, scheme, skin):
     serial = SerialMode().setup(copy.deepcopy(scene), dt=dt, skin=skin)
     par = ThreadsMode().setup(copy.deepcopy(scene), dt=dt, threads=threads, scheme=scheme, skin=skin)
@@ -94,32 +192,31 @@ def _modes(scene, dt, threads, scheme, skin):
     return serial, par
 
 
-def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print, work=False):
+def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print, work=False, ceiling=False):
     """The report: per case, per phase, t1 and tT [s] (medians), speedup and Karp-Flatt e; work: the
-    T ranges on one thread instead (module docstring): t1, wT [s], the work inflation W and T / W."""
+    T ranges on one thread instead (module docstring): t1, wT [s], the work inflation W and T / W;
+    ceiling: also T serial copies at N / T particles each, each phase's ceiling speedup and the
+    threads' share of it (module docstring)."""
     if threads < 2:
         raise ValueError("--what phases needs --threads T >= 2")
+    if work and ceiling:
+        raise ValueError("--ceiling is for the speedups, not --work")
     scene = load_prepared("packed", particles=particles)
     dt = choose_time_step(scene).dt
     report = {"what": "phases", "particles": scene.n, "threads": threads, "scheme": scheme, "steps": steps,
-              "repeats": repeats, "work": work, "cases": {}}
+              "repeats": repeats, "work": work, "ceiling": ceiling, "cases": {}}
     for name, skin, force in CASES:
         serial, par = _modes(scene, dt, threads, scheme, skin)
         if work:   # after the warm-up at T threads: the T ranges one after another on one thread
             numba.set_num_threads(1)
             for mode in (serial, par):   # untimed: the one thread's scan buffers grow to its pairs
                 step_phases(mode, True)
-        samples = ({}, {})
-        rounds = ({}, {})   # {phase: [R] the round's median} at 1 and T threads
-        for _ in range(repeats):  # alternating rounds: serial K steps, threads K steps
-            for k, mode in enumerate((serial, par)):
-                here = {}
-                for _ in range(steps):
-                    for phase, t in step_phases(mode, force).items():
-                        samples[k].setdefault(phase, []).append(t)
-                        here.setdefault(phase, []).append(t)
-                for phase, ts in here.items():
-                    rounds[k].setdefault(phase, []).append(float(np.median(ts)))
+        copies = PhaseCopies(threads, max(1, scene.n // threads), skin, force) if ceiling else None
+        try:
+            samples, rounds = _rounds((serial, par), copies, force, steps, repeats)
+        finally:
+            if copies is not None:
+                copies.close()
         rows = {}
         for phase in PHASES:
             if phase not in samples[0] or phase not in samples[1]:
@@ -127,7 +224,12 @@ def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print
             t1, tt = float(np.median(samples[0][phase])), float(np.median(samples[1][phase]))
             row = work_row if work else phase_row
             rows[phase] = row(t1, tt, rounds[0][phase], rounds[1][phase], threads)
+            if ceiling:
+                rows[phase].update(ceiling_row(t1, tt, samples[2].get(phase), rounds[0][phase], rounds[1][phase],
+                                               rounds[2].get(phase), threads))
         report["cases"][name] = rows
+        if ceiling:
+            report["ceiling_particles"] = copies.particles
         if work:
             _log_work(log, name, scene.n, threads, scheme, repeats, steps, rows)
             continue
@@ -135,12 +237,59 @@ def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print
             f"{repeats} alternating rounds of {steps} steps, medians; 95 % intervals paired over the rounds; "
             f"target: Karp-Flatt <= {TARGET_KARP_FLATT:g} (issue 32)")
         log(f"{'phase':12s} {'1 thread [ms]':>14s} {f'{threads} threads [ms]':>15s} {'speedup':>8s} "
-            f"{'95 %':>16s} {'Karp-Flatt':>10s} {'95 %':>16s} verdict")
+            f"{'95 %':>16s} {'Karp-Flatt':>10s} {'95 %':>16s} {'verdict':10s}"
+            + (f" {'ceiling':>8s} {'95 %':>16s} {'its K-F':>8s} {'of it':>6s} {'95 %':>16s}" if ceiling else ""))
         for phase, r in rows.items():
             log(f"{phase:12s} {1e3 * r['t1_s']:14.4f} {1e3 * r['tT_s']:15.4f} {r['speedup']:8.3f} "
                 f"{format_interval(r['speedup_lo'], r['speedup_hi']):>16s} {r['karp_flatt']:10.3f} "
-                f"{format_interval(r['karp_flatt_lo'], r['karp_flatt_hi']):>16s} {r['verdict']}")
+                f"{format_interval(r['karp_flatt_lo'], r['karp_flatt_hi']):>16s} {r['verdict']:10s}"
+                + (f" {r['ceiling_speedup']:8.3f} {format_interval(r['ceiling_lo'], r['ceiling_hi']):>16s} "
+                   f"{r['ceiling_karp_flatt']:8.3f} {r['of_ceiling']:6.3f} "
+                   f"{format_interval(r['of_ceiling_lo'], r['of_ceiling_hi']):>16s}" if ceiling else ""))
+        if ceiling:
+            log(f"# ceiling: {threads} serial copies of {copies.particles} particles meeting every step, "
+                f"a phase's time the slowest copy's; 'of it' = ceiling time / {threads}-thread time")
     return report
+
+
+def _rounds(modes, copies, force, steps, repeats):
+    """Alternating rounds (module docstring): each round K steps of the serial mode, K of the
+    threads mode, and K of the ceiling's copies where given. Returns (samples, rounds): per arm
+    {phase: every step's time [s]} and {phase: [R] each round's median}."""
+    arms = len(modes) + (copies is not None)
+    samples = tuple({} for _ in range(arms))
+    rounds = tuple({} for _ in range(arms))
+    for _ in range(repeats):
+        for k in range(arms):
+            steps_here = (copies.round(steps) if k == len(modes) else
+                          [step_phases(modes[k], force) for _ in range(steps)])
+            here = {}
+            for ph in steps_here:
+                for phase, t in ph.items():
+                    samples[k].setdefault(phase, []).append(t)
+                    here.setdefault(phase, []).append(t)
+            for phase, ts in here.items():
+                rounds[k].setdefault(phase, []).append(float(np.median(ts)))
+    return samples, rounds
+
+
+def ceiling_row(t1, tt, steps_c, rounds1, roundsT, roundsC, threads):
+    """One phase's ceiling (--ceiling): ceiling_s, the median of the copies' slowest time over every
+    step (steps_c [s], None where the copies lack the phase), ceiling_speedup C = t1 / ceiling_s
+    and its interval paired over the rounds (rounds1, roundsC [R]), its Karp-Flatt e(C), and the
+    threads' share of it, of_ceiling = ceiling_s / tT (paired with roundsT); NaN without copies'
+    times or where a round lacks the phase."""
+    nan = float("nan")
+    if not steps_c or not roundsC or len(roundsC) != len(rounds1):
+        return {"ceiling_s": nan, "ceiling_speedup": nan, "ceiling_lo": nan, "ceiling_hi": nan,
+                "ceiling_karp_flatt": nan, "of_ceiling": nan, "of_ceiling_lo": nan, "of_ceiling_hi": nan}
+    tc = float(np.median(steps_c))
+    c = t1 / tc if tc > 0 else nan
+    lo, hi = ratio_interval(rounds1, roundsC)
+    of_lo, of_hi = ratio_interval(roundsC, roundsT)
+    return {"ceiling_s": tc, "ceiling_speedup": c, "ceiling_lo": lo, "ceiling_hi": hi,
+            "ceiling_karp_flatt": karp_flatt(c, threads), "of_ceiling": tc / tt if tt > 0 else nan,
+            "of_ceiling_lo": of_lo, "of_ceiling_hi": of_hi}
 
 
 def _log_work(log, name, n, threads, scheme, repeats, steps, rows):

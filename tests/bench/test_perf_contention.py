@@ -50,19 +50,19 @@ def test_copies_are_set_up_with_the_runs_options():
 
 
 def test_step_barrier_waits_for_the_slowest_copy():
-    """_meet(counts, me, k) returns only once every slot holds k: copy 1 finishes step 3 0.2 s
+    """meet(counts, me, k) returns only once every slot holds k: copy 1 finishes step 3 0.2 s
     after copy 0 arrives, so copy 0 waits at least those 0.2 s; a later arrival does not wait."""
-    from bench.run.copies import _meet
+    from bench.run.copies import meet
     counts = [2, 2]
     late = threading.Timer(0.2, lambda: counts.__setitem__(1, 3))
     t = time.perf_counter()
     late.start()
-    _meet(counts, 0, 3)
+    meet(counts, 0, 3)
     waited = time.perf_counter() - t
     late.join()
     assert counts == [3, 3] and waited >= 0.2
     t = time.perf_counter()
-    _meet(counts, 1, 3)
+    meet(counts, 1, 3)
     assert time.perf_counter() - t < 0.2
 
 

@@ -96,3 +96,45 @@ def test_work_runs_the_ranges_on_one_thread(tmp_path):
 
 def test_work_is_for_phases():
     one_line_error(bench("perf", "--what", "comm", "--work"), "--work is for --what phases")
+
+
+def test_ceiling_row_by_hand():
+    """--ceiling: a phase taking 1.0 ms on one thread, 0.55 ms at 2 threads and 0.52 ms in the
+    slowest of 2 serial copies at half the particles (every round alike): the machine lets it gain
+    C = 1.0 / 0.52 = 1.923077 at most, a Karp-Flatt of (0.52 - 0.5) / 0.5 = 0.04 that no scheme can
+    beat, and the threads reach 0.52 / 0.55 = 0.945455 of it; the intervals of equal rounds are
+    points. Without the copies' times the ceiling is NaN."""
+    from bench.studies.perf_phases import ceiling_row
+    r = ceiling_row(1.0e-3, 0.55e-3, [0.52e-3, 0.51e-3, 0.53e-3], [1.0e-3] * 3, [0.55e-3] * 3, [0.52e-3] * 3, 2)
+    assert r["ceiling_s"] == pytest.approx(0.52e-3)
+    assert r["ceiling_speedup"] == pytest.approx(1.923077, abs=1e-6)
+    assert (r["ceiling_lo"], r["ceiling_hi"]) == pytest.approx((1.923077, 1.923077), abs=1e-6)
+    assert r["ceiling_karp_flatt"] == pytest.approx(0.04, abs=1e-12)
+    assert r["of_ceiling"] == pytest.approx(0.945455, abs=1e-6)
+    assert (r["of_ceiling_lo"], r["of_ceiling_hi"]) == pytest.approx((0.945455, 0.945455), abs=1e-6)
+    assert all(math.isnan(v) for v in ceiling_row(1e-3, 0.5e-3, None, [1e-3] * 2, [0.5e-3] * 2, None, 2).values())
+
+
+def test_ceiling_steps_copies_beside_the_threads(tmp_path):
+    """`--ceiling` end to end at 2 threads on 300 packed ellipsoids: 2 serial copies of 150 step in
+    each round; every phase of the rebuild cases has a ceiling whose figures are those of its own
+    medians (C = t1 / tC, of_ceiling = tC / tT), and the resolution, which every copy runs at every
+    step, has a positive ceiling speedup in every case."""
+    import json
+    res = bench("perf", "--what", "phases", "--threads", "2", "--ceiling", "--particles", "300", "--steps", "2",
+                "--repeats", "2", "--out", str(tmp_path), timeout=600)
+    assert res.returncode == 0, res.stderr
+    rep = json.loads((tmp_path / "perf.json").read_text())
+    assert rep["ceiling"] is True and rep["ceiling_particles"] == 150
+    for name, rows in rep["cases"].items():
+        assert rows["resolve"]["ceiling_speedup"] > 0, name
+        for phase, r in rows.items():
+            if name != "skin 0.1":
+                assert r["ceiling_speedup"] == pytest.approx(r["t1_s"] / r["ceiling_s"]), (name, phase)
+                assert r["of_ceiling"] == pytest.approx(r["ceiling_s"] / r["tT_s"]), (name, phase)
+    assert "ceiling" in res.stdout and "2 serial copies of 150 particles" in res.stdout
+
+
+def test_ceiling_is_not_for_work():
+    one_line_error(bench("perf", "--what", "phases", "--threads", "2", "--work", "--ceiling"),
+                   "--ceiling is for the speedups")
