@@ -67,7 +67,7 @@ PLACE_BLOCKS = 16     # the placing's blocks of rows per thread, at most (block_
 # several rows need costs about 42 ns of work a particle (12k packed, one core, with the carry and the
 # cut: 1.89 against 1.38 ms), shared by the T threads; single rows need instead one thread's walk over
 # the T x n counts, about 0.45 ns an entry (75-92 us at 16 x 12k), so they are faster while
-# 0.45 T < 42 / T, up to 9 threads
+# 0.45 T < 42 / T, up to about 9 threads (8 keeps a margin)
 PLACE_ROWS_THREADS = 8
 OFFSETS_THREADS_FROM = 65536   # counts [T x rows] from which their write offsets are made by the threads
 # entries from which, and ranges from which, the threads place the marked rows' entries and mark the later
@@ -374,8 +374,8 @@ def place_by_gid(threads, pi_t, pj_t, offsets, rank, block_count, shift, spi, sp
     m = offsets[threads]
     viewed = order.shape[0] > 0
     nb = n_blocks(n, shift)
-    # the staging list: block-major, then thread, each thread's pairs of a block in its own order
-    # (T x nb counts, at most 16 T^2: one thread's walk)
+    # the write offsets: block-major, then thread, each thread's pairs of a block in its own order
+    # (one thread's walk over the T x nb counts: T x n for single rows, else at most 16 T^2)
     base = np.empty(nb + 1, dtype=np.int64)
     _offsets_by_row(block_count, nb, base)
     # thread g places blocks run[g] .. run[g+1]-1: the block boundary nearest to g m / T pairs

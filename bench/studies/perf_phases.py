@@ -148,14 +148,21 @@ class PhaseCopies:
             theirs.close()
             self.conns.append(ours)
             self.procs.append(proc)
-        self.particles = self._answers()[0]
+        try:
+            self.particles = self._answers()[0]
+        except BaseException:   # a copy failed or an interrupt came: none of them outlives the set-up
+            self.close()
+            raise
 
     def _answers(self):
         out = []
         for conn in self.conns:
             if not conn.poll(self.timeout):
                 raise RuntimeError(f"a ceiling copy gave no answer in {self.timeout} s")
-            status, got = conn.recv()
+            try:
+                status, got = conn.recv()
+            except (EOFError, OSError):
+                raise RuntimeError("a ceiling copy ended without an answer") from None
             if status == "error":
                 raise RuntimeError(f"a ceiling copy failed: {got}")
             out.append(got)

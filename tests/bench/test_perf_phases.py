@@ -138,3 +138,14 @@ def test_ceiling_steps_copies_beside_the_threads(tmp_path):
 def test_ceiling_is_not_for_work():
     one_line_error(bench("perf", "--what", "phases", "--threads", "2", "--work", "--ceiling"),
                    "--ceiling is for the speedups")
+
+
+def test_a_failing_ceiling_copy_stops_the_set_up_and_leaves_no_process():
+    """Ceiling copies that cannot set up (here: a particle count of -5, which the scene refuses)
+    make PhaseCopies raise one RuntimeError naming the copy's error (a line for `bench perf`), and
+    none of the copies it started is left running."""
+    import multiprocessing
+    from bench.studies.perf_phases import PhaseCopies
+    with pytest.raises(RuntimeError, match="a ceiling copy failed: SceneError: particle count"):
+        PhaseCopies(2, -5, 0.0, True, timeout=300)
+    assert multiprocessing.active_children() == []
