@@ -358,7 +358,7 @@ def place_by_gid(threads, pi_t, pj_t, offsets, rank, block_count, shift, spi, sp
     (dem.pairs.sorted_view). The keys are distinct, so the order is the one dem.pairs.sort_by_gid
     gives. Three parallel regions with a cut, two without.
 
-    carry = (gid, corder, opi, opj, ogid, oorder, oon, ohist, hist, on), or None: each thread then
+    carry = (gid, corder, key, okey, oorder, oon, ohist, hist, on), or None: each thread then
     also carries the history of the rows it has just placed from the old list
     (dem.pairs.carry_history_sorted_range over its run of the sorted order, corder None where the
     list itself is sorted, else order; the other arguments as there), while they are in its cache
@@ -451,8 +451,8 @@ def place_by_gid(threads, pi_t, pj_t, offsets, rank, block_count, shift, spi, sp
                 _order_row(lo, hi, spj, order, viewed, rank)
             lo = hi
         if carry is not None:
-            gid, corder, opi, opj, ogid, oorder, oon, ohist, hist, on = carry
-            carry_history_sorted_range(p0, p1, spi, spj, gid, corder, opi, opj, ogid, oorder, oon, ohist, hist, on)
+            gid, corder, key, okey, oorder, oon, ohist, hist, on = carry
+            carry_history_sorted_range(p0, p1, spi, spj, gid, corder, key, okey, oorder, oon, ohist, hist, on)
     if cut is None:
         return np.empty((threads, 0), dtype=np.int64), np.zeros((threads, COUNT_PAD), dtype=np.int64)
     shares, n_owned, gid, bounds, gat = cut

@@ -183,6 +183,12 @@ def _block_counts(threads, pi_t, offsets, rank, shift, n):
     return count
 
 
+def _keys(spi, spj, gid):
+    """The pairs' keys as dem.pairs.pair_key defines them, gid_i 2^32 + gid_j, by numpy (the merge's
+    own keys and the old list's it reads)."""
+    return (gid[spi].astype(np.int64) << 32) + gid[spj]
+
+
 def _random_pairs(rng, n, m, gid):
     a, b = rng.integers(0, n, m), rng.integers(0, n, m)
     keep = a != b
@@ -196,7 +202,9 @@ def test_history_carried_by_gid_across_a_permutation(rng, by_gid):
     global ids, whatever happened to memory order in between: the particles are permuted, a third
     of the old pairs are dropped and new ones appear. The result must equal, bit for bit, the path
     through the per-particle CSR (history_to_csr then history_from_csr) that migration uses; a
-    pair new to the list, or one that was not touching, starts without history (on = 0)."""
+    pair new to the list, or one that was not touching, starts without history (on = 0). Each list
+    keeps its pairs' keys gid_i 2^32 + gid_j in gid order (dem.pairs.pair_key), which the next
+    carry reads in place of the old list's ids."""
     n = 60
     gid = rng.permutation(500)[:n].astype(np.int64)
     pos = np.zeros((n, 3))
@@ -206,6 +214,7 @@ def test_history_carried_by_gid_across_a_permutation(rng, by_gid):
     bi[:len(pi)], bj[:len(pi)] = pi, pj
     empty = (np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, 8)))
     old.set(len(pi), gid, n, *empty, pos, by_gid=by_gid)
+    assert np.array_equal(old.key, _keys(*old.view[:2], gid))   # the keys the next carry reads
     old.hist[:] = rng.standard_normal(old.hist.shape)
     old.on[:] = rng.integers(0, 2, old.m)
     csr = old.history(gid, n)
@@ -235,6 +244,7 @@ def test_history_carried_by_gid_across_a_permutation(rng, by_gid):
     assert 0 < on_csr.sum() < m
     assert np.array_equal(old.on, on_csr)
     assert np.array_equal(old.hist[on_csr == 1], hist_csr[on_csr == 1])
+    assert np.array_equal(old.key, _keys(*old.view[:2], gid2))
 
 
 @pytest.mark.parametrize("by_gid", [True, False])
@@ -321,14 +331,17 @@ def test_carry_by_ranges_equals_one_merge(rng):
                   key=lambda q: (gid[q[0]], gid[q[1]]))
     pi = np.array([q[0] for q in both], dtype=np.int64)
     pj = np.array([q[1] for q in both], dtype=np.int64)
-    ref_hist, ref_on = np.zeros((len(pi), 8)), np.zeros(len(pi), dtype=np.int8)
-    carry_history_sorted(pi, pj, gid, None, opi, opj, gid, None, oon, ohist, ref_hist, ref_on)
+    ref_hist, ref_on, key = np.zeros((len(pi), 8)), np.zeros(len(pi), dtype=np.int8), np.zeros(len(pi), np.int64)
+    carry_history_sorted(pi, pj, gid, None, key, _keys(opi, opj, gid), None, oon, ohist, ref_hist, ref_on)
     assert 0 < ref_on.sum() < len(pi)
+    assert np.array_equal(key, _keys(pi, pj, gid))
     for threads in range(1, 6):
         hist, on = np.full((len(pi), 8), np.nan), np.full(len(pi), 7, dtype=np.int8)
-        carry_threads(threads, pi, pj, gid, None, opi, opj, gid, None, oon, ohist, hist, on)
+        key = np.full(len(pi), -1, dtype=np.int64)
+        carry_threads(threads, pi, pj, gid, None, key, _keys(opi, opj, gid), None, oon, ohist, hist, on)
         assert np.array_equal(on, ref_on)
         assert np.array_equal(hist[on == 1], ref_hist[ref_on == 1])
+        assert np.array_equal(key, _keys(pi, pj, gid))
     # both lists in shuffled order, seen sorted through their views
     new_perm, old_perm = rng.permutation(len(pi)), rng.permutation(len(opi))
     qi, qj = pi[new_perm], pj[new_perm]
@@ -337,7 +350,8 @@ def test_carry_by_ranges_equals_one_merge(rng):
     assert np.array_equal(view[0], pi) and np.array_equal(oview[0], opi)
     for threads in range(0, 4):
         hist, on = np.full((len(pi), 8), np.nan), np.full(len(pi), 7, dtype=np.int8)
-        args = (*view[:2], gid, view[2], *oview[:2], gid, oview[2], oon[old_perm], ohist[old_perm], hist, on)
+        args = (*view[:2], gid, view[2], np.empty(len(pi), dtype=np.int64), _keys(*oview[:2], gid), oview[2],
+                oon[old_perm], ohist[old_perm], hist, on)
         carry_threads(threads, *args) if threads else carry_history_sorted(*args)
         assert np.array_equal(on, ref_on[new_perm])
         assert np.array_equal(hist[on == 1], ref_hist[new_perm][on == 1])
@@ -570,7 +584,8 @@ def test_placing_threads_carry_and_cut_as_the_separate_passes(rng):
             oon = (rng.random(len(osi)) < 0.5).astype(np.int8)
             ohist = rng.random((len(osi), HIST_LEN))
             want_hist, want_on = np.zeros((m, HIST_LEN)), np.zeros(m, dtype=np.int8)
-            carry_history_sorted(si, sj, gid, None, osi, osj, gid, None, oon, ohist, want_hist, want_on)
+            carry_history_sorted(si, sj, gid, None, np.empty(m, dtype=np.int64), _keys(osi, osj, gid), None, oon, ohist,
+                                 want_hist, want_on)
             for threads in (1, 2, 3, 7):
                 cuts = np.sort(rng.integers(0, m + 1, threads - 1))
                 offsets = np.concatenate([[0], cuts, [m]]).astype(np.int64)
@@ -586,15 +601,17 @@ def test_placing_threads_carry_and_cut_as_the_separate_passes(rng):
                     # the list's buffers, longer than the list (PairList.buffers)
                     ti, tj = np.full(m + 5, -1, dtype=np.int64), np.full(m + 5, -1, dtype=np.int64)
                     hist, on = np.full((m, HIST_LEN), -1.0), np.full(m, 7, dtype=np.int8)
+                    key = np.full(m, -1, dtype=np.int64)
                     bounds, gat = np.zeros(threads + 1, dtype=np.int64), np.full(n_owned, 5, dtype=np.int8)
                     later, got = place_by_gid(threads, pi_t, pj_t, offsets, rank, blocks.copy(), shift, ti, tj,
                                               np.zeros(0, dtype=np.int64),
-                                              (gid, None, osi, osj, gid, None, oon, ohist, hist, on),
+                                              (gid, None, key, _keys(osi, osj, gid), None, oon, ohist, hist, on),
                                               (shares, n_owned, gid, bounds, gat))
                     ti, tj = ti[:m], tj[:m]
                     assert np.array_equal(ti, si) and np.array_equal(tj, sj)
                     # the rows of the pairs that carry one (a pair without history has no row to read)
                     assert np.array_equal(on, want_on) and np.array_equal(hist[on == 1], want_hist[want_on == 1])
+                    assert np.array_equal(key, _keys(ti, tj, gid))
                     home_start, home_items = np.empty(threads + 1, dtype=np.int64), np.empty(n_owned, dtype=np.int64)
                     count, adj_start, adj_items = mark_and_home(threads, bounds, ti, tj, gid, n_owned, gat, later,
                                                                 got, home_start, home_items, True)
