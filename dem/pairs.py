@@ -172,19 +172,35 @@ def sort_by_gid(pi, pj, gid, pi_out, pj_out, idx=None, idx_out=None):
 def sort_pairs_by_gid(pi, pj, gid):
     """sort_by_gid in place: pi, pj [m] in ascending (gid[pi], gid[pj]) order, the two counting
     sorts in one call (sort_by_gid's ten numpy and numba calls took ~15 us of a 1080-pair list's
-    sort on 2 ranks of 500 packed ellipsoids, a list every step with --skin 0)."""
+    sort on 2 ranks of 500 packed ellipsoids, a list every step with --skin 0). Where the particles
+    are stored in gid order (serial and threads always; an MPI rank's ghosts are not) each index
+    is its own rank, and the sorts key on the indices themselves with no gather of ranks (12k
+    packed ellipsoids' 57k pairs 0.65 -> 0.55 ms, 2500's 11k 0.101 -> 0.084 ms)."""
     n = gid.shape[0]
     m = pi.shape[0]
-    rank = gid_ranks(gid)
-    key = np.empty(m, dtype=np.int64)
     tmp_i = np.empty(m, dtype=np.int64)
     tmp_j = np.empty(m, dtype=np.int64)
+    if gid_ascending(gid):
+        _counting_sort(pj, n, pi, pj, tmp_i, tmp_j)
+        _counting_sort(tmp_i, n, tmp_i, tmp_j, pi, pj)
+        return
+    rank = gid_ranks(gid)
+    key = np.empty(m, dtype=np.int64)
     for k in range(m):
         key[k] = rank[pj[k]]
     _counting_sort(key, n, pi, pj, tmp_i, tmp_j)
     for k in range(m):
         key[k] = rank[tmp_i[k]]
     _counting_sort(key, n, tmp_i, tmp_j, pi, pj)
+
+
+@njit(cache=True)
+def gid_ascending(gid):
+    """Whether the particles are stored in ascending gid [n] (then gid_ranks is the identity)."""
+    for p in range(1, gid.shape[0]):
+        if gid[p] < gid[p - 1]:
+            return False
+    return True
 
 
 NO_KEY = np.iinfo(np.int64).max   # above every pair's key

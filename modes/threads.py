@@ -19,7 +19,7 @@ from dem.contact.ellipsoid import OUT_LEN
 from dem.forces import SPLIT, SPLIT_TAKEN, STORE
 from dem.shapes import SPHERE
 from dem.neighbor import grid_cutoff
-from dem.pairs import gid_ranks
+from dem.pairs import gid_ascending, gid_ranks
 from modes.base import ModeError, register
 from modes import parallel as par
 from modes.serial import SerialMode
@@ -155,7 +155,7 @@ class ThreadsMode(SerialMode):
         nb = par.n_blocks(n, shift)
         if self.block_count is None or self.block_count.shape[1] < nb + par.COUNT_PAD:
             self.block_count = np.empty((self.threads, nb + par.COUNT_PAD), dtype=np.int64)
-        rank = gid_ranks(s.gid)
+        rank = None if gid_ascending(s.gid) else gid_ranks(s.gid)   # None: the indices are the ranks
         while True:
             if self.pair_t is None or self.pair_t[0].shape[1] < self.cap:
                 self.pair_t = (np.empty((self.threads, self.cap), dtype=np.int64),
@@ -175,7 +175,7 @@ class ThreadsMode(SerialMode):
         t0 = self.clock()
         if self.deliver == SPLIT:   # the list itself in gid order
             cut = self._placing_cut()
-            later, got = par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, self.block_count, shift, pi, pj,
+            later, got = par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, n, self.block_count, shift, pi, pj,
                                           self.no_order, p.carry_args(m, s.gid) if carries else None,
                                           cut and cut[1:])
             self.placed = (m, None)
@@ -183,7 +183,7 @@ class ThreadsMode(SerialMode):
         else:                       # the list in thread order, seen in gid order through its view
             par.compact_pairs(self.threads, pi_t, pj_t, offsets, pi, pj)
             view = (np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64))
-            par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, self.block_count, shift, *view,
+            par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, n, self.block_count, shift, *view,
                              p.carry_args(m, s.gid, view[2]) if carries else None)
             self.placed = (m, view)
         self.carried = m if carries else None

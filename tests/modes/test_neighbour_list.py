@@ -380,7 +380,8 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
     lexsort does, with the particles stored in gid order (ranks taken as indices) or not (owned
     ones sorted, ghosts after them in any order, as under MPI), and modes.parallel.place_by_gid
     the same order at 1-7 threads from the pairs split among the threads' buffers, with the
-    sorted view of the pairs' concatenation in thread order."""
+    sorted view of the pairs' concatenation in thread order (stored in gid order, with the ranks
+    given and with none: the indices)."""
     n = 80
     for stored in ("sorted", "ghost tail"):
         gid = np.sort(rng.permutation(900)[:n]).astype(np.int64)
@@ -416,14 +417,16 @@ def test_marked_adjacency_rows_and_gid_sort(rng):
             # rows in 3 blocks: fewer than the threads)
             for shift in (0, 3, 5):
                 blocks = _block_counts(threads, pi_t, offsets, rank, shift, n)
-                ti, tj = np.empty_like(pi), np.empty_like(pj)
-                place_by_gid(threads, pi_t, pj_t, offsets, rank, blocks.copy(), shift, ti, tj,
-                             np.zeros(0, dtype=np.int64))
-                assert np.array_equal(ti, si) and np.array_equal(tj, sj)
-                # the sorted view of their concatenation: the pairs' indices moved with them
-                view = (np.empty_like(pi), np.empty_like(pj), np.empty_like(pi))
-                place_by_gid(threads, pi_t, pj_t, offsets, rank, blocks, shift, *view)
-                assert all(np.array_equal(a, b) for a, b in zip(view, (si, sj, ref)))
+                # stored in gid order, the ranks are the indices: the placing reads none (rank None)
+                for ranks in ((rank, None) if stored == "sorted" else (rank,)):
+                    ti, tj = np.empty_like(pi), np.empty_like(pj)
+                    place_by_gid(threads, pi_t, pj_t, offsets, ranks, n, blocks.copy(), shift, ti, tj,
+                                 np.zeros(0, dtype=np.int64))
+                    assert np.array_equal(ti, si) and np.array_equal(tj, sj)
+                    # the sorted view of their concatenation: the pairs' indices moved with them
+                    view = (np.empty_like(pi), np.empty_like(pj), np.empty_like(pi))
+                    place_by_gid(threads, pi_t, pj_t, offsets, ranks, n, blocks.copy(), shift, *view)
+                    assert all(np.array_equal(a, b) for a, b in zip(view, (si, sj, ref)))
         assert all(np.array_equal(a, b) for a, b in zip(sorted_view(pi, pj, gid), (si, sj, ref)))
         full = pair_adjacency(si, sj, gid, 60)
         mark = (rng.random(60) < 0.2).astype(np.int8)
@@ -597,13 +600,15 @@ def test_placing_threads_carry_and_cut_as_the_separate_passes(rng):
                     pj_t[t, :offsets[t + 1] - offsets[t]] = pj[order][offsets[t]:offsets[t + 1]]
                 shift = (0, 2, 4)[threads % 3]   # blocks of 1, 4 and 16 rows
                 blocks = _block_counts(threads, pi_t, offsets, rank, shift, n)
-                for shares in (np.ones(threads), rng.uniform(0.3, 3.0, threads)):
+                for v, shares in enumerate((np.ones(threads), rng.uniform(0.3, 3.0, threads))):
+                    # stored in gid order, the second time with no ranks given (the indices are the ranks)
+                    ranks = None if stored == "sorted" and v == 1 else rank
                     # the list's buffers, longer than the list (PairList.buffers)
                     ti, tj = np.full(m + 5, -1, dtype=np.int64), np.full(m + 5, -1, dtype=np.int64)
                     hist, on = np.full((m, HIST_LEN), -1.0), np.full(m, 7, dtype=np.int8)
                     key = np.full(m, -1, dtype=np.int64)
                     bounds, gat = np.zeros(threads + 1, dtype=np.int64), np.full(n_owned, 5, dtype=np.int8)
-                    later, got = place_by_gid(threads, pi_t, pj_t, offsets, rank, blocks.copy(), shift, ti, tj,
+                    later, got = place_by_gid(threads, pi_t, pj_t, offsets, ranks, n, blocks.copy(), shift, ti, tj,
                                               np.zeros(0, dtype=np.int64),
                                               (gid, None, key, _keys(osi, osj, gid), None, oon, ohist, hist, on),
                                               (shares, n_owned, gid, bounds, gat))
