@@ -418,10 +418,11 @@ def carry_history_sorted_range(a0, a1, spi, spj, gid, order, key, okey, oorder, 
     places). The merge compares one integer key a pair, read in sequence from both lists (the old
     list's kept from its own rebuild: no gathers of ids, past its end NO_KEY), and a pair found in
     the old list takes the old row and flag whatever the flag (a row is read only where on[k] = 1):
-    a copy with no branch on the data. On the arguments of a 12k packed ellipsoids' rebuild (57k
-    pairs, 41k with history; one thread) 0.56 -> 0.40 ms, where the merge made both lists' keys
-    from their ids and copied a row only where the old flag was set; 0.13 ms of the 0.40 are the
-    keys."""
+    a copy with no branch on the data. On the arguments of a packed ellipsoids' rebuild at --skin
+    0, one thread, against the merge that made both lists' keys from their ids and copied a row
+    only where the old flag was set (interleaved, medians): 12k (57k pairs, 41k with history)
+    0.48 -> 0.28 and 0.73 -> 0.45 ms in two runs, 2500 (11k pairs) 0.075 -> 0.056 and 0.119 ->
+    0.083 ms; the keys' own pass is about a third of the new time."""
     mo = okey.shape[0]
     if a0 >= a1:
         return
