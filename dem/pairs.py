@@ -128,11 +128,7 @@ def gid_ranks(gid):
     in one argsort of them all)."""
     n = gid.shape[0]
     rank = np.empty(n, dtype=np.int64)
-    k = n   # gid[:k] ascending
-    for p in range(1, n):
-        if gid[p] < gid[p - 1]:
-            k = p
-            break
+    k = _first_descent(gid)   # gid[:k] ascending
     if k == n:
         for p in range(n):
             rank[p] = p
@@ -194,13 +190,19 @@ def sort_pairs_by_gid(pi, pj, gid):
     _counting_sort(key, n, tmp_i, tmp_j, pi, pj)
 
 
+@njit(cache=True, inline="always")
+def _first_descent(gid):
+    """The first p with gid[p] < gid[p - 1], or n: gid[:p] is ascending."""
+    for p in range(1, gid.shape[0]):
+        if gid[p] < gid[p - 1]:
+            return p
+    return gid.shape[0]
+
+
 @njit(cache=True)
 def gid_ascending(gid):
     """Whether the particles are stored in ascending gid [n] (then gid_ranks is the identity)."""
-    for p in range(1, gid.shape[0]):
-        if gid[p] < gid[p - 1]:
-            return False
-    return True
+    return _first_descent(gid) == gid.shape[0]
 
 
 NO_KEY = np.iinfo(np.int64).max   # above every pair's key
@@ -389,12 +391,18 @@ def history_from_rows_where_present(pi, pj, gid, n_owned, hist_start, hist_partn
             _take_from_rows(k, own, partner, hist_start, hist_partner, hist_val, hist, on)
 
 
+@njit(inline="always")
+def _keys_range(a0, a1, spi, spj, gid, key):
+    """key[a] = pair_key(gid, spi[a], spj[a]) for a = a0..a1-1."""
+    for a in range(a0, a1):
+        key[a] = pair_key(gid, spi[a], spj[a])
+
+
 @njit(cache=True, _nrt=False)
 def pair_keys(spi, spj, gid, key):
     """key[a] = pair_key(gid, spi[a], spj[a]) [m]: the keys of a list seen in ascending (gid_i,
     gid_j), kept with it (PairList.key) for the merge of the next rebuild's carry."""
-    for a in range(spi.shape[0]):
-        key[a] = pair_key(gid, spi[a], spj[a])
+    _keys_range(0, spi.shape[0], spi, spj, gid, key)
 
 
 @njit(cache=True, _nrt=False)
@@ -426,8 +434,7 @@ def carry_history_sorted_range(a0, a1, spi, spj, gid, order, key, okey, oorder, 
     mo = okey.shape[0]
     if a0 >= a1:
         return
-    for a in range(a0, a1):
-        key[a] = pair_key(gid, spi[a], spj[a])
+    _keys_range(a0, a1, spi, spj, gid, key)
     key0 = key[a0]
     lo, hi = 0, mo
     while lo < hi:

@@ -21,13 +21,24 @@ def meet(counts, me, k):
             pass
 
 
+def as_copy():
+    """Set up a copy's process: SIGINT is left to the parent (which stops the copies) and the copy
+    dies with its parent (PR_SET_PDEATHSIG, SIGKILL)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL))
+
+
+def release(counts, me):
+    """A copy that fails: nobody waits at meet for it any more."""
+    counts[me] = 2 ** 62
+
+
 def _copy(scene, particles, shape, steps, warmup, barrier, in_step, results, counts, me, options=None):
     """One worker (copy me): step a serial copy of the scene; put its step times [s] on results
     (or a line saying why it could not). It dies with its parent and leaves SIGINT to it (the
     parent stops the copies); a copy that fails frees the others from waiting for it. options: the
     serial mode's set-up options (skin, contact_method, neighbor: those of the runs it stands beside)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL))
+    as_copy()
     from bench.run.prepare import load_prepared
     from dem.timestep import choose_time_step
     from modes.serial import SerialMode
@@ -48,7 +59,7 @@ def _copy(scene, particles, shape, steps, warmup, barrier, in_step, results, cou
             times.append(clock() - t)
     except Exception as e:
         results.put(("error", f"{type(e).__name__}: {e}"))
-        counts[me] = 2 ** 62  # nobody waits for this copy any more
+        release(counts, me)
         barrier.abort()
         return
     try:

@@ -60,13 +60,11 @@ their speedups.
 """
 import copy
 import multiprocessing
-import signal
 
 import numba
 import numpy as np
 
-from bench.run.copies import meet
-from bench.run.lifeline import PR_SET_PDEATHSIG, _prctl
+from bench.run.copies import as_copy, meet, release
 from bench.run.prepare import load_prepared
 from bench.sweep.intervals import format_interval, ratio_interval, verdict
 from dem.timestep import choose_time_step
@@ -107,8 +105,7 @@ def _phase_copy(particles, skin, force, conn, counts, me):
     stepped `steps` at a time on each command received on conn (None: stop), meeting the other
     copies after every step (bench.run.copies meet); sends ("ready", n), then ("ok", [{phase: s}]
     a step) a command, or ("error", line). Dies with its parent; SIGINT is the parent's."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL))
+    as_copy()
     try:
         scene = load_prepared("packed", particles=particles)
         mode = SerialMode().setup(scene, dt=choose_time_step(scene).dt, skin=skin)
@@ -127,7 +124,7 @@ def _phase_copy(particles, skin, force, conn, counts, me):
                 meet(counts, me, k)
             conn.send(("ok", out))
     except Exception as e:
-        counts[me] = 2 ** 62   # nobody waits for this copy any more
+        release(counts, me)
         conn.send(("error", f"{type(e).__name__}: {e}"))
 
 
