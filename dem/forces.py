@@ -581,26 +581,35 @@ def _gather(p, adj_start, adj_items, on, pf):
 
 
 @njit(cache=True, _nrt=False)
-def wall_candidates(n_owned, pos, reach, wall_m, wall_d, wall_hist, near):
+def wall_candidates(n_owned, pos, reach, wall_m, wall_d, wall_hist, near, was):
     """The wall list of a neighbour rebuild: near[p] = 1 for the owned particles within reach[p] (the
     bounding radius plus half the skin [m]) of some wall plane, 0 for the others, whose wall
-    history ends here: they cannot touch a wall before the next rebuild. Returns their count."""
-    return wall_candidates_range(0, n_owned, pos, reach, wall_m, wall_d, wall_hist, near)
+    history ends here: they cannot touch a wall before the next rebuild. was [n_owned] int8: the
+    last rebuild's list of the same particles, or empty where there is none (a first list, or
+    the particles were stored anew since). Returns the count of the list.
+
+    Only a particle on the last list can hold an open wall history (H_A != 0): the wall pass
+    (finish_range) reads and writes the histories of listed particles only, and each list closes
+    those of every particle it leaves out. So where was is given, only the particles it lists and
+    this one does not are closed; the others' histories are not read. Closing every unlisted
+    particle's wrote a cache line per particle and wall (wall_hist [n, walls, HIST_LEN])."""
+    return wall_candidates_range(0, n_owned, pos, reach, wall_m, wall_d, wall_hist, near, was)
 
 
 @njit(cache=True)
-def wall_candidates_range(p0, p1, pos, reach, wall_m, wall_d, wall_hist, near):
+def wall_candidates_range(p0, p1, pos, reach, wall_m, wall_d, wall_hist, near, was):
     """wall_candidates for the owned particles p0..p1-1 (threads take blocks of them:
     modes.parallel.wall_threads); returns their count on the list."""
+    every = was.shape[0] == 0
     count = 0
     for p in range(p0, p1):
-        near[p] = 0
+        hit = 0
         for w in range(wall_m.shape[0]):
             if wall_m[w, 0] * pos[p, 0] + wall_m[w, 1] * pos[p, 1] + wall_m[w, 2] * pos[p, 2] - wall_d[w] < reach[p]:
-                near[p] = 1
-        if near[p]:
-            count += 1
-        else:
+                hit = 1
+        near[p] = hit
+        count += hit
+        if hit == 0 and (every or was[p] != 0):
             for w in range(wall_m.shape[0]):
                 wall_hist[p, w, H_A] = 0.0
     return count

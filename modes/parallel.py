@@ -381,8 +381,8 @@ def place_by_gid(threads, pi_t, pj_t, offsets, rank, n, block_count, shift, spi,
     itself: order empty) is then also cut into the T ranges of cut_ranges at equal pairs (the
     bounds of cut_at_equal_pairs, read from the placed list), and in a third region each thread
     collects its range's later ends and clears its block of gat (cut_ranges' first region);
-    mark_and_home then finishes the cut. Returns (later [T, >= 1], got [T, COUNT_PAD]) for
-    mark_and_home (empty where cut is None)."""
+    mark_and_home then finishes the cut. Returns (later [T, >= 1], later_at [T, >= 1], got [T,
+    COUNT_PAD]) for mark_and_home (empty where cut is None)."""
     m = offsets[threads]
     viewed = order.shape[0] > 0
     nb = n_blocks(n, shift)
@@ -466,16 +466,18 @@ def place_by_gid(threads, pi_t, pj_t, offsets, rank, n, block_count, shift, spi,
             gid, corder, key, okey, oorder, oon, ohist, hist, on = carry
             carry_history_sorted_range(p0, p1, spi, spj, gid, corder, key, okey, oorder, oon, ohist, hist, on)
     if cut is None:
-        return np.empty((threads, 0), dtype=np.int64), np.zeros((threads, COUNT_PAD), dtype=np.int64)
+        none = np.empty((threads, 0), dtype=np.int64)
+        return none, none, np.zeros((threads, COUNT_PAD), dtype=np.int64)
     shares, n_owned, gid, bounds, gat = cut
     cut_at_equal_pairs(spi[:m], threads, shares, bounds)   # spi may be longer than the list (a buffer)
     later = np.empty((threads, _widest(threads, bounds)), dtype=np.int64)
+    later_at = np.empty_like(later)
     got = np.zeros((threads, COUNT_PAD), dtype=np.int64)
     for t in prange(threads):
         last = _rk(rank, spi[bounds[t + 1]]) if bounds[t + 1] < m else n   # the next range's first row
-        got[t, 0] = _later_ends(bounds[t], bounds[t + 1], spj, rank, last, n_owned, later[t])
+        got[t, 0] = _later_ends(bounds[t], bounds[t + 1], spj, rank, last, n_owned, later[t], later_at[t])
         got[t, 1] = _clear_marks(t, threads, n_owned, gid, gat)
-    return later, got
+    return later, later_at, got
 
 
 @njit(inline="always")
@@ -559,7 +561,7 @@ def _sort8(v):
 
 
 @njit(cache=True, parallel=True)
-def wall_threads(threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near, shape, cuts, ref):
+def wall_threads(threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near, was, shape, cuts, ref):
     """dem.forces.wall_candidates by T threads over contiguous blocks of the owned particles (each
     particle's entry is its own), and in the same region the weights of the per-particle pass
     from the list just made, so that its blocks cuts [T+1] cost no region of their own: T
@@ -575,7 +577,7 @@ def wall_threads(threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near, 
     for t in prange(threads):
         a = t * n_owned // threads
         b = (t + 1) * n_owned // threads
-        count[t] = wall_candidates_range(a, b, pos, reach, wall_m, wall_d, wall_hist, near)
+        count[t] = wall_candidates_range(a, b, pos, reach, wall_m, wall_d, wall_hist, near, was)
         sums[t] = _finish_weights(a, b, shape, near, w)
         for p in range(a, b):
             ref[p, 0] = pos[p, 0]
@@ -1004,11 +1006,13 @@ def cut_ranges(w, threads, shares, pi, pj, gid, n_owned, bounds, gat, home_start
         cut_at_equal_weight(w, pi, False, threads, shares, bounds)
     first = _first_gids(threads, bounds, pi, gid)
     later = np.empty((threads, _widest(threads, bounds)), dtype=np.int64)
+    later_at = np.empty_like(later)
     got = np.zeros((threads, COUNT_PAD), dtype=np.int64)   # [range, (later ends, block out of gid order)]
     for t in prange(threads):
-        got[t, 0] = _later_ends(bounds[t], bounds[t + 1], pj, gid, first[t + 1], n_owned, later[t])
+        got[t, 0] = _later_ends(bounds[t], bounds[t + 1], pj, gid, first[t + 1], n_owned, later[t], later_at[t])
         got[t, 1] = _clear_marks(t, threads, n_owned, gid, gat)
-    return mark_and_home(threads, bounds, pi, pj, gid, n_owned, gat, later, got, home_start, home_items, False)[0]
+    return mark_and_home(threads, bounds, pi, pj, gid, n_owned, gat, later, later_at, got, home_start, home_items,
+                         False)[0]
 
 
 @njit(cache=True, inline="always")
@@ -1033,16 +1037,17 @@ def _widest(threads, bounds):
 
 
 @njit(cache=True, inline="always")
-def _later_ends(k0, k1, pj, key, last, n_owned, later):
+def _later_ends(k0, k1, pj, key, last, n_owned, later, later_at):
     """A range's later ends (cut_ranges): the owned second ends j = pj[k] of its pairs k0..k1-1 with
     key[j] >= last (their gid at or past the next range's first row: key the gids and last that
     row's gid, or key the gid ranks, or None for ranks that are the indices (_rk), and last that
-    row), into later; returns their count."""
+    row), into later, in ascending k, and their pairs k into later_at; returns their count."""
     c = 0
     for k in range(k0, k1):
         j = pj[k]
         if j < n_owned and _rk(key, j) >= last:
             later[c] = j
+            later_at[c] = k
             c += 1
     return c
 
@@ -1060,13 +1065,19 @@ def _clear_marks(t, threads, n_owned, gid, gat):
 
 
 @njit(cache=True, parallel=True)
-def mark_and_home(threads, bounds, pi, pj, gid, n_owned, gat, later, got, home_start, home_items, adjacency):
+def mark_and_home(threads, bounds, pi, pj, gid, n_owned, gat, later, later_at, got, home_start, home_items, adjacency):
     """The rest of cut_ranges once each range t has collected its later ends later[t, :got[t, 0]]
-    and cleared its block of gat (got[t, 1] = 1 where that block is out of gid order): the marks
-    gat, the home lists (home_start, home_items) and, where adjacency, the marked rows of the
-    adjacency (adjacency_marked_threads) collected in the home lists' region, each range's thread
-    over its own pairs. Returns (the number of particles the ranges sum themselves, adj_start,
-    adj_items; both empty unless adjacency)."""
+    (their pairs later_at[t, :got[t, 0]]) and cleared its block of gat (got[t, 1] = 1 where that
+    block is out of gid order): the marks gat, the home lists (home_start, home_items) and, where
+    adjacency, the marked rows of the adjacency (adjacency_marked_threads) collected in the home
+    lists' region, each range's thread over its own pairs. Returns (the number of particles the
+    ranges sum themselves, adj_start, adj_items; both empty unless adjacency).
+
+    Where the owned particles are stored in gid order, range t reads only the pairs that can hold
+    a marked end (_marked_entries_cut): its rows up to that of its last marked particle, then its
+    recorded later pairs past them. At 2 ranges the first has no marked particle of its own and
+    reads none of its pairs, the second its rows up to its last gatherer's; a pass over every pair
+    of the list was most of the cut's time (12k packed ellipsoids, 57k pairs: 0.095 of 0.15 ms)."""
     first = _first_gids(threads, bounds, pi, gid)
     ordered = True
     for t in range(threads):
@@ -1077,25 +1088,28 @@ def mark_and_home(threads, bounds, pi, pj, gid, n_owned, gat, later, got, home_s
     agot = np.zeros(threads, dtype=np.int64)
     if ordered:
         # range t's particles: indices lo[t] .. lo[t+1]-1 (range 0 from the first, the last to the end);
-        # each range's count of those that gather as they are marked
+        # each range's count of those that gather as they are marked, and its last one (top, -1: none)
         lo = np.empty(threads + 1, dtype=np.int64)
         lo[0] = 0
         for t in range(1, threads):
             lo[t] = np.searchsorted(gid[:n_owned], first[t])
         lo[threads] = n_owned
         gathered = np.zeros(threads, dtype=np.int64)
+        top = np.full(threads, -1, dtype=np.int64)
         total = 0
         for t in range(threads):
             total += got[t, 0]
         if threads >= PLACE_THREADS_MIN and total >= PLACE_THREADS_FROM:
-            _mark_later_threads(threads, later, got, lo, gat, gathered)
+            _mark_later_threads(threads, later, got, lo, gat, gathered, top)
         else:
             for t in range(threads):
                 for c in range(got[t, 0]):
                     j = later[t, c]
                     if gat[j] == 0:
                         gat[j] = 1
-                        gathered[np.searchsorted(lo, j, side="right") - 1] += 1
+                        h = np.searchsorted(lo, j, side="right") - 1
+                        gathered[h] += 1
+                        top[h] = max(top[h], j)
         home_start[0] = 0
         for t in range(threads):
             home_start[t + 1] = home_start[t] + (lo[t + 1] - lo[t]) - gathered[t]
@@ -1106,7 +1120,9 @@ def mark_and_home(threads, bounds, pi, pj, gid, n_owned, gat, later, got, home_s
                     home_items[u] = p
                     u += 1
             if adjacency:
-                agot[t] = _marked_entries(bounds[t], bounds[t + 1], pi, pj, None, n_owned, gat, ent_p[t], ent_item[t])
+                gtop = gid[top[t]] if top[t] >= 0 else -1
+                agot[t] = _marked_entries_cut(bounds[t], bounds[t + 1], pi, pj, gid, n_owned, gat, gtop, later_at[t],
+                                              got[t, 0], ent_p[t], ent_item[t])
     else:
         for t in range(threads):
             for c in range(got[t, 0]):
@@ -1138,24 +1154,51 @@ def mark_and_home(threads, bounds, pi, pj, gid, n_owned, gat, later, got, home_s
     return home_start[threads], start, items
 
 
+@njit(cache=True, inline="always")
+def _marked_entries_cut(a0, a1, spi, spj, gid, n_owned, mark, gtop, later_at, n_later, ent_p, ent_item):
+    """_marked_entries of a range's pairs a0..a1-1 (mark_and_home, particles stored in gid order),
+    reading only the pairs that can hold a marked end. A marked particle is a later end of some
+    range; both ends of the range's pairs have gid at or past its first row's. So a marked end has
+    its gid in the range's own particles, at most gtop (the gid of the range's last marked particle,
+    -1 for none), and then so has the pair's first end (gid_i < gid_j): the pair lies in the rows
+    up to gtop's, all read; or it is a later end of this range, recorded with its pair in
+    later_at[:n_later] (ascending), of which those past those rows are added. The same entries in
+    the same order as _marked_entries over all the pairs."""
+    e = a0
+    while e < a1 and gid[spi[e]] <= gtop:
+        e += 1
+    c = _marked_entries(a0, e, spi, spj, None, n_owned, mark, ent_p, ent_item)
+    for u in range(n_later):
+        k = later_at[u]
+        if k >= e:
+            ent_p[c] = spj[k]
+            ent_item[c] = 2 * k + 1
+            c += 1
+    return c
+
+
 @njit(cache=True, parallel=True)
-def _mark_later_threads(threads, later, got, lo, gat, gathered):
+def _mark_later_threads(threads, later, got, lo, gat, gathered, top):
     """cut_ranges' marks by the T threads: range t's later ends later[t, :got[t, 0]] (owned
-    particles that an earlier range holds as a pair's later end) set gat[j] = 1, and gathered [T]
+    particles that an earlier range holds as a pair's later end) set gat[j] = 1, gathered [T]
     counts the particles so marked in each range (range h: indices lo[h]..lo[h+1]-1, lo [T+1]
-    ascending). The later ends are moved into one bucket per range (_bucket_by_block), and each
-    thread then marks the particles of its own range from its bucket: no two threads write one
-    mark, and the marks and counts are one thread's. One thread's loop over every later end grew
-    with the ranges (at 16 ranges most of 12k packed ellipsoids gather: issue 32)."""
+    ascending) and top [T] holds the last of them (-1: none). The later ends are moved into one
+    bucket per range (_bucket_by_block), and each thread then marks the particles of its own
+    range from its bucket: no two threads write one mark, and the marks and counts are one
+    thread's. One thread's loop over every later end grew with the ranges (at 16 ranges most of
+    12k packed ellipsoids gather: issue 32)."""
     base, stage, _ = _bucket_by_block(threads, later, later, got[:, 0], lo)
     for h in prange(threads):
         marked = 0
+        last = -1
         for u in range(base[h], base[h + 1]):
             j = stage[u]
+            last = max(last, j)
             if gat[j] == 0:
                 gat[j] = 1
                 marked += 1
         gathered[h] = marked
+        top[h] = last
 
 
 @njit(cache=True)

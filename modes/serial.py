@@ -86,6 +86,10 @@ class SerialMode:
         self.out = np.zeros(OUT_LEN)
         self.n0 = np.zeros(3)
         self.gat = np.zeros(0, dtype=np.int8)   # the particles that gather (threads: SPLIT)
+        # the state's wall histories when the last wall list was made (build_list): while the same
+        # array, the particles are stored as they were, and only those on that list may hold one
+        self.listed = None
+        self.no_near = np.zeros(0, dtype=np.int8)
         self.no_terms = np.zeros((0, TERMS))     # the cross pairs' terms of TAKEN (MPI: modes.newton)
         self.taking = (self.deliver, self.no_terms)  # how resolve delivers, and the terms it takes (split)
         self.ensure_derived()
@@ -225,8 +229,12 @@ class SerialMode:
                        by_gid=self.deliver != STORE, carry=bool(self.pairs.rebuilds), rows=self.migrates and rows,
                        carry_sorted=self.carry_sorted, ref=self._list_ref(ref))
         t3 = clock()
+        was = self.pairs.near
+        if self.listed is not s.wall_hist or was.shape[0] != s.n_owned:
+            was = self.no_near   # stored anew (re-sorted, migrated, a first list): every history is closed
         self.pairs.near = np.zeros(s.n_owned, dtype=np.int8)
-        self.wall_list(s.n_owned, s.pos, reach, *self.wall_planes(), s.wall_hist, self.pairs.near)
+        self.wall_list(s.n_owned, s.pos, reach, *self.wall_planes(), s.wall_hist, self.pairs.near, was)
+        self.listed = s.wall_hist
         self.plist = self.pairs.arrays
         t4 = clock()
         self.split()

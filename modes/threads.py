@@ -85,7 +85,7 @@ class ThreadsMode(SerialMode):
         self.placed = None     # (m, None | view) of the last scan: its pair count, the list's sorted view
         self.carried = None    # the pair count of the last scan where it carried the history as it placed
         self.ref_fill = None   # the list's reference positions of this rebuild, for the wall list to fill
-        self.cut_made = None   # (m, weight, bounds, later, got) of the cut the last scan made as it placed
+        self.cut_made = None   # (m, weight, bounds, later, later_at, got) of the cut the last scan made as it placed
         self.marked_adj = None   # (gat, adj_start, adj_items): the marked rows made with that cut
         self.no_order = np.zeros(0, dtype=np.int64)
         super().setup(scene, dt, **kw)
@@ -175,11 +175,11 @@ class ThreadsMode(SerialMode):
         t0 = self.clock()
         if self.deliver == SPLIT:   # the list itself in gid order
             cut = self._placing_cut()
-            later, got = par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, n, self.block_count, shift, pi, pj,
-                                          self.no_order, p.carry_args(m, s.gid) if carries else None,
-                                          cut and cut[1:])
+            later, later_at, got = par.place_by_gid(self.threads, pi_t, pj_t, offsets, rank, n, self.block_count,
+                                                    shift, pi, pj, self.no_order,
+                                                    p.carry_args(m, s.gid) if carries else None, cut and cut[1:])
             self.placed = (m, None)
-            self.cut_made = cut and (m, cut[0], cut[4], later, got)
+            self.cut_made = cut and (m, cut[0], cut[4], later, later_at, got)
         else:                       # the list in thread order, seen in gid order through its view
             par.compact_pairs(self.threads, pi_t, pj_t, offsets, pi, pj)
             view = (np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64))
@@ -236,7 +236,7 @@ class ThreadsMode(SerialMode):
         self.ref_fill = np.empty((self.state.n_owned, 3))
         return self.ref_fill
 
-    def wall_list(self, n_owned, pos, reach, wall_m, wall_d, wall_hist, near):
+    def wall_list(self, n_owned, pos, reach, wall_m, wall_d, wall_hist, near, was):
         """The rebuild's wall list (dem.forces.wall_candidates) by the T threads, and with it the
         blocks of the per-particle pass (made from the list in the same parallel region) and the
         copy of the owned positions at this rebuild into the list's ref (rebuild_ref):
@@ -245,8 +245,8 @@ class ThreadsMode(SerialMode):
         ref, self.ref_fill = self.ref_fill, None
         if ref is None or ref.shape[0] != n_owned:
             raise ModeError("the threads' wall list has no reference positions to fill (rebuild_ref)")
-        return par.wall_threads(self.threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near, self.state.shape,
-                                self.finish_blocks, ref)
+        return par.wall_threads(self.threads, n_owned, pos, reach, wall_m, wall_d, wall_hist, near, was,
+                                self.state.shape, self.finish_blocks, ref)
 
     def carry_sorted(self, *arrays):
         """The rebuild's history carry (PairList.set's carry_sorted): find_pairs made it as the
@@ -281,7 +281,7 @@ class ThreadsMode(SerialMode):
         else:
             self._cut()
 
-    def _finish_cut(self, m, weight, bounds, later, got):
+    def _finish_cut(self, m, weight, bounds, later, later_at, got):
         """The cut that find_pairs made as it placed the list (_placing_cut) finished: the marks, the
         home lists and the marked rows of the adjacency (modes.parallel.mark_and_home, in one
         parallel region), which gather_arrays then takes (build_adjacency)."""
@@ -293,7 +293,7 @@ class ThreadsMode(SerialMode):
         home_start = np.empty(t1, dtype=np.int64)
         home_items = np.empty(s.n_owned, dtype=np.int64)
         _, adj_start, adj_items = par.mark_and_home(self.threads, bounds, p.pi, p.pj, s.gid, s.n_owned, self.gat,
-                                                    later, got, home_start, home_items, True)
+                                                    later, later_at, got, home_start, home_items, True)
         self.marked_adj = (self.gat, adj_start, adj_items)
         self.weights = weight
         p.offsets = bounds

@@ -559,16 +559,20 @@ def test_placing_threads_carry_and_cut_as_the_separate_passes(rng):
     pairs (cut_at_equal_pairs' bounds, for equal and for unequal shares), with the marked rows of
     the adjacency those of adjacency_marked_threads, bit for bit. Random lists among 80 particles
     (60 owned; stored in gid order, or with ghosts out of order and owned ones too, cut_ranges'
-    other branch), of 500 candidate pairs (few empty rows), 25 (many: a cut steps past them) and
-    none, at 1-7 threads."""
+    other branch, or with the owned ones in gid order and the ghosts out of it: pairs with a ghost
+    end among rows of owned ones), of 500 candidate pairs (few empty rows), 25 (many: a cut steps
+    past them) and none, at 1-7 threads."""
     from dem.pairs import carry_history_sorted, gid_ranks, sort_by_gid
     from dem.state import HIST_LEN
     from modes.parallel import cut_ranges, mark_and_home
     n, n_owned = 80, 60
-    for stored in ("sorted", "shuffled"):
+    for stored in ("sorted", "shuffled", "ghosts"):
         gid = np.sort(rng.permutation(900)[:n]).astype(np.int64)
         if stored == "shuffled":
             gid[40:] = rng.permutation(gid[40:])
+        elif stored == "ghosts":   # the ghosts' gids among the owned ones'
+            gid = rng.permutation(900)[:n].astype(np.int64)
+            gid[:n_owned] = np.sort(gid[:n_owned])
         rank = gid_ranks(gid)
         for size in (500, 25, 0):
             pi, pj = _random_pairs(rng, n, size, gid) if size else (np.zeros(0, np.int64), np.zeros(0, np.int64))
@@ -608,10 +612,10 @@ def test_placing_threads_carry_and_cut_as_the_separate_passes(rng):
                     hist, on = np.full((m, HIST_LEN), -1.0), np.full(m, 7, dtype=np.int8)
                     key = np.full(m, -1, dtype=np.int64)
                     bounds, gat = np.zeros(threads + 1, dtype=np.int64), np.full(n_owned, 5, dtype=np.int8)
-                    later, got = place_by_gid(threads, pi_t, pj_t, offsets, ranks, n, blocks.copy(), shift, ti, tj,
-                                              np.zeros(0, dtype=np.int64),
-                                              (gid, None, key, _keys(osi, osj, gid), None, oon, ohist, hist, on),
-                                              (shares, n_owned, gid, bounds, gat))
+                    later, later_at, got = place_by_gid(
+                        threads, pi_t, pj_t, offsets, ranks, n, blocks.copy(), shift, ti, tj,
+                        np.zeros(0, dtype=np.int64), (gid, None, key, _keys(osi, osj, gid), None, oon, ohist, hist, on),
+                        (shares, n_owned, gid, bounds, gat))
                     ti, tj = ti[:m], tj[:m]
                     assert np.array_equal(ti, si) and np.array_equal(tj, sj)
                     # the rows of the pairs that carry one (a pair without history has no row to read)
@@ -619,7 +623,7 @@ def test_placing_threads_carry_and_cut_as_the_separate_passes(rng):
                     assert np.array_equal(key, _keys(ti, tj, gid))
                     home_start, home_items = np.empty(threads + 1, dtype=np.int64), np.empty(n_owned, dtype=np.int64)
                     count, adj_start, adj_items = mark_and_home(threads, bounds, ti, tj, gid, n_owned, gat, later,
-                                                                got, home_start, home_items, True)
+                                                                later_at, got, home_start, home_items, True)
                     want = [np.zeros(threads + 1, dtype=np.int64), np.zeros(n_owned, dtype=np.int8),
                             np.empty(threads + 1, dtype=np.int64), np.empty(n_owned, dtype=np.int64)]
                     want_count = cut_ranges(None, threads, shares, si, sj, gid, n_owned, *want)
@@ -632,6 +636,62 @@ def test_placing_threads_carry_and_cut_as_the_separate_passes(rng):
                     if size == 500 and threads > 1:
                         assert 0 < bounds[1] < m and gat.sum() > 0
 
+
+
+@pytest.mark.parametrize("ranks", [False, True])
+def test_placing_cut_of_many_later_ends_by_the_threads(rng, ranks):
+    """The placing's cut at 16 ranges where most pairs cross a range's end (40k pairs among 6000
+    particles stored in gid order, partners up to 400 indices apart; with 500 ghosts, their gids
+    among the owned ones' and out of order, in some of them): the later ends, at least
+    modes.parallel PLACE_THREADS_FROM of them, are marked by the threads (_mark_later_threads),
+    which also find each range's last marked particle, up to whose row a range reads its pairs
+    for the marked rows of the adjacency (_marked_entries_cut).
+    The marks, home lists and count must equal cut_ranges' on the same list and the marked rows
+    adjacency_marked_threads' full pass, bit for bit; ranks: the gid ranks given, or none (the
+    indices are the ranks, as where no ghost is)."""
+    from dem.pairs import gid_ranks, sort_by_gid
+    from modes.parallel import PLACE_THREADS_FROM, cut_ranges, mark_and_home
+    n_owned, n, threads = 6000, 6500 if ranks else 6000, 16
+    gid = 3 * np.arange(n, dtype=np.int64) + 5
+    if ranks:   # the ghosts' gids among the owned ones' (each a gid between two owned ones, out of order)
+        gid[n_owned:] = rng.permutation(3 * rng.choice(n_owned, n - n_owned, replace=False) + 6)
+    i = rng.integers(0, n - 30, 40000)
+    j = np.minimum(i + rng.integers(1, 400, 40000), n - 1)
+    keys = np.unique(np.stack([i, j], axis=1), axis=0)
+    keys = keys[keys[:, 0] != keys[:, 1]]
+    a, b = keys[:, 0], keys[:, 1]
+    swap = gid[a] > gid[b]
+    pi, pj = np.where(swap, b, a), np.where(swap, a, b)
+    m = len(pi)
+    si, sj = np.empty_like(pi), np.empty_like(pj)
+    sort_by_gid(pi.copy(), pj.copy(), gid, si, sj)
+    rank = gid_ranks(gid)
+    offsets = (np.arange(threads + 1) * m) // threads
+    cap = int(np.diff(offsets).max())
+    order = rng.permutation(m)
+    pi_t, pj_t = np.zeros((threads, cap), dtype=np.int64), np.zeros((threads, cap), dtype=np.int64)
+    for t in range(threads):
+        pi_t[t, :offsets[t + 1] - offsets[t]] = pi[order][offsets[t]:offsets[t + 1]]
+        pj_t[t, :offsets[t + 1] - offsets[t]] = pj[order][offsets[t]:offsets[t + 1]]
+    ti, tj = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+    bounds, gat = np.zeros(threads + 1, dtype=np.int64), np.full(n_owned, 5, dtype=np.int8)
+    later, later_at, got = place_by_gid(threads, pi_t, pj_t, offsets.astype(np.int64), rank if ranks else None, n,
+                                        _block_counts(threads, pi_t, offsets, rank, 0, n), 0, ti, tj,
+                                        np.zeros(0, dtype=np.int64), None,
+                                        (np.ones(threads), n_owned, gid, bounds, gat))
+    assert np.array_equal(ti, si) and np.array_equal(tj, sj)
+    assert got[:, 0].sum() >= PLACE_THREADS_FROM and not got[:, 1].any()
+    home_start, home_items = np.empty(threads + 1, dtype=np.int64), np.empty(n_owned, dtype=np.int64)
+    count, adj_start, adj_items = mark_and_home(threads, bounds, ti, tj, gid, n_owned, gat, later, later_at, got,
+                                                home_start, home_items, True)
+    want = [np.zeros(threads + 1, dtype=np.int64), np.zeros(n_owned, dtype=np.int8),
+            np.empty(threads + 1, dtype=np.int64), np.empty(n_owned, dtype=np.int64)]
+    assert count == cut_ranges(None, threads, np.ones(threads), si, sj, gid, n_owned, *want)
+    assert np.array_equal(bounds, want[0]) and np.array_equal(gat, want[1])
+    assert np.array_equal(home_start, want[2]) and np.array_equal(home_items[:count], want[3][:count])
+    want_adj = adjacency_marked_threads(threads, si, sj, None, n_owned, gat)
+    assert np.array_equal(adj_start, want_adj[0]) and np.array_equal(adj_items, want_adj[1])
+    assert len(adj_items) > PLACE_THREADS_FROM
 
 def test_sorting_network_of_eight_sorts_every_input(rng):
     """modes.parallel._sort8, the placing's 19-comparator network (Knuth, TAOCP vol. 3, 5.3.4):
@@ -672,3 +732,48 @@ def test_placing_blocks_are_few_and_whole(n, threads):
     want = {(12000, 2): (0, 12000), (12000, 8): (0, 12000), (12000, 9): (7, 94), (12000, 16): (6, 188)}
     if (n, threads) in want:
         assert (shift, blocks) == want[(n, threads)]
+
+
+@pytest.mark.parametrize("mode_name", ["serial", "threads"])
+@pytest.mark.parametrize("skin", [0.0, 0.4])
+def test_wall_list_closes_the_histories_of_particles_it_drops(mode_name, skin):
+    """A rebuild's wall list closes the wall histories (H_A = 0) of the particles it leaves out,
+    which cannot touch a wall before the next rebuild (dem.forces.wall_candidates). Where the
+    particles are stored as at the last list, only those on that list can hold an open history,
+    so only they are closed: 64 spheres (radius 0.05) bouncing in a box of 6 walls (restitution
+    0.8, gravity 9.81 down, random velocities up to 2 m/s, 0.05 m from the walls), 400 steps, the serial mode and 2
+    static threads, at skin 0 (a list every step) and 0.4. Every step's state, wall histories
+    included, must equal bit for bit a twin whose lists close every unlisted particle's history
+    (np.array_equal), and at skin 0 some particle must leave the list with its history open (the
+    case the closing is for) and some must touch a wall."""
+    from dem.state import H_A
+    from tests.helpers import make_scene
+    rng = np.random.default_rng(3)
+    grid = np.stack(np.meshgrid(*[np.linspace(-0.9, 0.9, 4)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    parts = [dict(shape="sphere", axes=[0.05], pos=list(p), vel=list(rng.uniform(-2.0, 2.0, 3))) for p in grid]
+
+    def make():
+        sc = make_scene(parts, walls=["x-", "x+", "y-", "y+", "z-", "z+"], gravity=(0.0, 0.0, -9.81))
+        if mode_name == "serial":
+            return sc, SerialMode().setup(sc, dt=2e-4, skin=skin)
+        return sc, ThreadsMode().setup(sc, dt=2e-4, threads=2, scheme="static", skin=skin)
+
+    sa, a = make()
+    sb, b = make()
+    full = np.zeros(0, dtype=np.int8)
+    lister = b.wall_list
+    b.wall_list = lambda *args: lister(*args[:-1], full)   # every unlisted particle's history closed
+    dropped_open = touched = 0
+    for _ in range(400):
+        was = a.pairs.near.copy()
+        open_before = np.any(sa.state.wall_hist[:, :, H_A] != 0.0, axis=1)
+        a.step()
+        b.step()
+        for f in ("pos", "vel", "quat", "angmom", "wall_hist"):
+            assert np.array_equal(getattr(sa.state, f), getattr(sb.state, f)), f
+        if was.shape == a.pairs.near.shape:
+            dropped_open += int(np.sum((was == 1) & (a.pairs.near == 0) & open_before))
+        touched += int(np.sum(sa.state.wall_hist[:, :, H_A] != 0.0))
+    assert touched > 0
+    if skin == 0.0:
+        assert dropped_open > 0

@@ -419,8 +419,8 @@ def test_finish_blocks_are_cut_at_equal_estimated_cost():
         pos[:, 0] = np.linspace(0.0, 0.9, n)
         near, ref = np.full(n, 5, dtype=np.int8), np.full((n, 3), np.nan)
         count = wall_threads(t, n, pos, np.ones(n), np.array([[1.0, 0.0, 0.0]]),
-                             np.array([10.0 if near_wall else -10.0]), np.zeros((n, 1, HIST_LEN)), near, shape, cuts,
-                             ref)
+                             np.array([10.0 if near_wall else -10.0]), np.zeros((n, 1, HIST_LEN)), near,
+                             np.zeros(0, dtype=np.int8), shape, cuts, ref)
         assert count == (n if near_wall else 0) and np.all(near == int(near_wall)) and np.array_equal(ref, pos)
 
     shape = np.where(np.arange(200) < 100, 0, 1).astype(np.int8)
