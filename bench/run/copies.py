@@ -33,6 +33,86 @@ def release(counts, me):
     counts[me] = 2 ** 62
 
 
+def _held_copy(setup, args, conn, counts, me):
+    """One held copy (HeldCopies): work, info = setup(*args, meeting) once (meeting(k): meet the
+    other copies at their k-th meeting), sends ("ready", info), then answers each command received
+    on conn with ("ok", work(command)) until None comes, or ("error", line) once it fails. Dies
+    with its parent; SIGINT is the parent's."""
+    as_copy()
+    try:
+        work, info = setup(*args, lambda k: meet(counts, me, k))
+        conn.send(("ready", info))
+        while True:
+            command = conn.recv()
+            if command is None:
+                return
+            conn.send(("ok", work(command)))
+    except Exception as e:
+        release(counts, me)
+        conn.send(("error", f"{type(e).__name__}: {e}"))
+
+
+class HeldCopies:
+    """`copies` spawned processes sharing nothing, held for a study's rounds and driven by commands:
+    each runs setup(*args, meeting) once (a module-level function: it crosses to the spawned
+    process) and then work(command) for each command sent to it (_held_copy); meeting(k) spins
+    until every copy has reached its k-th meeting (meet), which copies that work in step call
+    with the same k. A copy that fails or gives no answer in `timeout` s stops the study with one
+    line; none outlives close() or the parent. info: each copy's set-up answer."""
+
+    def __init__(self, copies, setup, args, timeout=600):
+        ctx = multiprocessing.get_context("spawn")
+        self.timeout = timeout
+        self.counts = ctx.RawArray("q", copies)
+        self.conns, self.procs = [], []
+        try:
+            for me in range(copies):
+                ours, theirs = ctx.Pipe()
+                proc = ctx.Process(target=_held_copy, args=(setup, args, theirs, self.counts, me))
+                proc.start()
+                theirs.close()
+                self.conns.append(ours)
+                self.procs.append(proc)
+            self.info = self._answers(range(copies))
+        except BaseException:   # a copy failed or an interrupt came: none of them outlives the set-up
+            self.close()
+            raise
+
+    def _answers(self, which):
+        out = []
+        for c in which:
+            conn = self.conns[c]
+            if not conn.poll(self.timeout):
+                raise RuntimeError(f"a ceiling copy gave no answer in {self.timeout} s")
+            try:
+                status, got = conn.recv()
+            except (EOFError, OSError):
+                raise RuntimeError("a ceiling copy ended without an answer") from None
+            if status == "error":
+                raise RuntimeError(f"a ceiling copy failed: {got}")
+            out.append(got)
+        return out
+
+    def ask(self, command, which=None):
+        """Send command to the copies `which` (default all) at once; their answers, in that order."""
+        which = range(len(self.conns)) if which is None else which
+        for c in which:
+            self.conns[c].send(command)
+        return self._answers(which)
+
+    def close(self):
+        for conn in self.conns:
+            try:
+                conn.send(None)
+            except (BrokenPipeError, OSError):
+                pass
+        for proc in self.procs:
+            proc.join(timeout=10)
+            if proc.is_alive():
+                proc.kill()
+                proc.join()
+
+
 def _copy(scene, particles, shape, steps, warmup, barrier, in_step, results, counts, me, options=None):
     """One worker (copy me): step a serial copy of the scene; put its step times [s] on results
     (or a line saying why it could not). It dies with its parent and leaves SIGINT to it (the

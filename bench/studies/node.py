@@ -10,13 +10,15 @@ is started on, what decides how a step should be split there:
 2. the same scene pinned (`--pin`, bench.run.binding) with the machine's ceiling (`--ceiling`:
    C serial copies sharing nothing, and meeting every step) for C threads, 4 x C/4 and C ranks,
    into DIR/pinned;
-3. Table 1 in kind at C threads (`bench schemes`, 2.5k packed ellipsoids), into DIR/schemes;
+3. Table 1 in kind at C threads (`bench schemes --ceiling`, 2.5k packed ellipsoids: beside it C
+   serial copies at 2.5k / C detect alone and together, the machine's own ceiling), into
+   DIR/schemes;
 4. the ghosts' forward exchange at C ranks by messages against the shared-memory window, on the
    same scene, alternating inside MPI jobs (`bench perf --what forward`, bench.studies.perf_forward),
    into DIR/forward: the window's case is a rank with many neighbours on one node, which 2 cores
    cannot show;
 
-(each part within its own time limit, by default 160 + 160 + 40 + 75 s; the first three took 3-5
+(each part within its own time limit, by default 160 + 160 + 50 + 75 s; the first three took 3-5
 minutes on a lent 16-core machine), then writes DIR/verdict.md: each comparison the issue sets a
 target for, as a ratio measured within one sweep, beside the target and the repeats' spread of the
 two times (a ratio closer to 1 than the larger spread is called a tie), and the forward exchange's
@@ -178,7 +180,8 @@ def verdict(cores, unpinned, pinned, ceiling, schemes, steps=None, missing=(), f
             eff = float(r["efficiency_own"])
             lo, hi = (float(r.get(f"efficiency_own_{e}", math.nan)) for e in ("lo", "hi"))
             lines.append(f"- Table 1 link-cell {r['method']}: eff_own {eff:.2f}{_ci(lo, hi)}{extra} "
-                         f"(target >= {TARGET_LINKCELL_EFF:g}: {_verdict(eff, lo, hi, TARGET_LINKCELL_EFF)})")
+                         f"(target >= {TARGET_LINKCELL_EFF:g}: {_verdict(eff, lo, hi, TARGET_LINKCELL_EFF)})"
+                         f"{_table1_ceiling(r)}")
     if forward:
         lines.append(_forward_line(forward))
     return lines
@@ -194,6 +197,20 @@ def _forward_line(rep):
             f"cycles ({1e3 * rep['messages_ms']:.0f} against {1e3 * rep['shared_ms']:.0f} us a step; messages a "
             f"step, all ranks: {msgs[0]:.0f} against {msgs[1]:.0f}): {said}"
             + ("" if rep["identical"] else "; END STATES DIFFER"))
+
+
+def _table1_ceiling(row):
+    """'; the machine's ceiling ...' of a Table 1 row run with --ceiling (bench.studies.schemes: the
+    share of its solo speed each of C serial copies keeps when all C detect at once), its share of
+    it, and whether the target is within it at 95 %; '' without."""
+    c = float(row.get("ceiling", math.nan))
+    if math.isnan(c):
+        return ""
+    lo, hi = float(row.get("ceiling_lo", math.nan)), float(row.get("ceiling_hi", math.nan))
+    reach = interval_verdict(lo, hi, TARGET_LINKCELL_EFF) if not (math.isnan(lo) or math.isnan(hi)) else "unresolved"
+    said = {"met": "within it", "not met": "above it", "unresolved": "unresolved"}[reach]
+    return (f"; the machine's ceiling {c:.2f}{_ci(lo, hi)}, of it {float(row['of_ceiling']):.2f}, "
+            f"the target {said}")
 
 
 def _ci(lo, hi):
@@ -267,7 +284,7 @@ def node_check(args, log=print):
              ("pinned sweep with the ceiling", ["sweep", "--mappings", ",".join(pinned_maps), *common, "--pin",
                                                 "--ceiling", "--out", os.path.join(out, "pinned")], args.sweep_time),
              (f"Table 1 at {cores} threads", ["schemes", "--particles", str(args.schemes_particles), "--threads",
-                                              str(cores), "--repeats", str(args.schemes_repeats),
+                                              str(cores), "--repeats", str(args.schemes_repeats), "--ceiling",
                                               "--out", os.path.join(out, "schemes")], args.schemes_time)]
     if cores >= 2:
         parts.append((f"the forward exchange at {cores} ranks",

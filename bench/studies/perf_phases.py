@@ -59,12 +59,11 @@ The range cut and gather_list, all but empty in the serial mode, have ceilings a
 their speedups.
 """
 import copy
-import multiprocessing
 
 import numba
 import numpy as np
 
-from bench.run.copies import as_copy, meet, release
+from bench.run.copies import HeldCopies
 from bench.run.prepare import load_prepared
 from bench.sweep.intervals import format_interval, ratio_interval, verdict
 from dem.timestep import choose_time_step
@@ -100,32 +99,24 @@ def step_phases(mode, force):
     return out
 
 
-def _phase_copy(particles, skin, force, conn, counts, me):
-    """One ceiling copy (PhaseCopies): the serial mode on its own packed scene of `particles`,
-    stepped `steps` at a time on each command received on conn (None: stop), meeting the other
-    copies after every step (bench.run.copies meet); sends ("ready", n), then ("ok", [{phase: s}]
-    a step) a command, or ("error", line). Dies with its parent; SIGINT is the parent's."""
-    as_copy()
-    try:
-        scene = load_prepared("packed", particles=particles)
-        mode = SerialMode().setup(scene, dt=choose_time_step(scene).dt, skin=skin)
-        mode.warmup()
-        step_phases(mode, True)   # untimed: the list's buffers reach their size
-        conn.send(("ready", scene.n))
-        k = 0
-        while True:
-            steps = conn.recv()
-            if steps is None:
-                return
-            out = []
-            for _ in range(steps):
-                k += 1
-                out.append(step_phases(mode, force))
-                meet(counts, me, k)
-            conn.send(("ok", out))
-    except Exception as e:
-        release(counts, me)
-        conn.send(("error", f"{type(e).__name__}: {e}"))
+def _phase_copy(particles, skin, force, meeting):
+    """One ceiling copy's set-up (PhaseCopies, bench.run.copies HeldCopies): the serial mode on its
+    own packed scene of `particles`; its work steps it `steps` times (the command), meeting the
+    other copies after every step, and answers [{phase: s}] a step. Its info: the particles."""
+    scene = load_prepared("packed", particles=particles)
+    mode = SerialMode().setup(scene, dt=choose_time_step(scene).dt, skin=skin)
+    mode.warmup()
+    step_phases(mode, True)   # untimed: the list's buffers reach their size
+    done = [0]
+
+    def work(steps):
+        out = []
+        for _ in range(steps):
+            done[0] += 1
+            out.append(step_phases(mode, force))
+            meeting(done[0])
+        return out
+    return work, scene.n
 
 
 class PhaseCopies:
@@ -134,41 +125,11 @@ class PhaseCopies:
     copy's time [s]} over the phases every copy timed in it."""
 
     def __init__(self, copies, particles, skin, force, timeout=600):
-        ctx = multiprocessing.get_context("spawn")
-        self.timeout = timeout
-        self.counts = ctx.RawArray("q", copies)
-        self.conns, self.procs = [], []
-        for me in range(copies):
-            ours, theirs = ctx.Pipe()
-            proc = ctx.Process(target=_phase_copy, args=(particles, skin, force, theirs, self.counts, me))
-            proc.start()
-            theirs.close()
-            self.conns.append(ours)
-            self.procs.append(proc)
-        try:
-            self.particles = self._answers()[0]
-        except BaseException:   # a copy failed or an interrupt came: none of them outlives the set-up
-            self.close()
-            raise
-
-    def _answers(self):
-        out = []
-        for conn in self.conns:
-            if not conn.poll(self.timeout):
-                raise RuntimeError(f"a ceiling copy gave no answer in {self.timeout} s")
-            try:
-                status, got = conn.recv()
-            except (EOFError, OSError):
-                raise RuntimeError("a ceiling copy ended without an answer") from None
-            if status == "error":
-                raise RuntimeError(f"a ceiling copy failed: {got}")
-            out.append(got)
-        return out
+        self.held = HeldCopies(copies, _phase_copy, (particles, skin, force), timeout)
+        self.particles = self.held.info[0]
 
     def round(self, steps):
-        for conn in self.conns:
-            conn.send(steps)
-        per_copy = self._answers()
+        per_copy = self.held.ask(steps)
         merged = []
         for k in range(steps):
             phases = set.intersection(*(set(c[k]) for c in per_copy))
@@ -176,16 +137,7 @@ class PhaseCopies:
         return merged
 
     def close(self):
-        for conn in self.conns:
-            try:
-                conn.send(None)
-            except (BrokenPipeError, OSError):
-                pass
-        for proc in self.procs:
-            proc.join(timeout=10)
-            if proc.is_alive():
-                proc.kill()
-                proc.join()
+        self.held.close()
 
 
 def _modes(scene, dt, threads, scheme, skin):

@@ -50,6 +50,24 @@ Columns of OUT/schemes.csv:
   scheme rows have no paper row (NaN). The paper measured ellipsoids; the columns are filled
   whatever --shape is.
 
+With --ceiling, the machine's own ceiling for each neighbour method at T, and each row's share of it:
+- ceiling, ceiling_lo, _hi (neighbor_ceiling, resolve_ceiling per phase): T serial copies of the
+  packed scene at N / T particles each (spawned processes sharing nothing, held for the rounds:
+  bench.run.copies HeldCopies) run the serial detection of that neighbour method in a third arm
+  of every round, each copy alone in turn and then all T together, meeting before each phase and
+  after the last (the threads' phases end with a join); ceiling = median alone / median
+  together, a copy's alone time the mean of the T copies', a phase's time together the slowest
+  copy's; its interval paired over the rounds. It is the share of its solo speed a worker keeps
+  when T work at once on exactly divided work at no cost of coordination: what the machine
+  itself lets T workers reach (its cores, caches, memory and, on a VM, its host), which no thread
+  scheme can beat but by doing less work;
+- of_ceiling, of_ceiling_lo, _hi: efficiency_own / ceiling, paired over the rounds: how far the
+  code is from the machine's ceiling;
+- target_reachable: the target against the ceiling's interval (yes: the whole interval at or
+  above the target; no: all below it, so that the target asks for more than the machine gives;
+  unresolved: it straddles it); empty where no target is set.
+The serial rows leave them empty (NaN).
+
 OUT/schemes.png is drawn from the CSV afterwards (plotting only reads records).
 """
 import csv
@@ -59,6 +77,7 @@ import sys
 import time
 
 import numpy as np
+from bench.run.copies import HeldCopies
 from bench.run.figure import plt
 from bench.run.prepare import load_prepared
 from bench.run.records import prepare_output
@@ -83,7 +102,12 @@ COLUMNS = ["family", "method", "neighbor", "threads", "particles", "shape", "rep
            "resolve_s", "speedup", "efficiency", "efficiency_own", "efficiency_own_lo", "efficiency_own_hi",
            "neighbor_eff_own", "neighbor_eff_own_lo", "neighbor_eff_own_hi", "resolve_eff_own", "resolve_eff_own_lo",
            "resolve_eff_own_hi", "target_eff_own", "verdict", "candidates", "tests", "work_imbalance",
-           "busy_imbalance", "paper_method", "paper_threads", "paper_speedup", "paper_efficiency"]
+           "busy_imbalance", "paper_method", "paper_threads", "paper_speedup", "paper_efficiency", "ceiling",
+           "ceiling_lo", "ceiling_hi", "neighbor_ceiling", "resolve_ceiling", "of_ceiling", "of_ceiling_lo",
+           "of_ceiling_hi", "target_reachable", "ceiling_particles"]
+CEILING = ("ceiling", "ceiling_lo", "ceiling_hi", "neighbor_ceiling", "resolve_ceiling", "of_ceiling", "of_ceiling_lo",
+           "of_ceiling_hi")
+REACHABLE = {"met": "yes", "not met": "no", "unresolved": "unresolved"}
 NEIGHBORS = ("allpairs", "linkcell")
 # issue 32's targets for efficiency_own, {threads: {(method, neighbour): target}}: on 2 cores the
 # link-cell detection of the schemes that split the gid-sorted list (partition, static, dynamic)
@@ -156,8 +180,63 @@ def _detect(mode):
     return t1 - t0, t2 - t1, len(pi), busy
 
 
-def measure(scene, dt, threads, repeats, shape, log=None):
-    """Rows (dicts, COLUMNS without the paper columns) of every configuration."""
+def _detection_copy(particles, shape, meeting):
+    """One ceiling copy's set-up (DetectionCeiling, bench.run.copies HeldCopies): the serial
+    detection of each neighbour method on its own packed scene of `particles` (_setup). Its work
+    (the command: in_step) runs one detection of each, meeting the other copies before each phase
+    and after the last where in_step, and answers {neighbour: (neighbour estimate s, resolution s)}.
+    Its info: the particles."""
+    scene = load_prepared("packed", particles=particles, shape=shape)
+    dt = choose_time_step(scene).dt
+    modes = {nb: _setup(scene, dt, "serial", nb, 1) for nb in NEIGHBORS}
+    met = [0]
+
+    def meet(in_step):
+        if in_step:
+            met[0] += 1
+            meeting(met[0])
+
+    def work(in_step):
+        out = {}
+        for nb, mode in modes.items():
+            meet(in_step)
+            t0 = time.perf_counter()
+            pi, pj = mode.neighbour_phase()
+            t1 = time.perf_counter()
+            meet(in_step)
+            t2 = time.perf_counter()
+            mode.resolve_phase(pi, pj)
+            out[nb] = (t1 - t0, time.perf_counter() - t2)
+        meet(in_step)
+        return out
+    return work, scene.n
+
+
+class DetectionCeiling:
+    """--ceiling's arm: `threads` serial copies of the packed scene at particles / threads each
+    (_detection_copy), held for the rounds. round() runs one detection of each neighbour method on
+    each copy alone, in turn, then on all of them together, and returns {neighbour: (alone, together)},
+    each [neighbour estimate s, resolution s]: alone the mean over the copies (their CPUs may differ),
+    together the slowest copy's per phase."""
+
+    def __init__(self, threads, particles, shape):
+        self.held = HeldCopies(threads, _detection_copy, (max(1, particles // threads), shape))
+        self.copies = threads
+        self.particles = self.held.info[0]
+
+    def round(self):
+        alone = [self.held.ask(False, [c])[0] for c in range(self.copies)]
+        together = self.held.ask(True)
+        return {nb: ([sum(a[nb][k] for a in alone) / self.copies for k in (0, 1)],
+                     [max(t[nb][k] for t in together) for k in (0, 1)]) for nb in NEIGHBORS}
+
+    def close(self):
+        self.held.close()
+
+
+def measure(scene, dt, threads, repeats, shape, log=None, ceiling=False):
+    """Rows (dicts, COLUMNS without the paper columns) of every configuration; ceiling: with the
+    machine's ceiling at T (module docstring)."""
     confs = configurations()
     modes = []
     for method, nb in confs:
@@ -165,9 +244,21 @@ def measure(scene, dt, threads, repeats, shape, log=None):
             log(f"warming up {method} {nb}")
         modes.append(_setup(scene, dt, method, nb, threads))
     samples = [[] for _ in confs]
-    for r in range(repeats):
-        for k, mode in enumerate(modes):
-            samples[k].append(_detect(mode))
+    copies = None
+    if ceiling:
+        if log:
+            log(f"starting {threads} ceiling copies at {max(1, scene.n // threads)} particles")
+        copies = DetectionCeiling(threads, scene.n, shape)
+    ceiling_rounds = []
+    try:
+        for r in range(repeats):
+            for k, mode in enumerate(modes):
+                samples[k].append(_detect(mode))
+            if copies is not None:
+                ceiling_rounds.append(copies.round())
+    finally:
+        if copies is not None:
+            copies.close()
     rows = []
     for (method, nb), mode, smp in zip(confs, modes, samples):
         t_nb = np.array([s[0] for s in smp])
@@ -198,7 +289,36 @@ def measure(scene, dt, threads, repeats, shape, log=None):
         target = TARGETS.get(r["threads"], {}).get((r["method"], r["neighbor"]), math.nan)
         r["target_eff_own"] = target
         r["verdict"] = "" if math.isnan(target) else verdict(r["efficiency_own_lo"], r["efficiency_own_hi"], target)
+        r.update(ceiling_columns(r, rounds[("serial", r["neighbor"])], rounds[(r["method"], r["neighbor"])],
+                                 ceiling_rounds))
+        r["ceiling_particles"] = copies.particles if copies is not None else ""
     return rows
+
+
+def ceiling_columns(row, own, mine, ceiling_rounds):
+    """A row's --ceiling columns (module docstring) from the rounds: own, mine (_round_times of the
+    serial row of its neighbour method and of this row) and ceiling_rounds (DetectionCeiling.round
+    of each round; empty without --ceiling). NaN for the serial rows and without copies;
+    target_reachable empty where no target is set."""
+    out = {k: math.nan for k in CEILING}
+    out["target_reachable"] = ""
+    if not ceiling_rounds or row["method"] == "serial":
+        return out
+    nb, threads = row["neighbor"], row["threads"]
+    alone = np.array([c[nb][0] for c in ceiling_rounds])      # [R, phase]
+    together = np.array([c[nb][1] for c in ceiling_rounds])
+    a_det, t_det = alone.sum(axis=1), together.sum(axis=1)
+    out["ceiling"] = float(np.median(a_det) / np.median(t_det))
+    out["ceiling_lo"], out["ceiling_hi"] = ratio_interval(a_det, t_det)
+    out["neighbor_ceiling"] = float(np.median(alone[:, 0]) / np.median(together[:, 0]))
+    out["resolve_ceiling"] = float(np.median(alone[:, 1]) / np.median(together[:, 1]))
+    out["of_ceiling"] = row["efficiency_own"] / out["ceiling"]
+    # round r's efficiency over its ceiling: t_serial t_together / (T t_threads t_alone)
+    out["of_ceiling_lo"], out["of_ceiling_hi"] = ratio_interval(own["detect"] * t_det, mine["detect"] * a_det,
+                                                                1.0 / threads)
+    if not math.isnan(row["target_eff_own"]):
+        out["target_reachable"] = REACHABLE[verdict(out["ceiling_lo"], out["ceiling_hi"], row["target_eff_own"])]
+    return out
 
 
 def _round_times(samples):
@@ -248,7 +368,7 @@ def read_csv(path):
            "efficiency_own", "efficiency_own_lo", "efficiency_own_hi", "neighbor_eff_own", "neighbor_eff_own_lo",
            "neighbor_eff_own_hi", "resolve_eff_own", "resolve_eff_own_lo", "resolve_eff_own_hi", "target_eff_own",
            "candidates", "tests", "work_imbalance", "busy_imbalance", "paper_threads", "paper_speedup",
-           "paper_efficiency"}
+           "paper_efficiency", "ceiling_particles", *CEILING}
     with open(path, newline="") as fh:
         return [{k: (float(v) if v not in ("", None) else math.nan) if k in num else v for k, v in r.items()}
                 for r in csv.DictReader(fh)]
@@ -273,6 +393,24 @@ def format_table(rows):
                      f"{r['efficiency']:6.3f} {r['efficiency_own']:7.3f} {r['neighbor_eff_own']:7.3f} "
                      f"{r['resolve_eff_own']:7.3f} {r['work_imbalance']:8.3f} "
                      f"{r['busy_imbalance']:8.3f} {ps:>6s} {pe:>9s}  {ci:>14s} {tg:>6s} {vd}")
+    return lines
+
+
+def format_ceiling(rows):
+    """--ceiling's table: each threaded row's efficiency against its own serial, the machine's
+    ceiling for its neighbour method (and per phase), its share of it, and whether its target is
+    within the ceiling."""
+    lines = [f"{'method':10s} {'neighbor':8s} {'eff_own':>7s} {'ceiling':>7s} {'95 %':>16s} {'nbr':>6s} {'res':>6s} "
+             f"{'of_ceil':>7s} {'95 %':>16s} {'target':>6s} reachable"]
+    for r in rows:
+        if r["method"] == "serial":
+            continue
+        tg = "" if math.isnan(r["target_eff_own"]) else f"{r['target_eff_own']:.3g}"
+        lines.append(f"{r['method']:10s} {r['neighbor']:8s} {r['efficiency_own']:7.3f} {r['ceiling']:7.3f} "
+                     f"{format_interval(r['ceiling_lo'], r['ceiling_hi']):>16s} {r['neighbor_ceiling']:6.3f} "
+                     f"{r['resolve_ceiling']:6.3f} {r['of_ceiling']:7.3f} "
+                     f"{format_interval(r['of_ceiling_lo'], r['of_ceiling_hi']):>16s} {tg:>6s} "
+                     f"{r['target_reachable'] if isinstance(r['target_reachable'], str) else ''}")
     return lines
 
 
@@ -331,7 +469,8 @@ def schemes(args):
               f"paper columns left NaN", file=sys.stderr)
     scene = load_prepared("packed", particles=args.particles, shape=args.shape, log=log)
     dt = choose_time_step(scene).dt
-    rows = measure(scene, dt, args.threads, args.repeats, args.shape, log=log)
+    ceiling = getattr(args, "ceiling", False)
+    rows = measure(scene, dt, args.threads, args.repeats, args.shape, log=log, ceiling=ceiling)
     add_paper(rows, paper)
     csv_path = os.path.join(args.out, "schemes.csv")
     write_csv(csv_path, rows)
@@ -341,7 +480,14 @@ def schemes(args):
           f"median of {args.repeats}; speedup vs serial all-pairs; eff = speedup/T; eff_own vs serial of the "
           f"same neighbour method (nbr_own, res_own: per phase), its 95 % interval paired over the rounds and "
           f"its verdict against issue 32's target; paper: {PAPER_THREADS} threads, n-by-n")
-    for line in format_table(read_csv(csv_path)):
+    table = read_csv(csv_path)
+    for line in format_table(table):
         print(line)
+    if ceiling:
+        print(f"--- against the machine's ceiling: {args.threads} serial copies of {int(rows[0]['ceiling_particles'])} "
+              f"particles, alone and together (ceiling = alone / together; of_ceil = eff_own / ceiling; both "
+              f"paired over the {args.repeats} rounds)")
+        for line in format_ceiling(table):
+            print(line)
     print(f"wrote {csv_path} and schemes.png")
     return 0

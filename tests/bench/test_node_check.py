@@ -60,7 +60,8 @@ def test_verdict_reads_the_targets():
         {"method": "dynamic", "neighbor": "linkcell", "threads": 16, "speedup": 3.0, "efficiency_own": 0.2,
          "efficiency_own_lo": 0.18, "efficiency_own_hi": 0.22},
         {"method": "static", "neighbor": "linkcell", "threads": 16, "speedup": 9.0, "efficiency_own": 0.71,
-         "efficiency_own_lo": 0.66, "efficiency_own_hi": 0.75},
+         "efficiency_own_lo": 0.66, "efficiency_own_hi": 0.75, "ceiling": 0.8, "ceiling_lo": 0.72,
+         "ceiling_hi": 0.85, "of_ceiling": 0.8875},
         {"method": "frogleap", "neighbor": "linkcell", "threads": 16, "speedup": 9.0, "efficiency_own": 0.71,
          "efficiency_own_lo": math.nan, "efficiency_own_hi": math.nan},
     ])
@@ -78,7 +79,10 @@ def test_verdict_reads_the_targets():
     assert ("dynamic all-pairs detection speedup at 16 threads: 5.40x [4.80, 5.60] (target >= 11 at 16: NOT met)"
             in text)
     assert "- Table 1 link-cell dynamic: eff_own 0.20 [0.18, 0.22] (target >= 0.7: NOT met)" in text
-    assert "- Table 1 link-cell static: eff_own 0.71 [0.66, 0.75] (target >= 0.7: unresolved)" in text
+    # with --ceiling: 0.71 / 0.8 = 0.8875 of the machine's ceiling, whose interval [0.72, 0.85] lies
+    # above the target: the target is within what the machine gives
+    assert ("- Table 1 link-cell static: eff_own 0.71 [0.66, 0.75] (target >= 0.7: unresolved); the machine's "
+            "ceiling 0.80 [0.72, 0.85], of it 0.89, the target within it") in text
     assert "- Table 1 link-cell frogleap: eff_own 0.71 (target >= 0.7: met (one round: no interval))" in text
 
 

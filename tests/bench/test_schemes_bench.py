@@ -130,3 +130,72 @@ def test_efficiency_intervals_are_paired_over_rounds():
     assert out["neighbor_eff_own_hi"] == pytest.approx(0.7993, abs=1e-3)
     assert verdict(out["efficiency_own_lo"], out["efficiency_own_hi"], 0.92) == "unresolved"
     assert verdict(out["efficiency_own_lo"], out["efficiency_own_hi"], 0.95) == "not met"
+
+
+def test_ceiling_columns_by_hand():
+    """--ceiling's columns from three rounds worked by hand: the copies' neighbour estimates take
+    1.0, 1.1, 0.9 ms alone and 1.25, 1.375, 1.125 together (0.8 of their solo speed kept), their
+    detections 3.0, 3.3, 2.7 ms alone and 3.0 / 0.9 ... together (0.9 kept), so that the
+    resolutions take 2.0, 2.2, 1.8 alone and 2.0833, 2.2917, 1.875 together (0.96). Every round
+    has the same ratio, so each interval is the point itself. A 2-thread row whose own serial
+    detects in 2.0, 2.2, 1.8 ms and which takes 1.25, 1.375, 1.125 has efficiency_own 1.6 / 2 =
+    0.8, and 0.8 / 0.9 = 0.888889 of the ceiling; a target of 0.92 lies above the ceiling's
+    interval [0.9, 0.9] (not reachable: "no"), one of 0.85 below it ("yes"); a serial row and a
+    run without copies have none (NaN)."""
+    import numpy as np
+    from bench.studies.schemes import ceiling_columns
+    alone_nb, alone_det = np.array([1.0, 1.1, 0.9]), np.array([3.0, 3.3, 2.7])
+    tog_nb, tog_det = alone_nb / 0.8, alone_det / 0.9
+    rounds = [{"linkcell": ([a * 1e-3, (d - a) * 1e-3], [b * 1e-3, (e - b) * 1e-3]), "allpairs": ([1, 1], [1, 1])}
+              for a, d, b, e in zip(alone_nb, alone_det, tog_nb, tog_det)]
+    own = {"detect": np.array([2.0, 2.2, 1.8]) * 1e-3}
+    mine = {"detect": np.array([1.25, 1.375, 1.125]) * 1e-3}
+    row = {"method": "static", "neighbor": "linkcell", "threads": 2, "efficiency_own": 0.8, "target_eff_own": 0.92}
+    out = ceiling_columns(row, own, mine, rounds)
+    assert out["ceiling"] == pytest.approx(0.9, abs=1e-12)
+    assert (out["ceiling_lo"], out["ceiling_hi"]) == pytest.approx((0.9, 0.9), abs=1e-12)
+    assert out["neighbor_ceiling"] == pytest.approx(0.8, abs=1e-12)
+    assert out["resolve_ceiling"] == pytest.approx(0.96, abs=1e-12)
+    assert out["of_ceiling"] == pytest.approx(0.888889, abs=1e-6)
+    assert (out["of_ceiling_lo"], out["of_ceiling_hi"]) == pytest.approx((0.888889, 0.888889), abs=1e-6)
+    assert out["target_reachable"] == "no"
+    assert ceiling_columns(dict(row, target_eff_own=0.85), own, mine, rounds)["target_reachable"] == "yes"
+    assert ceiling_columns(dict(row, target_eff_own=math.nan), own, mine, rounds)["target_reachable"] == ""
+    for args in ((dict(row, method="serial", threads=1), own, own, rounds), (row, own, mine, [])):
+        empty = ceiling_columns(*args)
+        assert empty.pop("target_reachable") == "" and all(math.isnan(v) for v in empty.values())
+
+
+def test_schemes_ceiling_runs_copies_beside_the_schemes(tmp_path):
+    """`bench schemes --ceiling` end to end at 2 threads on 300 packed ellipsoids: 2 serial copies
+    of 150 detect alone and together in each of 2 rounds; every threaded row has the ceiling of its
+    neighbour method (the same for every scheme), positive with an interval, and its share of it
+    is efficiency_own / ceiling; issue 32's targeted rows say whether the target is within the
+    ceiling; the serial rows have none; the table follows Table 1 on stdout."""
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONPATH=ROOT, DEM_BENCH_CACHE=str(tmp_path / "cache"))
+    res = subprocess.run([sys.executable, "-m", "bench", "schemes", "--particles", str(N), "--threads", str(T),
+                          "--repeats", "2", "--ceiling", "--out", str(out)], capture_output=True, text=True, cwd=ROOT,
+                         timeout=600, env=env)
+    assert res.returncode == 0, res.stderr
+    with open(out / "schemes.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    by_nb = {}
+    for r in rows:
+        if r["method"] == "serial":
+            assert math.isnan(float(r["ceiling"])) and math.isnan(float(r["of_ceiling"]))
+            assert r["target_reachable"] == ""
+            continue
+        assert int(r["ceiling_particles"]) == N // T
+        c, lo, hi = float(r["ceiling"]), float(r["ceiling_lo"]), float(r["ceiling_hi"])
+        assert c > 0 and 0 < lo <= hi
+        assert float(r["neighbor_ceiling"]) > 0 and float(r["resolve_ceiling"]) > 0
+        assert by_nb.setdefault(r["neighbor"], (c, lo, hi)) == (c, lo, hi)
+        assert math.isclose(float(r["of_ceiling"]), float(r["efficiency_own"]) / c, rel_tol=1e-4)
+        assert 0 < float(r["of_ceiling_lo"]) <= float(r["of_ceiling_hi"])
+        targeted = not math.isnan(float(r["target_eff_own"]))
+        assert r["target_reachable"] in (("yes", "no", "unresolved") if targeted else ("",))
+    assert sorted(by_nb) == ["allpairs", "linkcell"]
+    assert f"{T} serial copies of {N // T} particles" in res.stdout
+    table = res.stdout.split("--- against the machine's ceiling")[1].splitlines()
+    assert table[1].split()[:4] == ["method", "neighbor", "eff_own", "ceiling"] and len(table) >= 12
