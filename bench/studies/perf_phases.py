@@ -125,6 +125,7 @@ class PhaseCopies:
     copy's time [s]} over the phases every copy timed in it."""
 
     def __init__(self, copies, particles, skin, force, timeout=600):
+        load_prepared("packed", particles=particles)   # built once here, not by every copy at once
         self.held = HeldCopies(copies, _phase_copy, (particles, skin, force), timeout)
         self.particles = self.held.info[0]
 

@@ -220,7 +220,9 @@ class DetectionCeiling:
     together the slowest copy's per phase."""
 
     def __init__(self, threads, particles, shape):
-        self.held = HeldCopies(threads, _detection_copy, (max(1, particles // threads), shape))
+        share = max(1, particles // threads)
+        load_prepared("packed", particles=share, shape=shape)   # built once here, not by every copy at once
+        self.held = HeldCopies(threads, _detection_copy, (share, shape))
         self.copies = threads
         self.particles = self.held.info[0]
 
