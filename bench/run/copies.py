@@ -52,6 +52,18 @@ def _held_copy(setup, args, conn, counts, me):
         conn.send(("error", f"{type(e).__name__}: {e}"))
 
 
+def build_once(scene, particles, shape=None):
+    """Build (and cache: bench.run.prepare) the copies' scene here, once, before they start, rather
+    than by every copy at once. A scene that cannot be built is left to the copies, which say why
+    in one line (HeldCopies)."""
+    from bench.run.prepare import load_prepared
+    from dem.scene import SceneError
+    try:
+        load_prepared(scene, particles=particles, shape=shape)
+    except SceneError:
+        pass
+
+
 class HeldCopies:
     """`copies` spawned processes sharing nothing, held for a study's rounds and driven by commands:
     each runs setup(*args, meeting) once (a module-level function: it crosses to the spawned

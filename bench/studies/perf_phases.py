@@ -63,7 +63,7 @@ import copy
 import numba
 import numpy as np
 
-from bench.run.copies import HeldCopies
+from bench.run.copies import HeldCopies, build_once
 from bench.run.prepare import load_prepared
 from bench.sweep.intervals import format_interval, ratio_interval, verdict
 from dem.timestep import choose_time_step
@@ -125,7 +125,7 @@ class PhaseCopies:
     copy's time [s]} over the phases every copy timed in it."""
 
     def __init__(self, copies, particles, skin, force, timeout=600):
-        load_prepared("packed", particles=particles)   # built once here, not by every copy at once
+        build_once("packed", particles)
         self.held = HeldCopies(copies, _phase_copy, (particles, skin, force), timeout)
         self.particles = self.held.info[0]
 

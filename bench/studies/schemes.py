@@ -77,7 +77,7 @@ import sys
 import time
 
 import numpy as np
-from bench.run.copies import HeldCopies
+from bench.run.copies import HeldCopies, build_once
 from bench.run.figure import plt
 from bench.run.prepare import load_prepared
 from bench.run.records import prepare_output
@@ -221,7 +221,7 @@ class DetectionCeiling:
 
     def __init__(self, threads, particles, shape):
         share = max(1, particles // threads)
-        load_prepared("packed", particles=share, shape=shape)   # built once here, not by every copy at once
+        build_once("packed", share, shape)
         self.held = HeldCopies(threads, _detection_copy, (share, shape))
         self.copies = threads
         self.particles = self.held.info[0]
