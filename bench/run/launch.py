@@ -10,7 +10,8 @@ raises): the supervisor forwards signals, stops the ranks at the timeout, names 
 or stopped responding (heartbeats), keeps and marks the records, and dies with this process, which
 forwards SIGINT, SIGTERM and SIGHUP to it and waits for it (issue 15). Environment:
 NUMBA_NUM_THREADS = T; more ranks x threads than usable CPUs get a one-line warning and
-OMP_WAIT_POLICY=PASSIVE; mpich's shared-memory cells sized for a step's messages
+OMP_WAIT_POLICY=PASSIVE, and mpich sleeps between polls that find nothing (bench.run.transport
+SHARED_CORES); mpich's shared-memory cells sized for a step's messages
 (bench.run.transport). --pin: each rank binds itself and its threads to the plan of
 bench.run.binding over the CPUs its node's ranks were given, whatever the starter; Hydra (MPICH)
 is asked for `-bind-to core:T` as well (Open MPI's equivalent is `--map-by slot:PE=T --bind-to
@@ -40,7 +41,7 @@ from bench.run.lifeline import Interrupted, child_env, inherited_lock
 from bench.run.options import forward_refusal, halo_skin_refusal, setup_mode, too_few_ranks
 from bench.run.spec import rank_argv
 from bench.run.threads_env import check_size, usable_cpus
-from bench.run.transport import transport_env
+from bench.run.transport import shared_cores_env, transport_env
 from modes.base import ModeError, parse_mapping
 from modes.decomposition import BlockGrid, DecompositionError, border_width, fit_skin
 from modes.halo import compile_kernels
@@ -128,6 +129,7 @@ def launch_mpi(args, mapping, scene, out, ts):
         env[NODE_CPUS_ENV] = str(len(mine))
     if not elsewhere and mapping.procs * mapping.threads > cpus:
         env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+        shared_cores_env(env)
         print(f"bench: warning: {mapping.procs} ranks x {mapping.threads} threads on {cpus} usable CPUs "
               f"oversubscribes them (MPI busy-polls): fine for correctness, not for timings", file=sys.stderr)
     # each rank under its witness, which records how it ended if it ended badly (bench.run.witness)

@@ -37,6 +37,7 @@ import subprocess
 import sys
 import time
 
+from bench.run.transport import SHARED_CORES
 from bench.sweep.slurm_options import DEFAULT_MPI
 from modes.base import parse_mapping
 
@@ -168,9 +169,11 @@ def point_script(point, out, reps, opts, timeout, python, env, mpiexec=None):
     lines += _exports(dict(env))
     if m.procs > 1 and mpi == "hydra":
         lines.append("export SLURM_MPI_TYPE=none  # Hydra starts its proxies with srun: no PMI plugin for them")
-    lines.append("# ranks x threads beyond the CPUs this node gave the job: OpenMP threads wait passively")
+    lines.append("# ranks x threads beyond the CPUs this node gave the job: OpenMP threads wait passively, and a\n"
+                 "# rank waiting in mpich sleeps between empty polls (bench.run.transport SHARED_CORES)")
+    throttle = "".join(f'; export {k}="${{{k}:-{v}}}"' for k, v in SHARED_CORES.items())
     lines.append(f'if [ $(({per_node} * {m.threads})) -gt "${{SLURM_CPUS_ON_NODE:-{per_node * m.threads}}}" ]; '
-                 f"then export OMP_WAIT_POLICY=PASSIVE; fi")
+                 f"then export OMP_WAIT_POLICY=PASSIVE{throttle}; fi")
     lines.append(f'REP={shlex.quote(pdir)}/rep"${{SLURM_ARRAY_TASK_ID:-0}}"')
     cmd = shlex.join(point_command(point, timeout, opts, python, mpiexec)).replace(REP, '"$REP"')
     runner = shlex.join([python, "-m", "bench.sweep.job", "point", REP, "--timeout", str(timeout), "--"])

@@ -6,8 +6,9 @@ import sys
 import pytest
 
 from bench.run.launch import mpiexec_path
-from bench.run.transport import MPICH_EAGER, OPT_OUT, transport_env, transport_info
-from tests.helpers import ROOT, bench, one_line_error
+from bench.run.threads_env import usable_cpus
+from bench.run.transport import MPICH_EAGER, OPT_OUT, SHARED_CORES, shared_cores_env, transport_env, transport_info
+from tests.helpers import ROOT, bench, mpi_run, one_line_error
 
 
 def test_transport_env_set_unless_the_user_chose():
@@ -19,6 +20,26 @@ def test_transport_env_set_unless_the_user_chose():
     assert transport_env(dict(mine)) == mine
     assert transport_env({OPT_OUT: "library"}) == {OPT_OUT: "library"} and transport_info({OPT_OUT: "library"}) == {}
     assert {k: v for k, v in transport_env({OPT_OUT: "step"}).items() if k != OPT_OUT} == MPICH_EAGER
+
+
+def test_shared_cores_env_set_unless_the_user_chose():
+    """mpich's progress throttle (sleep after 100 empty polls) is added to an environment, a user's
+    own value of either variable stands, and both are read back for run.json."""
+    env = shared_cores_env({"PATH": "/bin"})
+    assert {k: env[k] for k in SHARED_CORES} == SHARED_CORES == transport_info(env)
+    assert SHARED_CORES["MPIR_CVAR_CH4_PROGRESS_THROTTLE_NO_PROGRESS_COUNT"] == "100"
+    mine = {"MPIR_CVAR_CH4_PROGRESS_THROTTLE": "0"}
+    assert shared_cores_env(dict(mine))["MPIR_CVAR_CH4_PROGRESS_THROTTLE"] == "0"
+
+
+@pytest.mark.skipif(mpiexec_path() is None, reason="no mpiexec")
+def test_ranks_on_shared_cores_get_the_progress_throttle(tmp_path):
+    """4 ranks: where they outnumber the usable CPUs (2 in CI) run.json's mpi_transport holds the
+    step-sized cells and the progress throttle (bench.run.transport SHARED_CORES); where each rank
+    has a CPU, the cells only (the throttle would add sleeps to waits that need the CPU)."""
+    _, steps, info = mpi_run(tmp_path, "gas", 5, "4-2-2-1-1")
+    want = dict(MPICH_EAGER, **(SHARED_CORES if 4 > usable_cpus() else {}))
+    assert info["mpi_transport"] == want and len(steps) == 4 * 5
 
 
 def test_unknown_transport_setting_refused_in_one_line():
