@@ -18,7 +18,6 @@ import numpy as np
 
 from bench.run.binding import establish, recheck
 from bench.run.checkpoint import load_checkpoint, write_checkpoint
-from bench.run.figure import plot_run
 from bench.run.guard import StabilityGuard
 from bench.run.launch import launch_mpi
 from bench.run.lifeline import Interrupted, die_with_parent, raise_on_signals, signal_name
@@ -245,6 +244,7 @@ def execute(args, scene, mapping, scheme, mode, out, ts, comm=None, beat=None):
     write_json(run_json, info)
     n_total, dt, steps = info["particles"], ts.dt, span.steps
     if args.plot:
+        from bench.run.figure import plot_run   # here: matplotlib costs every rank 0.4 s to import
         plot_run(loop.series, os.path.join(out, "run.png"), title=f"{scene.name}, {n_total} particles, {mapping}")
     if not args.quiet:
         print(f"{scene.name}: {n_total} particles, {steps} steps of {dt:.3g} s, mapping {mapping}: "
