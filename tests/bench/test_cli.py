@@ -22,6 +22,23 @@ def test_cli_imports_leave_numba_unstarted():
     assert res.returncode == 0 and res.stdout.strip() == "False", res.stderr
 
 
+def test_run_draws_run_png_only_when_asked(tmp_path):
+    """`bench run --plot` draws run.png (a PNG: time per step, contacts, kinetic energy); without
+    it there is none, and a rank's modules leave matplotlib unloaded (it cost every rank 0.4 s of
+    start-up: bench.run.driver imports the figure module where it draws)."""
+    scene = write(tmp_path, GOOD)
+    for plot in (True, False):
+        out = tmp_path / f"run{plot}"
+        res = bench("run", "--scene", scene, "--steps", "5", "--out", str(out), "--quiet",
+                    *(["--plot"] if plot else []))
+        assert res.returncode == 0, res.stderr
+        assert (out / "run.png").exists() == plot
+    assert (tmp_path / "runTrue" / "run.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    code = "import sys; import bench.run.rank; print('matplotlib' in sys.modules)"
+    res = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0 and res.stdout.strip() == "False", res.stderr
+
+
 def test_balance_choices_are_the_modes():
     """The CLI names the ways to fit the block grid without importing modes (numba must not start
     there): they are modes.mpi.BALANCE, in the same order."""
