@@ -10,7 +10,7 @@ raises): the supervisor forwards signals, stops the ranks at the timeout, names 
 or stopped responding (heartbeats), keeps and marks the records, and dies with this process, which
 forwards SIGINT, SIGTERM and SIGHUP to it and waits for it (issue 15). Environment:
 NUMBA_NUM_THREADS = T; more ranks x threads than usable CPUs get a one-line warning and
-OMP_WAIT_POLICY=PASSIVE, and mpich sleeps between polls that find nothing (bench.run.transport
+OMP_WAIT_POLICY=PASSIVE, and mpich's progress throttle (bench.run.transport
 SHARED_CORES); mpich's shared-memory cells sized for a step's messages
 (bench.run.transport). --pin: each rank binds itself and its threads to the plan of
 bench.run.binding over the CPUs its node's ranks were given, whatever the starter; Hydra (MPICH)

@@ -26,15 +26,19 @@ of them (their choice stands) or sets DEM_BENCH_MPI_TRANSPORT=library (the libra
 `step`, or unset, is this sizing; any other value is refused in one line by the bench command);
 Open MPI ignores them. run.json records them (mpi_transport).
 
-Shared cores. More ranks x threads than CPUs (a correctness run on a laptop: 8 ranks on 2 cores)
-leaves a rank that waits in MPI spinning on a core that the rank it waits for needs: the OS gives
-that rank its turn only when the spinner's slice ends. There, SHARED_CORES has mpich sleep
-(usleep(1), about 50 us in practice) after 100 polls in a row that found nothing
-(MPIR_CVAR_CH4_PROGRESS_THROTTLE), so the core goes to a rank with work. Measured with mpich 5.0.2
-on 2 cores, the gas (2500 spheres) at --skin 0 --halo-skin 0, 600 steps, median step of the
-slowest rank, runs alternating: 4 ranks 7.99 and 7.97 ms before, 0.92 and 0.79 ms after; 8 ranks
-(2x2x2, 6-message halo) 40.5 ms before, 7.6 and 7.7 ms after (100 or 10 polls; 10.1 ms after
-1000). A user's own value of either variable stands; run.json records them (mpi_transport).
+Shared cores. With more ranks x threads than CPUs (a correctness run on a laptop: 8 ranks on 2
+cores) the ranks' exchanges crawled. There SHARED_CORES turns on mpich's progress throttle
+(MPIR_CVAR_CH4_PROGRESS_THROTTLE): a usleep(1) after 100 progress polls in a row that made none,
+which mpich documents as holding back polling that monopolizes its shared-memory queue and keeps
+other processes' packets from being enqueued. Measured with mpich 5.0.2 on 2 cores, the gas
+(2500 spheres) at --skin 0 --halo-skin 0, 300-600 steps, median step of the slowest rank, runs
+alternating: 4 ranks 7.99, 7.97, 10.74, 11.01 ms spinning, 0.92, 0.79, 1.11, 0.87 ms throttled;
+8 ranks (2x2x2, 6-message halo) 39.9, 40.5 ms spinning, 7.6 and 7.7 ms throttled (100 or 10
+polls; 10.1 ms after 1000). What it does not do: a rank blocked in one Recv, Waitall or
+allreduce for a partner still busy computing keeps using its CPU (a 4-rank probe on 2 cores,
+two ranks computing and two waiting: each at half a CPU, throttled or not), so the gain is the
+queue's, not a yielded core. A user's own value of either variable stands; run.json records
+them (mpi_transport).
 """
 import os
 

@@ -169,8 +169,8 @@ def point_script(point, out, reps, opts, timeout, python, env, mpiexec=None):
     lines += _exports(dict(env))
     if m.procs > 1 and mpi == "hydra":
         lines.append("export SLURM_MPI_TYPE=none  # Hydra starts its proxies with srun: no PMI plugin for them")
-    lines.append("# ranks x threads beyond the CPUs this node gave the job: OpenMP threads wait passively, and a\n"
-                 "# rank waiting in mpich sleeps between empty polls (bench.run.transport SHARED_CORES)")
+    lines.append("# ranks x threads beyond the CPUs this node gave the job: OpenMP threads wait passively, and each\n"
+                 "# rank's empty polls of mpich's queues are throttled (bench.run.transport SHARED_CORES)")
     throttle = "".join(f'; export {k}="${{{k}:-{v}}}"' for k, v in SHARED_CORES.items())
     lines.append(f'if [ $(({per_node} * {m.threads})) -gt "${{SLURM_CPUS_ON_NODE:-{per_node * m.threads}}}" ]; '
                  f"then export OMP_WAIT_POLICY=PASSIVE{throttle}; fi")

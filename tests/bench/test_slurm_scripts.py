@@ -147,7 +147,7 @@ def test_submit_script_dependencies_and_records(tmp_path):
 def test_hybrid_point_job(tmp_path):
     """A hybrid point 4-2-2-1-3 with --pin: 4 tasks of 3 CPUs, its ranks started by srun with the
     same counts and core binding, and on a node that gives it fewer than 12 CPUs the OpenMP threads
-    wait passively and mpich sleeps between empty polls (bench.run.transport SHARED_CORES; a user's
+    wait passively and mpich's progress throttle is on (bench.run.transport SHARED_CORES; a user's
     own value stands); the 3 threads are bound by each rank itself (bench run --pin,
     bench.run.binding), so the job exports no OMP_PROC_BIND, which would pin its launching
     process to one CPU and every rank with it."""

@@ -23,7 +23,7 @@ def test_transport_env_set_unless_the_user_chose():
 
 
 def test_shared_cores_env_set_unless_the_user_chose():
-    """mpich's progress throttle (sleep after 100 empty polls) is added to an environment, a user's
+    """mpich's progress throttle (a usleep after 100 polls that made no progress) is added to an environment, a user's
     own value of either variable stands, and both are read back for run.json."""
     env = shared_cores_env({"PATH": "/bin"})
     assert {k: env[k] for k in SHARED_CORES} == SHARED_CORES == transport_info(env)
@@ -36,7 +36,7 @@ def test_shared_cores_env_set_unless_the_user_chose():
 def test_ranks_on_shared_cores_get_the_progress_throttle(tmp_path):
     """4 ranks: where they outnumber the usable CPUs (2 in CI) run.json's mpi_transport holds the
     step-sized cells and the progress throttle (bench.run.transport SHARED_CORES); where each rank
-    has a CPU, the cells only (the throttle would add sleeps to waits that need the CPU)."""
+    has a CPU, the cells only (timed runs keep mpich's own polling)."""
     _, steps, info = mpi_run(tmp_path, "gas", 5, "4-2-2-1-1")
     want = dict(MPICH_EAGER, **(SHARED_CORES if 4 > usable_cpus() else {}))
     assert info["mpi_transport"] == want and len(steps) == 4 * 5
