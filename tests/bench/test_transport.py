@@ -23,8 +23,8 @@ def test_transport_env_set_unless_the_user_chose():
 
 
 def test_shared_cores_env_set_unless_the_user_chose():
-    """mpich's progress throttle (a usleep after 100 polls that made no progress) is added to an environment, a user's
-    own value of either variable stands, and both are read back for run.json."""
+    """mpich's progress throttle (a usleep after 100 polls that made no progress) is added to an
+    environment, a user's own value of either variable stands, and both are read back for run.json."""
     env = shared_cores_env({"PATH": "/bin"})
     assert {k: env[k] for k in SHARED_CORES} == SHARED_CORES == transport_info(env)
     assert SHARED_CORES["MPIR_CVAR_CH4_PROGRESS_THROTTLE_NO_PROGRESS_COUNT"] == "100"
