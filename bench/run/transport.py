@@ -37,8 +37,9 @@ alternating: 4 ranks 7.99, 7.97, 10.74, 11.01 ms spinning, 0.92, 0.79, 1.11, 0.8
 polls; 10.1 ms after 1000). What it does not do: a rank blocked in one Recv, Waitall or
 allreduce for a partner still busy computing keeps using its CPU (a 4-rank probe on 2 cores,
 two ranks computing and two waiting: each at half a CPU, throttled or not), so the gain is the
-queue's, not a yielded core. A user's own value of either variable stands; run.json records
-them (mpi_transport).
+queue's, not a yielded core. A user's own value of either variable stands (the throttle is
+not part of the step sizing, so DEM_BENCH_MPI_TRANSPORT=library does not turn it off); run.json
+records them (mpi_transport).
 """
 import os
 
