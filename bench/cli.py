@@ -116,6 +116,9 @@ def build_parser():
                     help="also the machine's own ceiling at --threads: that many serial copies of the scene at "
                          "particles / threads each detect alone and together in every round; each row's share of "
                          "it, and whether its target is within it")
+    sc.add_argument("--pin", action="store_true",
+                    help="bind each of the T threads to a CPU of its own (and the --ceiling copies to the same "
+                         "CPUs); the binding is recorded in schemes.csv either way")
     sc.add_argument("--out", default="results/schemes", help="folder for schemes.csv and schemes.png")
 
     pf = sub.add_parser("perf", help="speed figures (per pair, per particle-step; --what comm: MPI ping-pong)")
@@ -500,7 +503,7 @@ def cmd_compare(args):
 
 @_one_line
 def cmd_schemes(args):
-    configure_threads(f"1-1-1-1-{args.threads}")  # before numba starts
+    configure_threads(f"1-1-1-1-{args.threads}", args.pin)  # before numba starts
     from bench.studies.schemes import schemes
     return schemes(args)
 

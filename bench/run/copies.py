@@ -33,13 +33,17 @@ def release(counts, me):
     counts[me] = 2 ** 62
 
 
-def _held_copy(setup, args, conn, counts, me):
-    """One held copy (HeldCopies): work, info = setup(*args, meeting) once (meeting(k): meet the
-    other copies at their k-th meeting), sends ("ready", info), then answers each command received
-    on conn with ("ok", work(command)) until None comes, or ("error", line) once it fails. Dies
-    with its parent; SIGINT is the parent's."""
+def _held_copy(setup, args, conn, counts, me, cpu=None):
+    """One held copy (HeldCopies): bound to CPU cpu where given (before it allocates: first touch),
+    work, info = setup(*args, meeting) once (meeting(k): meet the other copies at their k-th
+    meeting), sends ("ready", info), then answers each command received on conn with ("ok",
+    work(command)) until None comes, or ("error", line) once it fails. Dies with its parent;
+    SIGINT is the parent's."""
     as_copy()
     try:
+        if cpu is not None:
+            import os
+            os.sched_setaffinity(0, {cpu})
         work, info = setup(*args, lambda k: meet(counts, me, k))
         conn.send(("ready", info))
         while True:
@@ -70,9 +74,11 @@ class HeldCopies:
     process) and then work(command) for each command sent to it (_held_copy); meeting(k) spins
     until every copy has reached its k-th meeting (meet), which copies that work in step call
     with the same k. A copy that fails or gives no answer in `timeout` s stops the study with one
-    line; none outlives close() or the parent. info: each copy's set-up answer."""
+    line; none outlives close() or the parent. info: each copy's set-up answer. cpus [copies]: copy c
+    runs on CPU cpus[c] alone (a study whose threads are pinned sets its copies on the same CPUs);
+    None: where the OS puts it."""
 
-    def __init__(self, copies, setup, args, timeout=600):
+    def __init__(self, copies, setup, args, timeout=600, cpus=None):
         ctx = multiprocessing.get_context("spawn")
         self.timeout = timeout
         self.counts = ctx.RawArray("q", copies)
@@ -80,7 +86,8 @@ class HeldCopies:
         try:
             for me in range(copies):
                 ours, theirs = ctx.Pipe()
-                proc = ctx.Process(target=_held_copy, args=(setup, args, theirs, self.counts, me))
+                proc = ctx.Process(target=_held_copy, args=(setup, args, theirs, self.counts, me,
+                                                            None if cpus is None else cpus[me]))
                 proc.start()
                 theirs.close()
                 self.conns.append(ours)

@@ -68,6 +68,13 @@ With --ceiling, the machine's own ceiling for each neighbour method at T, and ea
   unresolved: it straddles it); empty where no target is set.
 The serial rows leave them empty (NaN).
 
+With --pin each of numba's T threads is bound to a CPU of its own before anything is set up
+(bench.run.binding, as `bench run --pin`: thread 0, which also runs the serial rows, on the
+first), and the ceiling's copy c runs on thread c's CPU. Every row records the binding, pinned or
+not: pinned (1 or 0), thread_cpus (each thread's CPU set at the start, in thread order),
+binding_held (the same sets after the rounds, each pinned thread having run on its CPU:
+bench.run.binding.recheck) and ceiling_cpus (each copy's CPU set as the copy read it).
+
 OUT/schemes.png is drawn from the CSV afterwards (plotting only reads records).
 """
 import csv
@@ -77,6 +84,7 @@ import sys
 import time
 
 import numpy as np
+from bench.run.binding import establish, format_cpus, recheck
 from bench.run.copies import HeldCopies, build_once
 from bench.run.figure import plt
 from bench.run.prepare import load_prepared
@@ -104,7 +112,8 @@ COLUMNS = ["family", "method", "neighbor", "threads", "particles", "shape", "rep
            "resolve_eff_own_hi", "target_eff_own", "verdict", "candidates", "tests", "work_imbalance",
            "busy_imbalance", "paper_method", "paper_threads", "paper_speedup", "paper_efficiency", "ceiling",
            "ceiling_lo", "ceiling_hi", "neighbor_ceiling", "resolve_ceiling", "of_ceiling", "of_ceiling_lo",
-           "of_ceiling_hi", "target_reachable", "ceiling_particles"]
+           "of_ceiling_hi", "target_reachable", "ceiling_particles", "ceiling_cpus", "pinned", "thread_cpus",
+           "binding_held"]
 CEILING = ("ceiling", "ceiling_lo", "ceiling_hi", "neighbor_ceiling", "resolve_ceiling", "of_ceiling", "of_ceiling_lo",
            "of_ceiling_hi")
 REACHABLE = {"met": "yes", "not met": "no", "unresolved": "unresolved"}
@@ -185,7 +194,7 @@ def _detection_copy(particles, shape, meeting):
     detection of each neighbour method on its own packed scene of `particles` (_setup). Its work
     (the command: in_step) runs one detection of each, meeting the other copies before each phase
     and after the last where in_step, and answers {neighbour: (neighbour estimate s, resolution s)}.
-    Its info: the particles."""
+    Its info: (the particles, the CPUs it may run on)."""
     scene = load_prepared("packed", particles=particles, shape=shape)
     dt = choose_time_step(scene).dt
     modes = {nb: _setup(scene, dt, "serial", nb, 1) for nb in NEIGHBORS}
@@ -209,7 +218,7 @@ def _detection_copy(particles, shape, meeting):
             out[nb] = (t1 - t0, time.perf_counter() - t2)
         meet(in_step)
         return out
-    return work, scene.n
+    return work, (scene.n, sorted(os.sched_getaffinity(0)))
 
 
 class DetectionCeiling:
@@ -217,14 +226,16 @@ class DetectionCeiling:
     (_detection_copy), held for the rounds. round() runs one detection of each neighbour method on
     each copy alone, in turn, then on all of them together, and returns {neighbour: (alone, together)},
     each [neighbour estimate s, resolution s]: alone the mean over the copies (their CPUs may differ),
-    together the slowest copy's per phase."""
+    together the slowest copy's per phase. cpus [threads]: copy c on CPU cpus[c] (the CPU of pinned
+    thread c), or None."""
 
-    def __init__(self, threads, particles, shape):
+    def __init__(self, threads, particles, shape, cpus=None):
         share = max(1, particles // threads)
         build_once("packed", share, shape)
-        self.held = HeldCopies(threads, _detection_copy, (share, shape))
+        self.held = HeldCopies(threads, _detection_copy, (share, shape), cpus=cpus)
         self.copies = threads
-        self.particles = self.held.info[0]
+        self.particles = self.held.info[0][0]
+        self.cpus = [info[1] for info in self.held.info]   # each copy's CPUs (the proof of --pin)
 
     def round(self):
         alone = [self.held.ask(False, [c])[0] for c in range(self.copies)]
@@ -236,9 +247,10 @@ class DetectionCeiling:
         self.held.close()
 
 
-def measure(scene, dt, threads, repeats, shape, log=None, ceiling=False):
-    """Rows (dicts, COLUMNS without the paper columns) of every configuration; ceiling: with the
-    machine's ceiling at T (module docstring)."""
+def measure(scene, dt, threads, repeats, shape, log=None, ceiling=False, cpus=None):
+    """Rows (dicts, COLUMNS without the paper columns and the binding's) of every configuration;
+    ceiling: with the machine's ceiling at T (module docstring), its copies on cpus [T] where given
+    (the pinned threads' CPUs)."""
     confs = configurations()
     modes = []
     for method, nb in confs:
@@ -250,7 +262,7 @@ def measure(scene, dt, threads, repeats, shape, log=None, ceiling=False):
     if ceiling:
         if log:
             log(f"starting {threads} ceiling copies at {max(1, scene.n // threads)} particles")
-        copies = DetectionCeiling(threads, scene.n, shape)
+        copies = DetectionCeiling(threads, scene.n, shape, cpus)
     ceiling_rounds = []
     try:
         for r in range(repeats):
@@ -294,6 +306,7 @@ def measure(scene, dt, threads, repeats, shape, log=None, ceiling=False):
         r.update(ceiling_columns(r, rounds[("serial", r["neighbor"])], rounds[(r["method"], r["neighbor"])],
                                  ceiling_rounds))
         r["ceiling_particles"] = copies.particles if copies is not None else ""
+        r["ceiling_cpus"] = " ".join(format_cpus(c) for c in copies.cpus) if copies is not None else ""
     return rows
 
 
@@ -321,6 +334,21 @@ def ceiling_columns(row, own, mine, ceiling_rounds):
     if not math.isnan(row["target_eff_own"]):
         out["target_reachable"] = REACHABLE[verdict(out["ceiling_lo"], out["ceiling_hi"], row["target_eff_own"])]
     return out
+
+
+def thread_cpus(affinity):
+    """Each numba thread's CPU set [T] (lists) at the start, from bench.run.binding.establish's record
+    of this one process."""
+    return [t["cpus"] for t in affinity["ranks"][0]["threads"]]
+
+
+def binding_columns(affinity):
+    """The binding's columns of every row: pinned (1: --pin bound each thread to a CPU of its own,
+    0: where the OS put them), thread_cpus (each thread's CPU set at the start, in thread order:
+    the proof), binding_held (1: the same sets after the rounds, each pinned thread having run on
+    its CPU: bench.run.binding.recheck)."""
+    return {"pinned": int(affinity["pinned"]), "thread_cpus": " ".join(format_cpus(c) for c in thread_cpus(affinity)),
+            "binding_held": int(affinity["held"])}
 
 
 def _round_times(samples):
@@ -370,7 +398,7 @@ def read_csv(path):
            "efficiency_own", "efficiency_own_lo", "efficiency_own_hi", "neighbor_eff_own", "neighbor_eff_own_lo",
            "neighbor_eff_own_hi", "resolve_eff_own", "resolve_eff_own_lo", "resolve_eff_own_hi", "target_eff_own",
            "candidates", "tests", "work_imbalance", "busy_imbalance", "paper_threads", "paper_speedup",
-           "paper_efficiency", "ceiling_particles", *CEILING}
+           "paper_efficiency", "ceiling_particles", "pinned", "binding_held", *CEILING}
     with open(path, newline="") as fh:
         return [{k: (float(v) if v not in ("", None) else math.nan) if k in num else v for k, v in r.items()}
                 for r in csv.DictReader(fh)]
@@ -472,7 +500,16 @@ def schemes(args):
     scene = load_prepared("packed", particles=args.particles, shape=args.shape, log=log)
     dt = choose_time_step(scene).dt
     ceiling = getattr(args, "ceiling", False)
-    rows = measure(scene, dt, args.threads, args.repeats, args.shape, log=log, ceiling=ceiling)
+    pin = getattr(args, "pin", False)
+    # bound (--pin) and recorded before the modes allocate (first touch) and before any timing
+    affinity = establish(args.threads, pin)
+    cpus = thread_cpus(affinity)
+    log(f"threads {'pinned to' if pin else 'on'} CPUs {' '.join(format_cpus(c) for c in cpus)}")
+    rows = measure(scene, dt, args.threads, args.repeats, args.shape, log=log, ceiling=ceiling,
+                   cpus=[c[0] for c in cpus] if pin else None)
+    affinity = recheck(affinity, args.threads, pin)
+    for r in rows:
+        r.update(binding_columns(affinity))
     add_paper(rows, paper)
     csv_path = os.path.join(args.out, "schemes.csv")
     write_csv(csv_path, rows)
@@ -481,7 +518,9 @@ def schemes(args):
     print(f"contact detection (neighbour estimate + resolution), {scene.n} packed {args.shape}s, "
           f"median of {args.repeats}; speedup vs serial all-pairs; eff = speedup/T; eff_own vs serial of the "
           f"same neighbour method (nbr_own, res_own: per phase), its 95 % interval paired over the rounds and "
-          f"its verdict against issue 32's target; paper: {PAPER_THREADS} threads, n-by-n")
+          f"its verdict against issue 32's target; paper: {PAPER_THREADS} threads, n-by-n; threads "
+          f"{'pinned to' if pin else 'unpinned, on'} CPUs {rows[0]['thread_cpus']}"
+          f"{'' if rows[0]['binding_held'] else ' (the binding did not hold through the rounds)'}")
     table = read_csv(csv_path)
     for line in format_table(table):
         print(line)

@@ -104,8 +104,21 @@ def test_schemes_command(tmp_path):
         assert math.isnan(float(got[(s, "linkcell")]["paper_speedup"]))
         assert math.isnan(float(got[(s, "linkcell")]["paper_efficiency"]))
 
+    # unpinned, the binding is recorded all the same: each thread may run on every usable CPU
+    usable = _cpus(sorted(os.sched_getaffinity(0)))
+    for r in rows:
+        assert (r["pinned"], r["binding_held"]) == ("0", "1")
+        assert r["thread_cpus"] == " ".join([usable] * T)
+    assert f"threads unpinned, on CPUs {' '.join([usable] * T)}" in res.stdout
+
     png = out / "schemes.png"
     assert png.exists() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def _cpus(cpus):
+    """bench.run.binding.format_cpus of a sorted CPU list, written out: '{0-1}', '{3}'."""
+    return "{" + (f"{cpus[0]}-{cpus[-1]}" if len(cpus) > 1 and cpus[-1] - cpus[0] == len(cpus) - 1
+                  else ",".join(map(str, cpus))) + "}"
 
 
 def test_efficiency_intervals_are_paired_over_rounds():
@@ -199,3 +212,42 @@ def test_schemes_ceiling_runs_copies_beside_the_schemes(tmp_path):
     assert f"{T} serial copies of {N // T} particles" in res.stdout
     table = res.stdout.split("--- against the machine's ceiling")[1].splitlines()
     assert table[1].split()[:4] == ["method", "neighbor", "eff_own", "ceiling"] and len(table) >= 12
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < T, reason="--pin needs a CPU for each of the 2 threads")
+def test_schemes_pin_binds_each_thread_and_its_ceiling_copy_to_a_cpu(tmp_path):
+    """`bench schemes --pin --ceiling` at 2 threads (issue 32: pinning that holds, and proves it):
+    numba's 2 threads are bound to one CPU each, distinct (on 2 CPUs {0} and {1}, as bench.run.binding
+    plans `1-1-1-1-2 --pin`), every row records that set and that it held through the rounds, and the
+    ceiling's copy c reports the CPU of thread c as the only one it may run on."""
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONPATH=ROOT, DEM_BENCH_CACHE=str(tmp_path / "cache"))
+    res = subprocess.run([sys.executable, "-m", "bench", "schemes", "--particles", str(N), "--threads", str(T),
+                          "--repeats", "2", "--pin", "--ceiling", "--out", str(out)], capture_output=True, text=True,
+                         cwd=ROOT, timeout=600, env=env)
+    assert res.returncode == 0, res.stderr
+    with open(out / "schemes.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    sets = rows[0]["thread_cpus"].split()
+    assert len(sets) == T and len(set(sets)) == T and all("-" not in c and "," not in c for c in sets)
+    assert {int(c.strip("{}")) for c in sets} <= os.sched_getaffinity(0)
+    if os.sched_getaffinity(0) == {0, 1}:
+        assert sets == ["{0}", "{1}"]
+    for r in rows:
+        assert (r["pinned"], r["binding_held"], r["thread_cpus"]) == ("1", "1", rows[0]["thread_cpus"])
+        assert r["ceiling_cpus"] == rows[0]["thread_cpus"]
+    assert f"threads pinned to CPUs {rows[0]['thread_cpus']}" in res.stdout
+
+
+def test_schemes_pin_with_more_threads_than_cpus_is_one_line(tmp_path):
+    """--pin of more threads than usable CPUs: one line naming the problem, exit 2, nothing measured."""
+    too_many = len(os.sched_getaffinity(0)) + 1
+    env = dict(os.environ, PYTHONPATH=ROOT, DEM_BENCH_CACHE=str(tmp_path / "cache"), OMP_WAIT_POLICY="PASSIVE")
+    res = subprocess.run([sys.executable, "-m", "bench", "schemes", "--particles", "60", "--threads", str(too_many),
+                          "--repeats", "1", "--pin", "--out", str(tmp_path / "out")], capture_output=True, text=True,
+                         cwd=ROOT, timeout=600, env=env)
+    assert res.returncode == 2, res.stderr
+    errors = [line for line in res.stderr.splitlines() if line.startswith("bench: error:")]
+    assert len(errors) == 1 and f"--pin: 1 rank x {too_many} threads need {too_many} CPUs" in errors[0], res.stderr
+    assert "Traceback" not in res.stderr
+    assert not (tmp_path / "out" / "schemes.csv").exists()
