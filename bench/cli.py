@@ -182,6 +182,9 @@ def build_parser():
                     help="--what phases: run the threads mode's T ranges one after another on one thread, so "
                          "that each phase's time is the work of the T-range algorithm: its inflation over "
                          "serial, and the speedup T cores can give it at most")
+    pf.add_argument("--pin", action="store_true",
+                    help="--what phases: bind each of the T threads to a CPU of its own (and the --ceiling copies "
+                         "to the same CPUs); perf.json records the binding either way")
     pf.add_argument("--out", default=None, help="write perf.json here")
 
     nd = sub.add_parser("node", help="the many-core check of this node: unpinned and pinned sweeps, the ceiling, "
@@ -516,6 +519,8 @@ def cmd_perf(args):
         raise UsageError("bench perf: --ceiling is for the speedups of --what phases, not --work")
     if args.work and args.what != "phases":
         raise UsageError(f"bench perf: --work is for --what phases, not {args.what}")
+    if args.pin and args.what != "phases":
+        raise UsageError(f"bench perf: --pin is for --what phases, not {args.what}")
     if args.in_job is not None and args.what not in ("overhead", "forward"):
         raise UsageError(f"bench perf: --in-job is for --what overhead and forward, not {args.what}")
     if args.forward is not None and (args.what != "overhead" or args.in_job is None):
@@ -533,7 +538,7 @@ def cmd_perf(args):
     if args.what == "comm":
         from bench.studies.perf_comm import perf_comm
         return _one_line(perf_comm)(args)
-    configure_threads(f"1-1-1-1-{args.threads}")  # before numba starts
+    configure_threads(f"1-1-1-1-{args.threads}", args.pin)  # before numba starts
     if args.what == "skin":
         from bench.studies.perf_skin import perf_skin
         return _one_line(perf_skin)(args)
@@ -545,7 +550,7 @@ def cmd_perf(args):
         from bench.studies.perf_phases import measure as phases
         return _one_line(lambda a: _perf_report(a, lambda: phases(a.particles, a.threads, a.steps or 20,
                                                                   a.repeats, log=print, work=a.work,
-                                                                  ceiling=a.ceiling)))(args)
+                                                                  ceiling=a.ceiling, pin=a.pin)))(args)
     if args.steps is None:
         args.steps = 20
     from bench.studies.perf import perf

@@ -57,12 +57,20 @@ gains less than T from T independent copies, and no thread scheme can beat that.
 share of it, tC / tT (paired interval), says how far the code is from the machine's ceiling.
 The range cut and gather_list, all but empty in the serial mode, have ceilings as meaningless as
 their speedups.
+
+`--pin` binds each of numba's T threads to a CPU of its own before the modes are set up
+(bench.run.binding, as `bench run --pin`; thread 0, which steps the serial mode too, on the
+first), and the ceiling's copy c to thread c's CPU. perf.json's `affinity` records the binding,
+pinned or not: each thread's CPU set at the start and after the last case (`after`), and whether
+it held (`held`); `ceiling_cpus` each copy's CPU set as the copy read it.
 """
 import copy
+import os
 
 import numba
 import numpy as np
 
+from bench.run.binding import establish, format_cpus, recheck
 from bench.run.copies import HeldCopies, build_once
 from bench.run.prepare import load_prepared
 from bench.sweep.intervals import format_interval, ratio_interval, verdict
@@ -102,7 +110,8 @@ def step_phases(mode, force):
 def _phase_copy(particles, skin, force, meeting):
     """One ceiling copy's set-up (PhaseCopies, bench.run.copies HeldCopies): the serial mode on its
     own packed scene of `particles`; its work steps it `steps` times (the command), meeting the
-    other copies after every step, and answers [{phase: s}] a step. Its info: the particles."""
+    other copies after every step, and answers [{phase: s}] a step. Its info: (the particles, the
+    CPUs it may run on)."""
     scene = load_prepared("packed", particles=particles)
     mode = SerialMode().setup(scene, dt=choose_time_step(scene).dt, skin=skin)
     mode.warmup()
@@ -116,18 +125,20 @@ def _phase_copy(particles, skin, force, meeting):
             out.append(step_phases(mode, force))
             meeting(done[0])
         return out
-    return work, scene.n
+    return work, (scene.n, sorted(os.sched_getaffinity(0)))
 
 
 class PhaseCopies:
     """`copies` serial copies of the packed scene at `particles` each (_phase_copy), held for a
     case's rounds: round(steps) steps them together and returns, a step, {phase: the slowest
-    copy's time [s]} over the phases every copy timed in it."""
+    copy's time [s]} over the phases every copy timed in it. cpus [copies]: copy c on CPU cpus[c]
+    (the CPU of pinned thread c), or None."""
 
-    def __init__(self, copies, particles, skin, force, timeout=600):
+    def __init__(self, copies, particles, skin, force, timeout=600, cpus=None):
         build_once("packed", particles)
-        self.held = HeldCopies(copies, _phase_copy, (particles, skin, force), timeout)
-        self.particles = self.held.info[0]
+        self.held = HeldCopies(copies, _phase_copy, (particles, skin, force), timeout, cpus=cpus)
+        self.particles = self.held.info[0][0]
+        self.cpus = [info[1] for info in self.held.info]
 
     def round(self, steps):
         per_copy = self.held.ask(steps)
@@ -149,26 +160,33 @@ def _modes(scene, dt, threads, scheme, skin):
     return serial, par
 
 
-def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print, work=False, ceiling=False):
+def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print, work=False, ceiling=False,
+            pin=False):
     """The report: per case, per phase, t1 and tT [s] (medians), speedup and Karp-Flatt e; work: the
     T ranges on one thread instead (module docstring): t1, wT [s], the work inflation W and T / W;
     ceiling: also T serial copies at N / T particles each, each phase's ceiling speedup and the
-    threads' share of it (module docstring)."""
+    threads' share of it (module docstring); pin: the threads (and the copies) bound to a CPU each.
+    The report's `affinity` records the binding either way."""
     if threads < 2:
         raise ValueError("--what phases needs --threads T >= 2")
     if work and ceiling:
         raise ValueError("--ceiling is for the speedups, not --work")
     scene = load_prepared("packed", particles=particles)
     dt = choose_time_step(scene).dt
+    # bound (pin) and recorded before the modes allocate (first touch) and before any timing
+    affinity = establish(threads, pin)
+    cpus = [t["cpus"] for t in affinity["ranks"][0]["threads"]]
+    log(f"# threads {'pinned to' if pin else 'unpinned, on'} CPUs {' '.join(format_cpus(c) for c in cpus)}")
     report = {"what": "phases", "particles": scene.n, "threads": threads, "scheme": scheme, "steps": steps,
-              "repeats": repeats, "work": work, "ceiling": ceiling, "cases": {}}
+              "repeats": repeats, "work": work, "ceiling": ceiling, "pinned": bool(pin), "cases": {}}
     for name, skin, force in CASES:
         serial, par = _modes(scene, dt, threads, scheme, skin)
         if work:   # after the warm-up at T threads: the T ranges one after another on one thread
             numba.set_num_threads(1)
             for mode in (serial, par):   # untimed: the one thread's scan buffers grow to its pairs
                 step_phases(mode, True)
-        copies = PhaseCopies(threads, max(1, scene.n // threads), skin, force) if ceiling else None
+        copies = PhaseCopies(threads, max(1, scene.n // threads), skin, force,
+                             cpus=[c[0] for c in cpus] if pin else None) if ceiling else None
         try:
             samples, rounds = _rounds((serial, par), copies, force, steps, repeats)
         finally:
@@ -187,6 +205,7 @@ def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print
         report["cases"][name] = rows
         if ceiling:
             report["ceiling_particles"] = copies.particles
+            report["ceiling_cpus"] = [format_cpus(c) for c in copies.cpus]
         if work:
             _log_work(log, name, scene.n, threads, scheme, repeats, steps, rows)
             continue
@@ -206,6 +225,9 @@ def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print
         if ceiling:
             log(f"# ceiling: {threads} serial copies of {copies.particles} particles meeting every step, "
                 f"a phase's time the slowest copy's; 'of it' = ceiling time / {threads}-thread time")
+    report["affinity"] = recheck(affinity, threads, pin)
+    if not report["affinity"]["held"]:
+        log("# the threads' binding did not hold through the cases (perf.json affinity)")
     return report
 
 

@@ -1,6 +1,7 @@
 """`bench perf --what phases` (bench/studies/perf_phases.py): the Karp-Flatt serial fraction and
 the decomposition of a step into its phases. Its figures are benchmarks, not asserted here."""
 import math
+import os
 
 import pytest
 
@@ -92,10 +93,19 @@ def test_work_runs_the_ranges_on_one_thread(tmp_path):
             assert r["speedup_bound"] == pytest.approx(4 / r["inflation"])
     assert rep["cases"]["skin 0"]["cut"]["inflation"] > 1
     assert "ranges [ms]" in res.stdout and "speedup at most" in res.stdout
+    # unpinned, the binding is recorded all the same: 4 threads, each free to run on every usable CPU
+    aff = rep["affinity"]
+    assert rep["pinned"] is False and aff["pinned"] is False and aff["held"] is True
+    usable = sorted(os.sched_getaffinity(0))
+    assert [t["cpus"] for t in aff["ranks"][0]["threads"]] == [usable] * 4
 
 
 def test_work_is_for_phases():
     one_line_error(bench("perf", "--what", "comm", "--work"), "--work is for --what phases")
+
+
+def test_pin_is_for_phases():
+    one_line_error(bench("perf", "--what", "spheres", "--pin"), "--pin is for --what phases")
 
 
 def test_ceiling_row_by_hand():
@@ -115,16 +125,29 @@ def test_ceiling_row_by_hand():
     assert all(math.isnan(v) for v in ceiling_row(1e-3, 0.5e-3, None, [1e-3] * 2, [0.5e-3] * 2, None, 2).values())
 
 
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="--pin needs a CPU for each of the 2 threads")
 def test_ceiling_steps_copies_beside_the_threads(tmp_path):
-    """`--ceiling` end to end at 2 threads on 300 packed ellipsoids: 2 serial copies of 150 step in
-    each round; every phase of the rebuild cases has a ceiling whose figures are those of its own
-    medians (C = t1 / tC, of_ceiling = tC / tT), and the resolution, which every copy runs at every
-    step, has a positive ceiling speedup in every case."""
+    """`--ceiling --pin` end to end at 2 threads on 300 packed ellipsoids: 2 serial copies of 150
+    step in each round; every phase of the rebuild cases has a ceiling whose figures are those of
+    its own medians (C = t1 / tC, of_ceiling = tC / tT), and the resolution, which every copy runs
+    at every step, has a positive ceiling speedup in every case. Pinned (issue 32: pinning that
+    holds, and proves it): perf.json records each thread bound to one CPU of its own, distinct ({0}
+    and {1} on 2 CPUs), the same after the last case, and copy c on thread c's CPU."""
     import json
-    res = bench("perf", "--what", "phases", "--threads", "2", "--ceiling", "--particles", "300", "--steps", "2",
-                "--repeats", "2", "--out", str(tmp_path), timeout=600)
+    res = bench("perf", "--what", "phases", "--threads", "2", "--ceiling", "--pin", "--particles", "300", "--steps",
+                "2", "--repeats", "2", "--out", str(tmp_path), timeout=600)
     assert res.returncode == 0, res.stderr
     rep = json.loads((tmp_path / "perf.json").read_text())
+    aff = rep["affinity"]
+    assert rep["pinned"] is True and aff["pinned"] is True and aff["held"] is True
+    sets = [t["cpus"] for t in aff["ranks"][0]["threads"]]
+    assert all(len(c) == 1 for c in sets) and len({c[0] for c in sets}) == 2
+    assert {c[0] for c in sets} <= os.sched_getaffinity(0)
+    if os.sched_getaffinity(0) == {0, 1}:
+        assert sets == [[0], [1]]
+    assert [t["cpus"] for t in aff["after"][0]["threads"]] == sets
+    assert rep["ceiling_cpus"] == [f"{{{c[0]}}}" for c in sets]
+    assert f"# threads pinned to CPUs {{{sets[0][0]}}} {{{sets[1][0]}}}" in res.stdout
     assert rep["ceiling"] is True and rep["ceiling_particles"] == 150
     for name, rows in rep["cases"].items():
         assert rows["resolve"]["ceiling_speedup"] > 0, name
