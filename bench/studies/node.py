@@ -21,8 +21,9 @@ is started on, what decides how a step should be split there:
 (each part within its own time limit, by default 160 + 160 + 50 + 75 s; the first three took 3-5
 minutes on a lent 16-core machine), then writes DIR/verdict.md: each comparison the issue sets a
 target for, as a ratio measured within one sweep, beside the target and the repeats' spread of the
-two times (a ratio closer to 1 than the larger spread is called a tie), and the forward exchange's
-ranking with its 95 % interval over the jobs. Every part has its own time limit, so that a part that
+two times (a ratio closer to 1 than the larger spread is called a tie), the CPUs Table 1's
+threads ran on (schemes.csv's record of the binding), and the forward exchange's ranking with
+its 95 % interval over the jobs. Every part has its own time limit, so that a part that
 runs long leaves the others their time (past it the part gets SIGTERM, on which it stops its own
 runs and MPI jobs, and SIGKILL PART_GRACE_S later); what did not finish is named in the verdict.
 The figures are each sweep's own (efficiency.png, modules.png, ...) and DIR/schemes/schemes.png.
@@ -165,6 +166,11 @@ def verdict(cores, unpinned, pinned, ceiling, schemes, steps=None, missing=(), f
         held = pinned[pinned["status"] == "done"]["binding"].tolist()
         lines.append(f"- binding of the pinned points: {', '.join(map(str, held)) or 'none done'}")
     if schemes is not None and len(schemes):
+        if "thread_cpus" in schemes:   # the binding Table 1 recorded (bench.studies.schemes)
+            r = schemes.iloc[0]
+            how = "pinned to" if int(r["pinned"]) else "unpinned, on"
+            lines.append(f"- Table 1's threads {how} CPUs {r['thread_cpus']}"
+                         f"{'' if int(r['binding_held']) else ' (the binding did not hold through the rounds)'}")
         dyn = schemes[(schemes["method"] == "dynamic") & (schemes["neighbor"] == "allpairs")]
         if len(dyn):
             r = dyn.iloc[0]

@@ -65,7 +65,14 @@ def test_verdict_reads_the_targets():
         {"method": "frogleap", "neighbor": "linkcell", "threads": 16, "speedup": 9.0, "efficiency_own": 0.71,
          "efficiency_own_lo": math.nan, "efficiency_own_hi": math.nan},
     ])
+    # the binding Table 1 recorded, the same on every row (bench.studies.schemes)
+    schemes["pinned"], schemes["thread_cpus"], schemes["binding_held"] = 0, " ".join(["{0-15}"] * 16), 1
     text = "\n".join(verdict(16, unpinned, pinned, ceiling, schemes, steps={"1-1-1-1-4": 1.2}))
+    assert f"- Table 1's threads unpinned, on CPUs {' '.join(['{0-15}'] * 16)}\n" in text + "\n"
+    held = schemes.assign(pinned=1, thread_cpus=" ".join(f"{{{c}}}" for c in range(16)), binding_held=0)
+    said = "\n".join(verdict(16, unpinned, pinned, ceiling, held))
+    assert ("- Table 1's threads pinned to CPUs {0} {1} {2} {3} {4} {5} {6} {7} {8} {9} {10} {11} {12} {13} {14} "
+            "{15} (the binding did not hold through the rounds)") in said
     assert "- 1-1-1-1-4 / 4-2-2-1-1, step time: 1.367 (target <= 1.1: NOT met; repeats' spread up to 5 %)" in text
     assert "- 1-1-1-1-16 / 16-4-2-2-1, step time: 1.044 (target <= 1.1: met; repeats' spread up to 3 %)" in text
     assert "- 1-1-1-1-4, slowest thread over the mean: 1.200 (target <= 1.05: NOT met)" in text
