@@ -5,6 +5,7 @@ Each copy is a spawned process with its own SerialMode on its own copy of the sc
 memory, no message. Copies start together at a barrier after their warm-up and, in step, meet at
 a spinning barrier after every step, as ranks meet at the step's allreduce."""
 import multiprocessing
+import os
 import queue
 import signal
 import threading
@@ -42,7 +43,6 @@ def _held_copy(setup, args, conn, counts, me, cpu=None):
     as_copy()
     try:
         if cpu is not None:
-            import os
             os.sched_setaffinity(0, {cpu})
         work, info = setup(*args, lambda k: meet(counts, me, k))
         conn.send(("ready", info))
@@ -132,11 +132,12 @@ class HeldCopies:
                 proc.join()
 
 
-def _copy(scene, particles, shape, steps, warmup, barrier, in_step, results, counts, me, options=None):
+def _copy(scene, particles, shape, steps, warmup, barrier, in_step, results, counts, me, options=None, cpu=None):
     """One worker (copy me): step a serial copy of the scene; put its step times [s] on results
     (or a line saying why it could not). It dies with its parent and leaves SIGINT to it (the
     parent stops the copies); a copy that fails frees the others from waiting for it. options: the
-    serial mode's set-up options (skin, contact_method, neighbor: those of the runs it stands beside)."""
+    serial mode's set-up options (skin, contact_method, neighbor: those of the runs it stands beside);
+    cpu: the one CPU it runs on (bound before it allocates), or None."""
     as_copy()
     from bench.run.prepare import load_prepared
     from dem.timestep import choose_time_step
@@ -144,6 +145,8 @@ def _copy(scene, particles, shape, steps, warmup, barrier, in_step, results, cou
     times = []
     clock = time.perf_counter
     try:
+        if cpu is not None:
+            os.sched_setaffinity(0, {cpu})
         sc = load_prepared(scene, particles=particles, shape=shape)
         mode = SerialMode().setup(sc, dt=choose_time_step(sc).dt, **(options or {}))
         mode.warmup()
@@ -168,17 +171,20 @@ def _copy(scene, particles, shape, steps, warmup, barrier, in_step, results, cou
     results.put(("ok", times))
 
 
-def run_copies(scene, particles, copies, steps, warmup=5, in_step=False, shape=None, timeout=1800, options=None):
+def run_copies(scene, particles, copies, steps, warmup=5, in_step=False, shape=None, timeout=1800, options=None,
+               cpus=None):
     """Step `copies` independent serial copies of the scene (each `particles` particles) at once;
     returns each copy's step times [s] (a list per copy). They start together (a barrier after
     their warm-up); in_step: they also meet at a barrier after every step. options: the serial
-    mode's set-up options (None: its defaults)."""
+    mode's set-up options (None: its defaults); cpus [>= copies]: copy c on CPU cpus[c] alone
+    (None: where the OS puts it)."""
     ctx = multiprocessing.get_context("spawn")
     barrier = ctx.Barrier(copies, timeout=timeout)
     results = ctx.Queue()
     counts = ctx.RawArray("q", copies)
     procs = [ctx.Process(target=_copy, args=(scene, particles, shape, steps, warmup, barrier, in_step, results,
-                                             counts, me, options)) for me in range(copies)]
+                                             counts, me, options, None if cpus is None else cpus[me]))
+             for me in range(copies)]
     for p in procs:
         p.start()
     try:
@@ -208,9 +214,10 @@ def _mean(xs):
 CONFIGURATIONS = ("serial", "alone", "together", "in_step")
 
 
-def sample(scene, particles, copies, steps, warmup=5, shape=None, configs=CONFIGURATIONS, options=None):
+def sample(scene, particles, copies, steps, warmup=5, shape=None, configs=CONFIGURATIONS, options=None, cpus=None):
     """One round of the configurations (in the order given): {configuration: mean step [s]}, every
-    copy set up with the serial mode's options (None: its defaults)."""
+    copy set up with the serial mode's options (None: its defaults); cpus [copies]: copy c on CPU
+    cpus[c] (a lone copy on cpus[0]), or None."""
     share = max(1, particles // copies)
     plan = {"serial": (particles, 1, False), "alone": (share, 1, False), "together": (share, copies, False),
             "in_step": (share, copies, True)}
@@ -218,7 +225,7 @@ def sample(scene, particles, copies, steps, warmup=5, shape=None, configs=CONFIG
     for c in configs:
         n, k, in_step = plan[c]
         out[c] = _mean([_mean(t) for t in run_copies(scene, n, k, steps, warmup, in_step=in_step, shape=shape,
-                                                              options=options)])
+                                                              options=options, cpus=cpus)])
     return out
 
 

@@ -7,7 +7,11 @@ sweep's repeats, so that a load that comes and goes falls on the points and on t
 DIR/ceiling.csv holds the medians over the rounds, a row per W (the last sweep into DIR that measured
 them; runs.csv, by contrast, keeps the points of every sweep):
 
-    cores, share, rounds, alone_ms, together_ms, in_step_ms, ceiling_free, ceiling_step
+    cores, share, rounds, alone_ms, together_ms, in_step_ms, ceiling_free, ceiling_step, pinned
+
+In a pinned sweep (`--pin`) the W copies are pinned too, as W one-thread ranks would be
+(bench.run.binding plan_binding over the usable CPUs: copy c on the plan's CPU of rank c, a lone
+copy on rank 0's), so that the ceiling stands beside points bound as they are; pinned = 1 there.
 
 ceiling_free = alone / together and ceiling_step = alone / in step are the efficiency W workers
 could reach with their work divided exactly and their communication at no cost (the definitions:
@@ -21,7 +25,7 @@ import statistics
 from bench.run.copies import ceilings, sample
 
 CEILING_COLUMNS = ("cores", "share", "rounds", "alone_ms", "together_ms", "in_step_ms", "ceiling_free",
-                   "ceiling_step")
+                   "ceiling_step", "pinned")
 CONFIGS = ("alone", "together", "in_step")
 
 
@@ -34,11 +38,12 @@ class Ceiling:
     shape, steps (None: the scene's own) and warmup of each copy, cores: the core counts of the
     sweep's points, usable: the CPUs this process may use; options: the serial mode's set-up options
     of the sweep (skin, contact_method, neighbor), so that the copies step what the points step (a
-    skin-0 sweep's copies build a list every step too)."""
+    skin-0 sweep's copies build a list every step too); pin: the copies bound as one-thread ranks
+    of a pinned run (module docstring)."""
 
-    def __init__(self, scene, particles, shape, steps, warmup, cores, usable, options=None):
+    def __init__(self, scene, particles, shape, steps, warmup, cores, usable, options=None, pin=False):
         from dem.scene import SceneError, load_scene
-        self.scene, self.shape, self.warmup = scene, shape, warmup
+        self.scene, self.shape, self.warmup, self.pin = scene, shape, warmup, bool(pin)
         self.options = {k: v for k, v in (options or {}).items() if v is not None}
         counts = sorted({int(w) for w in cores if int(w) > 1})
         self.cores = [w for w in counts if w <= usable]
@@ -56,11 +61,19 @@ class Ceiling:
     def share(self, w):
         return max(1, self.particles // w)
 
+    def cpus(self, w):
+        """The CPUs of w copies when pinned: those --pin gives w one-thread ranks (plan_binding over
+        the CPUs this process may use), copy c on rank c's; None when not pinned."""
+        if not self.pin:
+            return None
+        from bench.run.binding import plan_binding, read_topology
+        return [row[0] for row in plan_binding(read_topology(os.sched_getaffinity(0)), w, 1)]
+
     def round(self):
         """One round of the control at every core count."""
         for w in self.cores:
             for c, t in sample(self.scene, self.particles, w, self.steps, self.warmup, shape=self.shape,
-                               configs=CONFIGS, options=self.options).items():
+                               configs=CONFIGS, options=self.options, cpus=self.cpus(w)).items():
                 self.samples[w][c].append(t)
 
     def rows(self):
@@ -71,7 +84,7 @@ class Ceiling:
                 continue
             med = {c: statistics.median(v) for c, v in s.items()}
             out.append({"cores": w, "share": self.share(w), "rounds": len(s["alone"]),
-                        **{f"{c}_ms": 1e3 * med[c] for c in CONFIGS}, **ceilings(med)})
+                        **{f"{c}_ms": 1e3 * med[c] for c in CONFIGS}, **ceilings(med), "pinned": int(self.pin)})
         return out
 
     def write(self, directory):
@@ -88,11 +101,12 @@ class Ceiling:
 
 
 def read_ceiling(directory):
-    """DIR/ceiling.csv as a list of dicts of floats ([] where there is none or it cannot be read)."""
+    """DIR/ceiling.csv as a list of dicts of floats ([] where there is none or it cannot be read);
+    a file written before the copies could be pinned has no `pinned`: 0."""
     path = os.path.join(directory, "ceiling.csv")
     try:
         with open(path, newline="") as fh:
             rows = list(csv.DictReader(fh))
-        return [{k: float(r[k]) for k in CEILING_COLUMNS} for r in rows]
+        return [{k: float(r[k] if k != "pinned" else r.get(k) or 0) for k in CEILING_COLUMNS} for r in rows]
     except (OSError, KeyError, ValueError, TypeError):
         return []

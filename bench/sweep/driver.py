@@ -78,7 +78,8 @@ def _ceiling(args, launcher, points):
     cores = [parse_mapping(p.mapping).procs * parse_mapping(p.mapping).threads for p in points]
     try:
         options = {k: getattr(args, k, None) for k in ("skin", "contact_method", "neighbor")}
-        ceiling = Ceiling(args.scene, args.particles, args.shape, args.steps, args.warmup, cores, usable, options)
+        ceiling = Ceiling(args.scene, args.particles, args.shape, args.steps, args.warmup, cores, usable, options,
+                          pin=bool(getattr(args, "pin", False)))
     except CeilingError as e:
         raise ModeError(str(e)) from None
     if ceiling.left_out:
@@ -266,7 +267,8 @@ def local_sweep(args, launcher, points, out, lock_fd, ceiling=None):
                     ceiling = None
                     continue
                 for c in ceiling.write(out):
-                    print(f"ceiling at {c['cores']} cores ({c['rounds']} round(s)): efficiency {c['ceiling_free']:.3f} "
+                    print(f"ceiling at {c['cores']} cores ({c['rounds']} round(s)"
+                          f"{', copies pinned' if c['pinned'] else ''}): efficiency {c['ceiling_free']:.3f} "
                           f"sharing nothing, {c['ceiling_step']:.3f} meeting every step", flush=True)
     except (KeyboardInterrupt, Interrupted) as e:
         stopped = e

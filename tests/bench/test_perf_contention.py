@@ -1,6 +1,7 @@
 """`bench perf --what contention`: the efficiency ceiling of workers that share nothing. Its
 figures are ratios of the measured step times by their definitions (bench/studies/
 perf_contention.py), and its step barrier holds every copy until all have finished the step."""
+import os
 import threading
 import time
 
@@ -86,6 +87,29 @@ def test_sweep_ceiling_rounds_and_csv(tmp_path):
     assert r["ceiling_free"] == pytest.approx(r["alone_ms"] / r["together_ms"])
     assert r["ceiling_step"] == pytest.approx(r["alone_ms"] / r["in_step_ms"])
     assert read_ceiling(str(tmp_path)) == [pytest.approx({k: float(v) for k, v in r.items()})]
+    assert r["pinned"] == 0 and c.cpus(2) is None
+
+
+@pytest.mark.skipif(os.sched_getaffinity(0) != {0, 1}, reason="the expected CPUs are those of 2 CPUs")
+def test_pinned_sweep_ceiling_pins_its_copies(tmp_path):
+    """In a pinned sweep the ceiling's copies are bound as --pin binds W one-thread ranks
+    (bench.run.binding plan_binding: on 2 CPUs copy 0 on {0} and copy 1 on {1}, as 2-2-1-1-1 --pin
+    gives its ranks); its round runs on them and ceiling.csv says pinned = 1. A ceiling.csv written
+    before the column existed reads as pinned 0."""
+    from bench.run.copies import run_copies
+    from bench.sweep.ceiling import CEILING_COLUMNS, Ceiling, read_ceiling
+    c = Ceiling("gas", 200, None, 6, 1, [2], usable=2, pin=True)
+    assert c.cpus(2) == [0, 1] and c.cpus(1) == [0]
+    c.round()
+    (r,) = c.write(str(tmp_path))
+    assert r["pinned"] == 1 and read_ceiling(str(tmp_path))[0]["pinned"] == 1.0
+    with pytest.raises(RuntimeError, match="Invalid argument"):   # a CPU that is not there: the copy says so
+        run_copies("gas", 100, 1, 2, warmup=1, cpus=[4096])
+    old = tmp_path / "old"
+    old.mkdir()
+    cols = [k for k in CEILING_COLUMNS if k != "pinned"]
+    (old / "ceiling.csv").write_text(",".join(cols) + "\n" + ",".join(str(r[k]) for k in cols) + "\n")
+    assert read_ceiling(str(old))[0]["pinned"] == 0.0
 
 
 def test_sweep_ceiling_bad_requests(tmp_path):

@@ -512,7 +512,7 @@ def test_efficiency_figure_draws_the_machine_ceiling(tmp_path):
         assert not any("ceiling" in l.get_label() for l in fig.axes[0].lines)
     finally:
         sweep_plots.plt.close(fig)
-    pd.DataFrame([[2, 100, 3, 10.0, 10.5, 11.0, 10.0 / 10.5, 10.0 / 11.0]], columns=CEILING_COLUMNS).to_csv(
+    pd.DataFrame([[2, 100, 3, 10.0, 10.5, 11.0, 10.0 / 10.5, 10.0 / 11.0, 0]], columns=CEILING_COLUMNS).to_csv(
         os.path.join(d, "ceiling.csv"), index=False)
     fig = metric_figure(d, "efficiency")
     try:
@@ -581,7 +581,7 @@ def with_fit_and_ceiling(d, cores=(2, 4, 8, 16)):
     with open(os.path.join(d, "summary.json"), "w") as fh:
         json.dump({"serial_fraction": 0.04}, fh)
     pd.DataFrame([[c, 100, 3, 10.0, 10.0 * (1 + 0.03 * c), 10.0 * (1 + 0.06 * c), 1 / (1 + 0.03 * c),
-                   1 / (1 + 0.06 * c)] for c in cores], columns=CEILING_COLUMNS).to_csv(
+                   1 / (1 + 0.06 * c), 0] for c in cores], columns=CEILING_COLUMNS).to_csv(
         os.path.join(d, "ceiling.csv"), index=False)
     return d
 
