@@ -356,6 +356,13 @@ def establish(threads, pin, comm=None):
     return {"pinned": bool(pin), "held": True, "threads": threads, "launcher_cpus": given, "ranks": records}
 
 
+def thread_cpu_sets(affinity):
+    """Each numba thread's CPU set [T] (sorted lists, thread order) at the start, from establish's
+    record of one process (the studies that time threads in one process: bench schemes, bench perf
+    --what phases)."""
+    return [t["cpus"] for t in affinity["ranks"][0]["threads"]]
+
+
 def recheck(affinity, threads, pin, comm=None):
     """After the timed steps: the records again (affinity['after']) and whether the binding still
     held (affinity['held']). Collective under MPI; returns the updated dict on rank 0."""

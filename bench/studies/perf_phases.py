@@ -70,7 +70,7 @@ import os
 import numba
 import numpy as np
 
-from bench.run.binding import establish, format_cpus, recheck
+from bench.run.binding import establish, format_cpus, recheck, thread_cpu_sets
 from bench.run.copies import HeldCopies, build_once
 from bench.run.prepare import load_prepared
 from bench.sweep.intervals import format_interval, ratio_interval, verdict
@@ -175,7 +175,7 @@ def measure(particles, threads, steps, repeats, scheme=DEFAULT_SCHEME, log=print
     dt = choose_time_step(scene).dt
     # bound (pin) and recorded before the modes allocate (first touch) and before any timing
     affinity = establish(threads, pin)
-    cpus = [t["cpus"] for t in affinity["ranks"][0]["threads"]]
+    cpus = thread_cpu_sets(affinity)
     log(f"# threads {'pinned to' if pin else 'unpinned, on'} CPUs {' '.join(format_cpus(c) for c in cpus)}")
     report = {"what": "phases", "particles": scene.n, "threads": threads, "scheme": scheme, "steps": steps,
               "repeats": repeats, "work": work, "ceiling": ceiling, "pinned": bool(pin), "cases": {}}

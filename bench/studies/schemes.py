@@ -84,7 +84,7 @@ import sys
 import time
 
 import numpy as np
-from bench.run.binding import establish, format_cpus, recheck
+from bench.run.binding import establish, format_cpus, recheck, thread_cpu_sets
 from bench.run.copies import HeldCopies, build_once
 from bench.run.figure import plt
 from bench.run.prepare import load_prepared
@@ -336,19 +336,13 @@ def ceiling_columns(row, own, mine, ceiling_rounds):
     return out
 
 
-def thread_cpus(affinity):
-    """Each numba thread's CPU set [T] (lists) at the start, from bench.run.binding.establish's record
-    of this one process."""
-    return [t["cpus"] for t in affinity["ranks"][0]["threads"]]
-
-
 def binding_columns(affinity):
     """The binding's columns of every row: pinned (1: --pin bound each thread to a CPU of its own,
     0: where the OS put them), thread_cpus (each thread's CPU set at the start, in thread order:
     the proof), binding_held (1: the same sets after the rounds, each pinned thread having run on
     its CPU: bench.run.binding.recheck)."""
-    return {"pinned": int(affinity["pinned"]), "thread_cpus": " ".join(format_cpus(c) for c in thread_cpus(affinity)),
-            "binding_held": int(affinity["held"])}
+    cpus = " ".join(format_cpus(c) for c in thread_cpu_sets(affinity))
+    return {"pinned": int(affinity["pinned"]), "thread_cpus": cpus, "binding_held": int(affinity["held"])}
 
 
 def _round_times(samples):
@@ -503,7 +497,7 @@ def schemes(args):
     pin = getattr(args, "pin", False)
     # bound (--pin) and recorded before the modes allocate (first touch) and before any timing
     affinity = establish(args.threads, pin)
-    cpus = thread_cpus(affinity)
+    cpus = thread_cpu_sets(affinity)
     log(f"threads {'pinned to' if pin else 'on'} CPUs {' '.join(format_cpus(c) for c in cpus)}")
     rows = measure(scene, dt, args.threads, args.repeats, args.shape, log=log, ceiling=ceiling,
                    cpus=[c[0] for c in cpus] if pin else None)
